@@ -1,0 +1,141 @@
+"""Typed configuration: frozen dataclasses loaded from TOML with strict validation.
+
+Every config in ``configs/`` (robot descriptions now, run and scenario configs later) is
+read through :func:`from_mapping`, which
+
+- rejects unknown keys, naming the key, where it is, and the keys that are allowed;
+- rejects missing required keys;
+- checks each value's type (``bool`` is not accepted as a number, ``int`` is accepted
+  where a ``float`` is expected), recursing into nested dataclasses and tuples of them.
+
+Errors are :class:`ConfigError` and always name the dotted path of the field and the
+offending value, e.g. ``geometry.wheel_radius = 'big': expected a number``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import types
+import typing
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Literal, TypeVar, get_args, get_origin
+
+T = TypeVar("T")
+
+
+class ConfigError(ValueError):
+    """A configuration file or mapping is invalid. The message names field and value."""
+
+
+def _join(where: str, key: str) -> str:
+    return f"{where}.{key}" if where else key
+
+
+def _convert(value: Any, tp: Any, where: str) -> Any:
+    origin = get_origin(tp)
+    if tp is Any:
+        return value
+    if origin in (typing.Union, types.UnionType):
+        options = get_args(tp)
+        if value is None and type(None) in options:
+            return None
+        errors = []
+        for option in options:
+            if option is type(None):
+                continue
+            try:
+                return _convert(value, option, where)
+            except ConfigError as err:
+                errors.append(str(err))
+        raise ConfigError(
+            errors[0] if len(errors) == 1 else f"{where} = {value!r}: " + "; ".join(errors)
+        )
+    if origin is Literal:
+        allowed = get_args(tp)
+        if value not in allowed:
+            raise ConfigError(f"{where} = {value!r}: expected one of {list(allowed)}")
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where} = {value!r}: expected true or false")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where} = {value!r}: expected an integer")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{where} = {value!r}: expected a number")
+        if not math.isfinite(value):
+            raise ConfigError(f"{where} = {value!r}: expected a finite number")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where} = {value!r}: expected a string")
+        return value
+    if origin is tuple:
+        args = get_args(tp)
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{where} = {value!r}: expected a list")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(v, args[0], f"{where}[{i}]") for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise ConfigError(f"{where} = {value!r}: expected a list of {len(args)} items")
+        return tuple(
+            _convert(v, a, f"{where}[{i}]")
+            for i, (v, a) in enumerate(zip(value, args, strict=True))
+        )
+    if dataclasses.is_dataclass(tp) and isinstance(tp, type):
+        return from_mapping(tp, value, where)
+    raise TypeError(f"{where}: unsupported config field type {tp!r}")  # a bug in the schema
+
+
+def from_mapping(cls: type[T], data: Any, where: str = "") -> T:
+    """Build the frozen dataclass ``cls`` from a mapping, validating every key.
+
+    Args:
+      cls: a dataclass type whose fields are annotated with supported types (``bool``,
+        ``int``, ``float``, ``str``, ``Literal``, ``X | None``, ``tuple[X, ...]``, nested
+        dataclasses).
+      data: the mapping, e.g. one table of a parsed TOML file.
+      where: the dotted path of ``data`` in its file, used in error messages.
+    """
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{where or 'config'} = {data!r}: expected a table of keys")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        key = unknown[0]
+        raise ConfigError(
+            f"{_join(where, key)} = {data[key]!r}: unknown key; "
+            f"expected keys of {where or cls.__name__}: {sorted(fields)}"
+        )
+    kwargs = {}
+    for name, field in fields.items():
+        path = _join(where, name)
+        if name not in data:
+            no_default = (
+                field.default is dataclasses.MISSING
+                and field.default_factory is dataclasses.MISSING
+            )
+            if no_default:
+                raise ConfigError(f"{path}: missing required key")
+            continue
+        kwargs[name] = _convert(data[name], hints[name], path)
+    return cls(**kwargs)
+
+
+def load_toml(path: str | Path) -> dict[str, Any]:
+    """Read a TOML file, turning I/O and syntax errors into :class:`ConfigError`."""
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            return tomllib.load(f)
+    except FileNotFoundError:
+        raise ConfigError(f"config file {str(path)!r}: no such file") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"config file {str(path)!r}: invalid TOML: {err}") from None

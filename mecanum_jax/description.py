@@ -1,0 +1,219 @@
+"""Robot descriptions: TOML files in ``configs/robots/`` → geometry and motor data.
+
+One description drives both the analytic model and (later) the physics. A file has the
+tables ``[robot]``, ``[geometry]`` and ``[motors]``; see ``configs/robots/*.toml`` for
+commented examples. Unknown or missing keys, and keys that the chosen layout does not
+use, are rejected with an error naming the key and the value.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Literal
+
+import jax
+import jax.numpy as jnp
+
+from mecanum_jax import geometry as geo
+from mecanum_jax import motors
+from mecanum_jax.config import ConfigError, from_mapping, load_toml
+
+Layout = Literal["O-square", "O-rectangle", "X-square", "X-rectangle", "centripetal", "custom"]
+
+_LAYOUT_KEYS: dict[str, tuple[str, ...]] = {
+    "O-square": ("wheel_radius", "half_size"),
+    "X-square": ("wheel_radius", "half_size"),
+    "O-rectangle": ("wheel_radius", "half_wheelbase", "half_track"),
+    "X-rectangle": ("wheel_radius", "half_wheelbase", "half_track"),
+    "centripetal": ("wheel_radius", "centre_distance"),
+    "custom": ("wheels",),
+}
+_OPTIONAL_KEYS: dict[str, tuple[str, ...]] = {
+    "centripetal": ("n_wheels", "first_wheel_angle_deg", "roller_angle_deg"),
+    "custom": (),
+}
+_ALL_GEOMETRY_KEYS = (
+    "wheel_radius", "half_size", "half_wheelbase", "half_track", "centre_distance", "n_wheels",
+    "first_wheel_angle_deg", "roller_angle_deg", "wheels",
+)  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class WheelSpec:
+    """One wheel of a ``custom`` layout (meanings as in :mod:`mecanum_jax.geometry`)."""
+
+    name: str
+    x: float
+    y: float
+    radius: float
+    roller_angle_deg: float
+    drive_angle_deg: float = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class GeometrySpec:
+    """The ``[geometry]`` table. Which keys are required depends on ``layout``."""
+
+    layout: Layout
+    wheel_radius: float | None = None
+    half_size: float | None = None
+    half_wheelbase: float | None = None
+    half_track: float | None = None
+    centre_distance: float | None = None
+    n_wheels: int | None = None
+    first_wheel_angle_deg: float | None = None
+    roller_angle_deg: float | None = None
+    wheels: tuple[WheelSpec, ...] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class MotorSpec:
+    """The ``[motors]`` table.
+
+    Attributes:
+      max_motor_rpm: motor shaft speed limit, rpm.
+      gear_ratio: motor turns per wheel turn.
+      signs: ±1 per wheel in wheel order; default: right-side wheels mirrored (−1).
+    """
+
+    max_motor_rpm: float
+    gear_ratio: float = 1.0
+    signs: tuple[int, ...] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotSpec:
+    """The ``[robot]`` table."""
+
+    name: str
+    description: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotDescription:
+    """A validated robot description file."""
+
+    robot: RobotSpec
+    geometry: GeometrySpec
+    motors: MotorSpec
+
+    def build_geometry(self, dtype: object = None, warn_singular: bool = True) -> geo.WheelGeometry:
+        """The :class:`~mecanum_jax.geometry.WheelGeometry` this description defines."""
+        return build_geometry(self.geometry, dtype=dtype, warn_singular=warn_singular)
+
+    def motor_signs(self, names: tuple[str, ...]) -> tuple[int, ...]:
+        return self.motors.signs if self.motors.signs is not None else motors.mirrored_signs(names)
+
+    def max_wheel_rates(self, geometry: geo.WheelGeometry) -> jax.Array:
+        """Per-wheel rate limits (n,) rad/s from the motor rpm limit and the gear ratio."""
+        limit = motors.max_wheel_rate(self.motors.max_motor_rpm, self.motors.gear_ratio)
+        return jnp.full((geometry.n_wheels,), limit, geometry.dtype)
+
+
+def _check_geometry_keys(spec: GeometrySpec) -> None:
+    required = _LAYOUT_KEYS[spec.layout]
+    allowed = set(required) | set(_OPTIONAL_KEYS.get(spec.layout, ("roller_angle_deg",)))
+    for key in _ALL_GEOMETRY_KEYS:
+        value = getattr(spec, key)
+        if key in required and value is None:
+            raise ConfigError(f"geometry.{key}: missing required key for layout {spec.layout!r}")
+        if key not in allowed and value is not None:
+            raise ConfigError(
+                f"geometry.{key} = {value!r}: not used by layout {spec.layout!r}; "
+                f"its keys are {sorted(allowed)}"
+            )
+
+
+def build_geometry(
+    spec: GeometrySpec, dtype: object = None, warn_singular: bool = True
+) -> geo.WheelGeometry:
+    """Build and validate the geometry of a ``[geometry]`` table."""
+    _check_geometry_keys(spec)
+    roller = (
+        math.radians(spec.roller_angle_deg)
+        if spec.roller_angle_deg is not None
+        else geo.DEFAULT_ROLLER_ANGLE
+    )
+    try:
+        if spec.layout in ("O-square", "X-square", "O-rectangle", "X-rectangle"):
+            assert spec.wheel_radius is not None
+            square = spec.layout.endswith("square")
+            rx = spec.half_size if square else spec.half_wheelbase
+            ry = spec.half_size if square else spec.half_track
+            assert rx is not None
+            assert ry is not None
+            shape: Literal["O", "X"] = "O" if spec.layout.startswith("O") else "X"
+            return geo.four_wheel(
+                shape, spec.wheel_radius, rx, ry, roller, dtype=dtype, warn_singular=warn_singular
+            )
+        if spec.layout == "centripetal":
+            assert spec.wheel_radius is not None
+            assert spec.centre_distance is not None
+            return geo.centripetal(
+                spec.wheel_radius,
+                spec.centre_distance,
+                spec.n_wheels if spec.n_wheels is not None else 3,
+                roller,
+                math.radians(spec.first_wheel_angle_deg or 0.0),
+                dtype=dtype,
+                warn_singular=warn_singular,
+            )
+        assert spec.wheels is not None
+        wheels = spec.wheels
+        return geo.make_geometry(
+            [[w.x, w.y] for w in wheels],
+            [math.radians(w.drive_angle_deg) for w in wheels],
+            [math.radians(w.roller_angle_deg) for w in wheels],
+            [w.radius for w in wheels],
+            [w.name for w in wheels],
+            dtype=dtype,
+            warn_singular=warn_singular,
+        )
+    except geo.GeometryError as err:
+        raise ConfigError(f"geometry ({spec.layout}): {err}") from None
+
+
+def parse_description(data: dict, source: str = "robot description") -> RobotDescription:
+    """Validate a parsed description mapping (e.g. from TOML)."""
+    try:
+        desc = from_mapping(RobotDescription, data)
+    except ConfigError as err:
+        raise ConfigError(f"{source}: {err}") from None
+    try:
+        geometry = desc.build_geometry(warn_singular=False)
+    except ConfigError as err:
+        raise ConfigError(f"{source}: {err}") from None
+    m = desc.motors
+    if m.max_motor_rpm <= 0:
+        raise ConfigError(f"{source}: motors.max_motor_rpm = {m.max_motor_rpm!r}: must be > 0")
+    if m.gear_ratio <= 0:
+        raise ConfigError(f"{source}: motors.gear_ratio = {m.gear_ratio!r}: must be > 0")
+    if m.signs is not None:
+        if len(m.signs) != geometry.n_wheels:
+            raise ConfigError(
+                f"{source}: motors.signs = {list(m.signs)}: expected {geometry.n_wheels} "
+                f"signs, one per wheel {list(geometry.names)}"
+            )
+        for i, s in enumerate(m.signs):
+            if s not in (-1, 1):
+                raise ConfigError(f"{source}: motors.signs[{i}] = {s!r}: expected +1 or -1")
+    return desc
+
+
+def load_description(path: str | Path) -> RobotDescription:
+    """Load and validate a robot description TOML file."""
+    return parse_description(load_toml(path), source=str(path))
+
+
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+
+
+def builtin_description(name: str) -> RobotDescription:
+    """A description shipped in ``configs/robots/`` by file stem, e.g. ``"o_rectangle"``."""
+    path = CONFIG_DIR / "robots" / f"{name}.toml"
+    if not path.exists():
+        known = sorted(p.stem for p in (CONFIG_DIR / "robots").glob("*.toml"))
+        raise ConfigError(f"robot = {name!r}: no such built-in description; known: {known}")
+    return load_description(path)

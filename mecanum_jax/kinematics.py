@@ -1,0 +1,195 @@
+"""Inverse and forward kinematics of a roller-wheel (mecanum) robot, for any layout.
+
+The rigid-body constraint (conventions.md): wheel ``i``'s contact point moves with
+``v_i = v_c + ω_c × p_i``; only the component of ``v_i`` along the axis ``u_i`` of the
+roller touching the floor is driven by the hub, the rest is taken up by the free roller.
+The hub contributes ``r_i ω_i cos γ_i`` along ``u_i``, hence the inverse model
+
+    ω_i = ((v_c + ω_c × p_i) · u_i) / (r_i cos γ_i),   u_i = (cos(ψ_i+γ_i), sin(ψ_i+γ_i)),
+
+the general form of seed 003 eq. 10 and seed 004 eqs. 2.4–2.6. Stacked for all wheels it
+is ``ω = J t`` with the (n, 3) Jacobian :func:`jacobian`. The forward model is the
+least-squares twist ``t = (JᵀJ)⁻¹ Jᵀ ω`` (seed 004 eq. 2.14).
+
+Shapes: twists ``(..., 3)`` = (vx m/s, vy m/s, ωz rad/s); wheel rates ``(..., n)`` rad/s.
+Both maps are batched over any leading axes, and work in float32 and float64 and under
+``jit``, ``vmap`` and ``grad``. They are written elementwise (a sum of n·3 scaled
+columns) rather than as a matmul: on CPU XLA's small-matrix dot is several times slower
+than the fused elementwise loop (see ``docs/benchmarks.md``).
+
+Checked entry points (:func:`inverse`, :func:`forward`) check shapes always and, when
+called eagerly, values: non-finite inputs and singular layouts raise. Under ``jit`` the
+value checks can't raise; there NaN propagates per robot (a NaN in one twist gives NaN in
+that robot's wheel rates only, never in other robots'), a NaN in the geometry makes every
+output NaN, and :func:`forward` of a singular layout returns NaN rather than a silently
+wrong pseudo-inverse.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mecanum_jax._checks import as_float_array, check_finite, check_last_axis, is_concrete
+from mecanum_jax.geometry import GeometryError, SingularLayoutError, WheelGeometry
+
+
+def roller_axes(geometry: WheelGeometry) -> jax.Array:
+    """Unit vectors u_i of the floor rollers' axes in the body frame, (n, 2)."""
+    a = geometry.drive_angles + geometry.roller_angles
+    return jnp.stack([jnp.cos(a), jnp.sin(a)], axis=-1)
+
+
+def jacobian(geometry: WheelGeometry) -> jax.Array:
+    """The inverse-kinematics matrix J, (n, 3): ``wheel_rates = J @ twist``.
+
+    Row i is ``[u_x, u_y, x_i u_y − y_i u_x] / (r_i cos γ_i)``, in rad/m, rad/m, rad/rad.
+    """
+    u = roller_axes(geometry)
+    x, y = geometry.positions[:, 0], geometry.positions[:, 1]
+    lever = x * u[:, 1] - y * u[:, 0]
+    scale = 1.0 / (geometry.radii * jnp.cos(geometry.roller_angles))
+    return jnp.stack([u[:, 0], u[:, 1], lever], axis=-1) * scale[:, None]
+
+
+def apply_rows(matrix: jax.Array, x: jax.Array) -> jax.Array:
+    """``x @ matrix.T`` for x of shape (..., k) and matrix (m, k), written elementwise.
+
+    Each output column is a sum of k broadcast products, which XLA fuses into one loop.
+    """
+    m, k = matrix.shape
+    lead = (1,) * (x.ndim - 1)
+    out = x[..., 0:1] * matrix[:, 0].reshape((*lead, m))
+    for j in range(1, k):
+        out = out + x[..., j : j + 1] * matrix[:, j].reshape((*lead, m))
+    return out
+
+
+def _checked_geometry(geometry: WheelGeometry) -> None:
+    if is_concrete(geometry):
+        for field in ("positions", "drive_angles", "roller_angles", "radii"):
+            check_finite(getattr(geometry, field), f"geometry.{field}", GeometryError)
+
+
+def inverse(geometry: WheelGeometry, twist: jax.typing.ArrayLike) -> jax.Array:
+    """Wheel rates (..., n) rad/s that realise body twists (..., 3).
+
+    Raises:
+      InputError: if the twist's last axis is not 3, or (eagerly) if it is not finite.
+    """
+    t = as_float_array(twist, "twist")
+    check_last_axis(t, 3, "twist", "vx, vy, wz")
+    check_finite(t, "twist")
+    _checked_geometry(geometry)
+    return apply_rows(jacobian(geometry), t)
+
+
+def gram_eigenvalues(geometry: WheelGeometry) -> jax.Array:
+    """Eigenvalues of JᵀJ in ascending order (3,): squared singular values of J."""
+    J = jacobian(geometry)
+    return jnp.linalg.eigvalsh(J.T @ J)
+
+
+def _singular_tolerance(geometry: WheelGeometry) -> jax.Array:
+    eps = jnp.finfo(geometry.dtype).eps
+    return jnp.asarray(max(geometry.n_wheels, 3) * 10 * eps, geometry.dtype)
+
+
+def singular_values(geometry: WheelGeometry) -> jax.Array:
+    """Singular values of J in descending order, (3,)."""
+    return jnp.linalg.svd(jacobian(geometry), compute_uv=False)
+
+
+def jacobian_rank(geometry: WheelGeometry) -> int:
+    """Numerical rank of J (3 for an omnidirectional layout). Needs a concrete geometry."""
+    s = np.asarray(singular_values(geometry), dtype=float)
+    tol = float(_singular_tolerance(geometry)) * s[0]
+    return int(np.sum(s > tol))
+
+
+def condition_number(geometry: WheelGeometry) -> jax.Array:
+    """σ_max/σ_min of J (inf for a singular layout).
+
+    J mixes units (its spin column is in metres), so the number depends on them: it is
+    the amplification of relative errors from wheel rates to the SI twist.
+    """
+    s = singular_values(geometry)
+    return jnp.where(s[-1] > _singular_tolerance(geometry) * s[0], s[0] / s[-1], jnp.inf)
+
+
+def is_singular(geometry: WheelGeometry) -> jax.Array:
+    """Traceable test of rank < 3 (a boolean array), from the eigenvalues of JᵀJ."""
+    ev = gram_eigenvalues(geometry)
+    return ev[0] <= (_singular_tolerance(geometry) ** 2) * ev[-1] * 100
+
+
+def null_twists(geometry: WheelGeometry) -> jax.Array:
+    """Unit twists (k, 3) that no wheel drives or senses: the null space of J (k = 3 − rank)."""
+    J = np.asarray(jacobian(geometry), dtype=float)
+    _, s, vt = np.linalg.svd(J)
+    tol = float(_singular_tolerance(geometry)) * s[0]
+    return jnp.asarray(vt[int(np.sum(s > tol)) :], geometry.dtype)
+
+
+def forward_matrix(geometry: WheelGeometry) -> jax.Array:
+    """F = (JᵀJ)⁻¹Jᵀ, (3, n): ``twist = F @ wheel_rates`` (seed 004 eq. 2.14).
+
+    Traceable; for a singular layout every entry is NaN (never a silent pseudo-inverse).
+    """
+    J = jacobian(geometry)
+    F = jnp.linalg.solve(J.T @ J, J.T)
+    return jnp.where(jax.lax.stop_gradient(is_singular(geometry)), jnp.nan, F)
+
+
+def _raise_if_singular(geometry: WheelGeometry) -> None:
+    rank = jacobian_rank(geometry)
+    if rank < 3:
+        null = np.round(np.asarray(null_twists(geometry), dtype=float), 6).tolist()
+        raise SingularLayoutError(
+            f"geometry {geometry.names}: the layout is singular (Jacobian rank {rank} < 3), "
+            f"so the twist is not determined by the wheel rates; undetermined twist "
+            f"directions (vx, vy, wz): {null}"
+        )
+
+
+def forward(geometry: WheelGeometry, wheel_rates: jax.typing.ArrayLike) -> jax.Array:
+    """Least-squares body twists (..., 3) from wheel rates (..., n) rad/s.
+
+    Raises:
+      InputError: if the last axis is not n, or (eagerly) if rates are not finite.
+      SingularLayoutError: (eagerly) if the layout has rank < 3.
+    """
+    w = as_float_array(wheel_rates, "wheel_rates")
+    check_last_axis(
+        w, geometry.n_wheels, "wheel_rates", f"one rate per wheel, n = {geometry.n_wheels}"
+    )
+    check_finite(w, "wheel_rates")
+    _checked_geometry(geometry)
+    if is_concrete(geometry):
+        _raise_if_singular(geometry)
+    return apply_rows(forward_matrix(geometry), w)
+
+
+def consistency_residual(geometry: WheelGeometry, wheel_rates: jax.typing.ArrayLike) -> jax.Array:
+    """Wheel rates (..., n) that no rigid twist explains: ``ω − J F ω``.
+
+    Zero when the wheels agree on one body motion; non-zero means they fight each other,
+    so some wheels must slip (e.g. seed 004's 'left-front and right-front forward').
+    """
+    w = as_float_array(wheel_rates, "wheel_rates")
+    check_last_axis(
+        w, geometry.n_wheels, "wheel_rates", f"one rate per wheel, n = {geometry.n_wheels}"
+    )
+    J = jacobian(geometry)
+    return w - apply_rows(J, apply_rows(forward_matrix(geometry), w))
+
+
+def contact_velocities(geometry: WheelGeometry, twist: jax.typing.ArrayLike) -> jax.Array:
+    """Velocities (..., n, 2) m/s of the wheels' contact points, ``v_c + ω × p_i``."""
+    t = as_float_array(twist, "twist")
+    check_last_axis(t, 3, "twist", "vx, vy, wz")
+    p = geometry.positions
+    vx = t[..., 0:1] - t[..., 2:3] * p[:, 1].reshape((1,) * (t.ndim - 1) + (-1,))
+    vy = t[..., 1:2] + t[..., 2:3] * p[:, 0].reshape((1,) * (t.ndim - 1) + (-1,))
+    return jnp.stack([vx, vy], axis=-1)

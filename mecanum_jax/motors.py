@@ -1,0 +1,76 @@
+"""Wheel rates ↔ motor commands: rpm conversion, gear ratios and mirrored mounting.
+
+A wheel rate (rad/s) is positive when that wheel alone would push the robot forward. The
+motors on one side are usually mounted mirrored (seed 000 §2.4, seed 004's code), so
+the motor shaft turns the other way: ``motor = sign · gear_ratio · wheel``. Seed 004's
+command code applies the sign (``v3 = -(...)``, ``v4 = -(...)``) but its odometry code
+forgets it; :func:`motor_rpm_to_wheel_rates` always applies it (docs/discrepancies.md).
+
+rpm = rad/s · 60 / 2π (seed 004's note writes ``Ω·2π = rpm/60``, which is inverted).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+
+RAD_S_PER_RPM = 2 * math.pi / 60
+
+
+def rads_to_rpm(rate: jax.typing.ArrayLike) -> jax.Array:
+    """rad/s → revolutions per minute."""
+    return jnp.asarray(rate) / RAD_S_PER_RPM
+
+
+def rpm_to_rads(rpm: jax.typing.ArrayLike) -> jax.Array:
+    """revolutions per minute → rad/s."""
+    return jnp.asarray(rpm) * RAD_S_PER_RPM
+
+
+def mirrored_signs(names: Sequence[str]) -> tuple[int, ...]:
+    """Motor signs of the usual mounting: +1 for left wheels, −1 for right wheels.
+
+    Wheels are matched by name (``right_*`` is mirrored), never by position in an array.
+    """
+    return tuple(-1 if name.startswith("right") else 1 for name in names)
+
+
+def _per_wheel(value: jax.typing.ArrayLike, like: jax.Array) -> jax.Array:
+    """A scalar or (n,) per-wheel value, shaped to broadcast against ``like`` (..., n)."""
+    arr = jnp.asarray(value)
+    if arr.ndim == 0 or like.ndim <= 1:
+        return arr
+    return arr.reshape((1,) * (like.ndim - arr.ndim) + arr.shape)
+
+
+def wheel_rates_to_motor_rpm(
+    wheel_rates: jax.typing.ArrayLike,
+    signs: jax.typing.ArrayLike,
+    gear_ratio: jax.typing.ArrayLike = 1.0,
+) -> jax.Array:
+    """Motor shaft speeds (..., n) rpm for wheel rates (..., n) rad/s.
+
+    ``signs`` (n,) is ±1 per motor, ``gear_ratio`` motor turns per wheel turn (scalar or (n,)).
+    """
+    rpm = rads_to_rpm(wheel_rates)
+    return rpm * _per_wheel(signs, rpm) * _per_wheel(gear_ratio, rpm)
+
+
+def motor_rpm_to_wheel_rates(
+    motor_rpm: jax.typing.ArrayLike,
+    signs: jax.typing.ArrayLike,
+    gear_ratio: jax.typing.ArrayLike = 1.0,
+) -> jax.Array:
+    """Wheel rates (..., n) rad/s from motor encoder speeds (..., n) rpm."""
+    rates = rpm_to_rads(motor_rpm)
+    return rates * _per_wheel(signs, rates) / _per_wheel(gear_ratio, rates)
+
+
+def max_wheel_rate(
+    max_motor_rpm: jax.typing.ArrayLike, gear_ratio: jax.typing.ArrayLike = 1.0
+) -> jax.Array:
+    """The largest wheel rate (rad/s) a motor of ``max_motor_rpm`` reaches through its gears."""
+    return rpm_to_rads(max_motor_rpm) / jnp.asarray(gear_ratio)

@@ -1,0 +1,38 @@
+"""Test configuration shared by the whole suite.
+
+- Two host CPU devices, so multi-device code (pmap, the compat shim) is exercised.
+- ``jax_numpy_rank_promotion = "raise"``: accidental broadcasting is an error (as Equinox does).
+- JAX's persistent compilation cache, shared across test processes and CI runs.
+"""
+
+import os
+
+os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
+import jax
+import pytest
+from hypothesis import HealthCheck, settings
+
+jax.config.update("jax_numpy_rank_promotion", "raise")
+if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+    jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+settings.register_profile(
+    "default",
+    max_examples=40,
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
+)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
+
+import mecanum_jax  # noqa: E402,F401  (installs the compat shim)
+
+
+@pytest.fixture
+def x64():
+    """Run a test body with float64 enabled."""
+    with jax.enable_x64(True):
+        yield
