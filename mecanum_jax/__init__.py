@@ -12,7 +12,16 @@ from mecanum_jax import compat as _compat
 
 _compat.install()
 
-from mecanum_jax import geometry, kinematics, motors  # noqa: E402
+from mecanum_jax import (  # noqa: E402
+    calibration,
+    efficiency,
+    geometry,
+    kinematics,
+    limits,
+    motors,
+    odometry,
+    singularity,
+)
 from mecanum_jax._checks import InputError  # noqa: E402
 from mecanum_jax.config import ConfigError  # noqa: E402
 from mecanum_jax.description import RobotDescription, builtin_description, load_description  # noqa: E402
@@ -33,11 +42,16 @@ __all__ = [
     "SingularLayoutWarning",
     "WheelGeometry",
     "builtin_description",
+    "calibration",
+    "efficiency",
     "forward",
     "geometry",
     "inverse",
     "jacobian",
     "kinematics",
+    "limits",
     "load_description",
     "motors",
+    "odometry",
+    "singularity",
 ]

@@ -27,6 +27,8 @@ wrong pseudo-inverse.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -142,7 +144,8 @@ def forward_matrix(geometry: WheelGeometry) -> jax.Array:
     return jnp.where(jax.lax.stop_gradient(is_singular(geometry)), jnp.nan, F)
 
 
-def _raise_if_singular(geometry: WheelGeometry) -> None:
+def require_full_rank(geometry: WheelGeometry) -> None:
+    """Raise :class:`SingularLayoutError` unless the (concrete) layout has rank 3."""
     rank = jacobian_rank(geometry)
     if rank < 3:
         null = np.round(np.asarray(null_twists(geometry), dtype=float), 6).tolist()
@@ -167,7 +170,7 @@ def forward(geometry: WheelGeometry, wheel_rates: jax.typing.ArrayLike) -> jax.A
     check_finite(w, "wheel_rates")
     _checked_geometry(geometry)
     if is_concrete(geometry):
-        _raise_if_singular(geometry)
+        require_full_rank(geometry)
     return apply_rows(forward_matrix(geometry), w)
 
 
@@ -193,3 +196,38 @@ def contact_velocities(geometry: WheelGeometry, twist: jax.typing.ArrayLike) -> 
     vx = t[..., 0:1] - t[..., 2:3] * p[:, 1].reshape((1,) * (t.ndim - 1) + (-1,))
     vy = t[..., 1:2] + t[..., 2:3] * p[:, 0].reshape((1,) * (t.ndim - 1) + (-1,))
     return jnp.stack([vx, vy], axis=-1)
+
+
+class ICR(NamedTuple):
+    """The instantaneous centre of rotation of body twists (seed 000 eq. 20).
+
+    Attributes:
+      point: (..., 2) m, its position in the body frame; NaN where there is none.
+      translating: (...,) True for a pure translation (no ICR: it is at infinity).
+      stationary: (...,) True when the twist is zero (no motion, no ICR).
+    """
+
+    point: jax.Array
+    translating: jax.Array
+    stationary: jax.Array
+
+
+def icr(twist: jax.typing.ArrayLike, omega_tol: float = 1e-9) -> ICR:
+    """Instantaneous centre of rotation of twists (..., 3).
+
+    With ω ≠ 0 the ICR is ``(−vy/ω, vx/ω)``: at distance ``|v|/|ω|`` from the centre,
+    perpendicular to v, on its left when ω > 0 (seed 000 eq. 20, ``R_c = v_c/ω_c``). A
+    pure spin puts it at the centre. When ``|ω| <= omega_tol`` (rad/s) the motion is a
+    translation, reported by the flag ``translating`` and a NaN point, never as a huge
+    number.
+    """
+    t = as_float_array(twist, "twist")
+    check_last_axis(t, 3, "twist", "vx, vy, wz")
+    check_finite(t, "twist")
+    w = t[..., 2]
+    rotating = jnp.abs(w) > omega_tol
+    safe_w = jnp.where(rotating, w, jnp.ones_like(w))
+    point = jnp.stack([-t[..., 1] / safe_w, t[..., 0] / safe_w], -1)
+    point = jnp.where(rotating[..., None], point, jnp.nan)
+    moving = jnp.any(t[..., :2] != 0, axis=-1)
+    return ICR(point=point, translating=~rotating & moving, stationary=~rotating & ~moving)
