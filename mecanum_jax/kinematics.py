@@ -33,7 +33,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mecanum_jax._checks import as_float_array, check_finite, check_last_axis, is_concrete
+from mecanum_jax._checks import (
+    InputError,
+    as_float_array,
+    check_finite,
+    check_last_axis,
+    is_concrete,
+)
 from mecanum_jax.geometry import GeometryError, SingularLayoutError, WheelGeometry
 
 
@@ -85,6 +91,29 @@ def inverse(geometry: WheelGeometry, twist: jax.typing.ArrayLike) -> jax.Array:
     check_finite(t, "twist")
     _checked_geometry(geometry)
     return apply_rows(jacobian(geometry), t)
+
+
+def inverse_soa(geometry: WheelGeometry, twist_components: jax.typing.ArrayLike) -> jax.Array:
+    """:func:`inverse` for component-major data: twists (3, ...) → wheel rates (n, ...).
+
+    The same maths as :func:`inverse` with the component axis first ("structure of
+    arrays"), the layout accelerators stream fastest (``docs/benchmarks.md``).
+    """
+    t = as_float_array(twist_components, "twist_components")
+    if t.ndim == 0 or t.shape[0] != 3:
+        raise InputError(
+            f"twist_components: shape {tuple(t.shape)} is invalid; its first axis must have "
+            "size 3 (vx, vy, wz)"
+        )
+    check_finite(t, "twist_components")
+    _checked_geometry(geometry)
+    J = jacobian(geometry)
+    lead = (-1,) + (1,) * (t.ndim - 1)
+    return (
+        t[0:1] * J[:, 0].reshape(lead)
+        + t[1:2] * J[:, 1].reshape(lead)
+        + t[2:3] * J[:, 2].reshape(lead)
+    )
 
 
 def gram_eigenvalues(geometry: WheelGeometry) -> jax.Array:

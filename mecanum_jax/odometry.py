@@ -157,7 +157,7 @@ def integrate_increments(
         nxt = integrate_increment(p, d)
         return nxt, (nxt if return_path else None)
 
-    final, path = jax.lax.scan(step, pose, inc)
+    final, path = jax.lax.scan(step, pose, inc, unroll=min(inc.shape[0], 4))
     return path if path is not None else final
 
 
