@@ -320,6 +320,8 @@ def _ensure_malloc_tuning(argv: list[str] | None) -> None:
     CI machine, docs/benchmarks.md). ``GLIBC_TUNABLES=glibc.malloc.hugetlb=1`` fixes it for
     the whole process. Set ``MECANUM_NO_MALLOC_TUNING=1`` to measure without it.
     """
+    if argv is not None:  # called from Python, not as the command: never replace the process
+        return
     tunables = os.environ.get("GLIBC_TUNABLES", "")
     if (
         sys.platform != "linux"

@@ -130,3 +130,19 @@ def test_regular_layouts_do_not_warn():
         ):
             assert kinematics.jacobian_rank(geom) == 3
             assert 1.0 <= float(kinematics.condition_number(geom)) < 100
+
+
+def test_traceable_singularity_test_agrees_with_rank():
+    with pytest.warns(SingularLayoutWarning):
+        xsq = geometry.x_square(0.05, 0.15)
+    assert bool(jax.jit(kinematics.is_singular)(xsq))
+    assert not bool(jax.jit(kinematics.is_singular)(geometry.o_rectangle(0.05, 0.1, 0.125)))
+    # nearly square X-rectangle: badly conditioned (lever 1 mm) but still rank 3
+    near = geometry.x_rectangle(0.05, 0.151, 0.15)
+    assert kinematics.jacobian_rank(near) == 3
+    assert not bool(kinematics.is_singular(near))
+    np.testing.assert_allclose(
+        kinematics.forward(near, kinematics.inverse(near, jnp.array([0.1, 0.2, 0.3]))),
+        [0.1, 0.2, 0.3],
+        rtol=2e-3,
+    )
