@@ -84,6 +84,63 @@ class MotorSpec:
 
 
 @dataclasses.dataclass(frozen=True)
+class BodySpec:
+    """The ``[body]`` table: masses and shape for the physics model.
+
+    Attributes:
+      mass: chassis mass, kg (without wheels).
+      half_size: chassis box half-extents (x, y, z), m; default: fitted between the wheels.
+      com_offset: chassis centre of mass relative to the geometric centre (x, y, z), m.
+      wheel_mass: mass of one wheel (hub and rollers), kg.
+      wheel_width: wheel width along its axle, m.
+    """
+
+    mass: float = 4.0
+    half_size: tuple[float, float, float] | None = None
+    com_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    wheel_mass: float = 0.3
+    wheel_width: float = 0.04
+
+
+@dataclasses.dataclass(frozen=True)
+class ActuatorSpec:
+    """The ``[actuators]`` table: each wheel's speed servo (a PI loop, as seed 004's C620).
+
+    Attributes:
+      max_torque: wheel torque limit, N·m.
+      kp: proportional gain, N·m per rad/s of rate error.
+      ki: integral gain, N·m per rad of accumulated rate error.
+      max_accel: setpoint slew limit, rad/s² (0: none).
+    """
+
+    max_torque: float = 3.0
+    kp: float = 2.0
+    ki: float = 0.0
+    max_accel: float = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class SimSpec:
+    """The ``[sim]`` table: physics settings.
+
+    Attributes:
+      timestep: physics step, s.
+      iterations: constraint solver (Newton) iterations.
+      ls_iterations: line-search iterations.
+      floor_friction: sliding friction coefficient of floor and wheels.
+      rollers: passive rollers per wheel in the reference fidelity.
+      roller_radius_ratio: roller radius as a fraction of the wheel radius.
+    """
+
+    timestep: float = 0.002
+    iterations: int = 4
+    ls_iterations: int = 4
+    floor_friction: float = 1.0
+    rollers: int = 10
+    roller_radius_ratio: float = 0.3
+
+
+@dataclasses.dataclass(frozen=True)
 class RobotSpec:
     """The ``[robot]`` table."""
 
@@ -98,6 +155,9 @@ class RobotDescription:
     robot: RobotSpec
     geometry: GeometrySpec
     motors: MotorSpec
+    body: BodySpec = BodySpec()
+    actuators: ActuatorSpec = ActuatorSpec()
+    sim: SimSpec = SimSpec()
 
     def build_geometry(self, dtype: object = None, warn_singular: bool = True) -> geo.WheelGeometry:
         """The :class:`~mecanum_jax.geometry.WheelGeometry` this description defines."""
@@ -185,6 +245,7 @@ def parse_description(data: dict, source: str = "robot description") -> RobotDes
         geometry = desc.build_geometry(warn_singular=False)
     except ConfigError as err:
         raise ConfigError(f"{source}: {err}") from None
+    _check_physics(desc, source)
     m = desc.motors
     if m.max_motor_rpm <= 0:
         raise ConfigError(f"{source}: motors.max_motor_rpm = {m.max_motor_rpm!r}: must be > 0")
@@ -200,6 +261,42 @@ def parse_description(data: dict, source: str = "robot description") -> RobotDes
             if s not in (-1, 1):
                 raise ConfigError(f"{source}: motors.signs[{i}] = {s!r}: expected +1 or -1")
     return desc
+
+
+def _check_physics(desc: RobotDescription, source: str) -> None:
+    positive = {
+        "body.mass": desc.body.mass,
+        "body.wheel_mass": desc.body.wheel_mass,
+        "body.wheel_width": desc.body.wheel_width,
+        "actuators.max_torque": desc.actuators.max_torque,
+        "sim.timestep": desc.sim.timestep,
+        "sim.floor_friction": desc.sim.floor_friction,
+    }
+    if desc.body.half_size is not None:
+        positive.update({f"body.half_size[{i}]": v for i, v in enumerate(desc.body.half_size)})
+    for key, value in positive.items():
+        if value <= 0:
+            raise ConfigError(f"{source}: {key} = {value!r}: must be > 0")
+    for key, value in {
+        "actuators.kp": desc.actuators.kp,
+        "actuators.ki": desc.actuators.ki,
+        "actuators.max_accel": desc.actuators.max_accel,
+    }.items():
+        if value < 0:
+            raise ConfigError(f"{source}: {key} = {value!r}: must be >= 0")
+    if desc.actuators.kp == 0 and desc.actuators.ki == 0:
+        raise ConfigError(f"{source}: actuators.kp = 0 and actuators.ki = 0: the servo needs a gain")
+    if desc.sim.rollers < 3:
+        raise ConfigError(f"{source}: sim.rollers = {desc.sim.rollers}: a wheel needs at least 3 rollers")
+    if desc.sim.iterations < 1 or desc.sim.ls_iterations < 1:
+        raise ConfigError(
+            f"{source}: sim.iterations = {desc.sim.iterations}, sim.ls_iterations = "
+            f"{desc.sim.ls_iterations}: both must be >= 1"
+        )
+    if not 0.05 <= desc.sim.roller_radius_ratio <= 0.6:
+        raise ConfigError(
+            f"{source}: sim.roller_radius_ratio = {desc.sim.roller_radius_ratio}: expected 0.05 to 0.6"
+        )
 
 
 def load_description(path: str | Path) -> RobotDescription:
