@@ -285,9 +285,13 @@ def _check_physics(desc: RobotDescription, source: str) -> None:
         if value < 0:
             raise ConfigError(f"{source}: {key} = {value!r}: must be >= 0")
     if desc.actuators.kp == 0 and desc.actuators.ki == 0:
-        raise ConfigError(f"{source}: actuators.kp = 0 and actuators.ki = 0: the servo needs a gain")
+        raise ConfigError(
+            f"{source}: actuators.kp = 0 and actuators.ki = 0: the servo needs a gain"
+        )
     if desc.sim.rollers < 3:
-        raise ConfigError(f"{source}: sim.rollers = {desc.sim.rollers}: a wheel needs at least 3 rollers")
+        raise ConfigError(
+            f"{source}: sim.rollers = {desc.sim.rollers}: a wheel needs at least 3 rollers"
+        )
     if desc.sim.iterations < 1 or desc.sim.ls_iterations < 1:
         raise ConfigError(
             f"{source}: sim.iterations = {desc.sim.iterations}, sim.ls_iterations = "

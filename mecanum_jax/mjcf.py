@@ -118,7 +118,9 @@ def _wheel_corners(geom: WheelGeometry, i: int, width: float) -> np.ndarray:
     return np.array([p + sx * r * d + sy * width / 2 * a for sx in (-1, 1) for sy in (-1, 1)])
 
 
-def _overlaps(half: tuple[float, float], geom: WheelGeometry, i: int, width: float, margin: float) -> bool:
+def _overlaps(
+    half: tuple[float, float], geom: WheelGeometry, i: int, width: float, margin: float
+) -> bool:
     """Separating-axis test of the chassis box (axis-aligned) against wheel i's footprint."""
     corners = _wheel_corners(geom, i, width)
     box = np.array([[sx * half[0], sy * half[1]] for sx in (-1, 1) for sy in (-1, 1)])
@@ -132,7 +134,9 @@ def _overlaps(half: tuple[float, float], geom: WheelGeometry, i: int, width: flo
     return True
 
 
-def _validate(desc: RobotDescription, geom: WheelGeometry, half: tuple[float, float, float]) -> None:
+def _validate(
+    desc: RobotDescription, geom: WheelGeometry, half: tuple[float, float, float]
+) -> None:
     for i, name in enumerate(geom.names):
         if _overlaps((half[0], half[1]), geom, i, desc.body.wheel_width, 0.0):
             raise ConfigError(
@@ -282,13 +286,17 @@ def build_mjcf(desc: RobotDescription, fidelity: Fidelity = "fast") -> str:
 """
 
 
-def build_model(desc: RobotDescription, fidelity: Fidelity = "fast") -> tuple[mujoco.MjModel, ModelIndex]:
+def build_model(
+    desc: RobotDescription, fidelity: Fidelity = "fast"
+) -> tuple[mujoco.MjModel, ModelIndex]:
     """Compile ``desc`` at ``fidelity``; returns the model and its :class:`ModelIndex`."""
     xml = build_mjcf(desc, fidelity)
     try:
         model = mujoco.MjModel.from_xml_string(xml)
     except ValueError as err:  # pragma: no cover - the generator's own bug
-        raise ConfigError(f"robot {desc.robot.name!r} ({fidelity}): MuJoCo rejected the model: {err}") from None
+        raise ConfigError(
+            f"robot {desc.robot.name!r} ({fidelity}): MuJoCo rejected the model: {err}"
+        ) from None
     names = desc.build_geometry(warn_singular=False).names
 
     def jid(name: str) -> int:
