@@ -299,7 +299,8 @@ def _check_physics(desc: RobotDescription, source: str) -> None:
         )
     if not 0.05 <= desc.sim.roller_radius_ratio <= 0.6:
         raise ConfigError(
-            f"{source}: sim.roller_radius_ratio = {desc.sim.roller_radius_ratio}: expected 0.05 to 0.6"
+            f"{source}: sim.roller_radius_ratio = {desc.sim.roller_radius_ratio}: "
+            "expected 0.05 to 0.6"
         )
 
 

@@ -227,7 +227,7 @@ class Robot:
 
     # --- simulation -------------------------------------------------------------------
 
-    def reset(self, params: RobotParams, pose: jax.typing.ArrayLike = (0.0, 0.0, 0.0)) -> SimState:
+    def reset(self, params: RobotParams, pose: Any = (0.0, 0.0, 0.0)) -> SimState:
         """A robot at rest at world ``pose`` (x, y, yaw), wheels on the floor."""
         p = jnp.asarray(pose, jnp.float32)
         f = self.index.free_qpos
@@ -282,7 +282,7 @@ class Robot:
     def step(
         self, state: SimState, command: jax.typing.ArrayLike, params: RobotParams, substeps: int = 1
     ) -> SimState:
-        """Advance ``substeps`` physics steps holding wheel-rate setpoints ``command`` (n,) rad/s."""
+        """Advance ``substeps`` physics steps holding wheel-rate setpoints (n,) rad/s."""
         model = self.model_for(params)
         cmd = jnp.asarray(command, jnp.float32)
         v0 = self._linear_velocity_world(state.data)
@@ -355,8 +355,8 @@ def steady_twist(
     average_last: float = 0.5,
 ) -> jax.Array:
     """Hold wheel-rate setpoints from rest; the mean true body twist over the last part."""
-    n_steps = int(round(seconds / robot.dt))
-    n_avg = max(1, int(round(average_last / robot.dt)))
+    n_steps = round(seconds / robot.dt)
+    n_avg = max(1, round(average_last / robot.dt))
     state = robot.reset(params)
 
     def body(s: SimState, _: None) -> tuple[SimState, jax.Array]:
