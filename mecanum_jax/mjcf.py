@@ -186,7 +186,7 @@ def _wheel_fast(desc: RobotDescription, geom: WheelGeometry, i: int) -> str:
         <joint name="{name}_axle" type="hinge" axis="0 1 0"/>
         <inertial pos="0 0 0" mass="{m:.6g}" diaginertia="{_hub_inertia(m, r, w)}"/>
         <geom name="{name}_tyre" type="sphere" size="{r:.6g}" contype="2" conaffinity="1"
-              condim="3" friction="{_fmt(mu, 0.0, 0.0)}" mass="0" rgba="0 0 0 0" group="3"/>
+              condim="3" friction="{_fmt(mu, 0.0, 0.0)}" solref="{desc.sim.contact_timeconst:.6g} 1" mass="0" rgba="0 0 0 0" group="3"/>
         <geom type="cylinder" size="{_fmt(0.9 * r, w / 2)}" zaxis="0 1 0" contype="0"
               conaffinity="0" mass="0" rgba="{_WHEEL_RGBA}" group="1"/>
         {"".join(marks)}
@@ -221,6 +221,7 @@ def _wheel_reference(desc: RobotDescription, geom: WheelGeometry, i: int) -> str
           <inertial pos="0 0 0" mass="{m_roller:.6g}" diaginertia="{_fmt(roller_i, roller_i, roller_i)}"/>
           <geom name="{name}_roller{k}" type="capsule" fromto="{_fmt(*p1, *p2)}" size="{rho:.6g}"
                 contype="2" conaffinity="1" condim="3" friction="{_fmt(mu, 0.0, 0.0)}" mass="0"
+                solref="{desc.sim.contact_timeconst:.6g} 1"
                 rgba="{_ROLLER_RGBA}" group="1"/>
         </body>""")
     return f"""
@@ -269,7 +270,7 @@ def build_mjcf(desc: RobotDescription, fidelity: Fidelity = "fast") -> str:
   <worldbody>
     <light pos="0 0 3" dir="0 0 -1" directional="true"/>
     <geom name="floor" type="plane" size="0 0 0.05" material="grid" contype="1" conaffinity="2"
-          condim="3" friction="{_fmt(1e-4, 0.0, 0.0)}"/>
+          condim="3" friction="{_fmt(1e-4, 0.0, 0.0)}" solref="{sim.contact_timeconst:.6g} 1"/>
     <body name="chassis" pos="0 0 {r_max:.6g}">
       <freejoint name="chassis"/>
       <inertial pos="{_fmt(*body.com_offset)}" mass="{m:.6g}" diaginertia="{inertia}"/>
