@@ -239,7 +239,8 @@ class Robot:
         r_nominal = float(np.max(np.asarray(self.geometry.radii)))
         r = jnp.max(params.radius_scale * jnp.asarray(self.geometry.radii))
         qpos = qpos.at[f + 2].add(r - r_nominal)
-        data = mjx.make_data(self.model_for(params)).replace(qpos=qpos)
+        with jax.numpy_rank_promotion("allow"):
+            data = mjx.make_data(self.model_for(params)).replace(qpos=qpos)
         n = self.n_wheels
         return SimState(
             data=data,
@@ -265,7 +266,8 @@ class Robot:
         bound = jnp.where(has_i, params.torque_limit / jnp.where(has_i, params.ki, 1.0), 0.0)
         integral = jnp.clip(state.integral + (setpoint - rate) * dt, -bound, bound)
         ctrl = setpoint + jnp.where(has_i, params.ki / params.kp, 0.0) * integral
-        data = mjx.step(model, data.replace(ctrl=data.ctrl.at[self._acts].set(ctrl)))
+        with jax.numpy_rank_promotion("allow"):  # MJX relies on implicit rank promotion
+            data = mjx.step(model, data.replace(ctrl=data.ctrl.at[self._acts].set(ctrl)))
         finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
         data = data.replace(
             qpos=jnp.where(finite, data.qpos, state.initial_qpos),

@@ -37,6 +37,7 @@ import numpy as np
 from mecanum_jax import kinematics, odometry, physics
 from mecanum_jax.description import RobotDescription, builtin_description
 from mecanum_jax.geometry import SingularLayoutWarning
+from mecanum_jax.mjcf import Fidelity
 from mecanum_jax.modes import SIX_MODES
 
 RECORD_EVERY = 10  # physics steps between samples (50 Hz at 2 ms)
@@ -54,7 +55,9 @@ class Case:
     params: tuple[tuple[str, Any], ...] = ()
 
 
-def simulate(robot: physics.Robot, cases: Sequence[Case], seconds: float) -> dict[str, np.ndarray]:
+def simulate(
+    robot: physics.Robot, cases: Sequence[Case], seconds: float, chunk: int = CHUNK
+) -> dict[str, np.ndarray]:
     """Run all cases in one vmapped rollout; returns time series sampled every 10 steps."""
     steps = round(seconds / robot.dt)
     samples = steps // RECORD_EVERY
@@ -80,10 +83,10 @@ def simulate(robot: physics.Robot, cases: Sequence[Case], seconds: float) -> dic
     fn = jax.jit(jax.vmap(one))
     parts = []
     n = len(cases)
-    for start in range(0, n, CHUNK):
-        idx = np.minimum(np.arange(start, start + CHUNK), n - 1)
+    for start in range(0, n, chunk):
+        idx = np.minimum(np.arange(start, start + chunk), n - 1)
         sub = jax.tree_util.tree_map(lambda x, idx=idx: x[idx], (rates, params))
-        parts.append([np.asarray(x)[: min(CHUNK, n - start)] for x in fn(*sub)])
+        parts.append([np.asarray(x)[: min(chunk, n - start)] for x in fn(*sub)])
     tw, pose, ang, unstable = (np.concatenate(xs) for xs in zip(*parts, strict=True))
     return {
         "twist": tw,
@@ -155,12 +158,12 @@ def _tracking_error(
     """Fast: per part, ≤ max(2% of |v| or |ω|, 0.01); reference: ≤ 5% of the twist's norm."""
     lin = float(np.linalg.norm(achieved[:2] - cmd[:2]))
     ang = float(abs(achieved[2] - cmd[2]))
+    v_cmd = float(np.linalg.norm(cmd[:2]))
     if fidelity == "fast":
-        ok = lin <= max(0.02 * np.linalg.norm(cmd[:2]), 0.01) and ang <= max(
-            0.02 * abs(cmd[2]), 0.01
-        )
+        ok = lin <= max(0.02 * v_cmd, 0.01) and ang <= max(0.02 * abs(float(cmd[2])), 0.01)
     else:
-        ok = np.linalg.norm(achieved - cmd) <= max(0.05 * np.linalg.norm(cmd), 0.01)
+        err = float(np.linalg.norm(achieved - cmd))
+        ok = err <= max(0.05 * float(np.linalg.norm(cmd)), 0.01)
     return lin, ang, bool(ok)
 
 
@@ -186,9 +189,10 @@ def run(quick: bool = False, robot_name: str = "o_rectangle") -> dict[str, Any]:
         xsq = builtin_description("x_square")
         osq = builtin_description("o_square")
     spin_pattern = (-10.0, -10.0, 10.0, 10.0)
-    for fidelity in ("fast", "reference"):
+    fidelities: tuple[Fidelity, ...] = ("fast", "reference")
+    for fidelity in fidelities:
         t0 = time.perf_counter()
-        robot = physics.Robot(desc, fidelity)  # type: ignore[arg-type]
+        robot = physics.Robot(desc, fidelity)
         out = simulate(robot, track + slips, seconds=2.0)
         n_avg = int(0.5 / out["dt"])
         rows = []
@@ -208,8 +212,8 @@ def run(quick: bool = False, robot_name: str = "o_rectangle") -> dict[str, Any]:
                               "mean_twist_first_0.5s": early.tolist(), "final_pose": final_pose.tolist(),
                               "odometry_error_m": drift, "distance_m": dist})  # fmt: skip
         # the X-square against the O-square, same spin pattern; and the X-square's own spin inverse
-        xs = physics.Robot(xsq, fidelity)  # type: ignore[arg-type]
-        os_ = physics.Robot(osq, fidelity)  # type: ignore[arg-type]
+        xs = physics.Robot(xsq, fidelity)
+        os_ = physics.Robot(osq, fidelity)
         own = _rates(xs.geometry, (0.0, 0.0, 1.0))
         x_out = simulate(xs, [Case("X-square, O spin pattern", "x", spin_pattern),
                               Case("X-square, its own inverse of ω = 1 rad/s", "x", own)], 2.0)  # fmt: skip
