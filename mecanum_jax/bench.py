@@ -68,6 +68,111 @@ class KinematicsBench:
     """Write the results as JSON here."""
 
 
+@dataclasses.dataclass(frozen=True)
+class PhysicsBench:
+    """Time batched MJX physics steps per second for each fidelity over batch sizes."""
+
+    sizes: tuple[int, ...] = (1, 16, 256, 4096, 16384, 65536)
+    """Batch sizes (robots)."""
+    fidelities: tuple[str, ...] = ("fast", "reference")
+    """Which model fidelities to time."""
+    robot: str = "o_rectangle"
+    """Built-in robot description."""
+    steps: int = 50
+    """Physics steps per timed call (one jitted scan)."""
+    repeats: int = 3
+    """Timed repeats; the median is reported."""
+    max_reference_size: int = 16384
+    """Largest batch for the (slow) reference fidelity."""
+    ls_iterations: int | None = None
+    """Override the description's line-search iterations (to explore speed)."""
+    json_out: Path | None = None
+    """Write the results as JSON here."""
+
+
+def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str, Any]:
+    """Physics steps per second (robots × steps / wall time) for each fidelity and batch."""
+    from mecanum_jax import physics  # MJX import is slow: only when asked
+    from mecanum_jax.description import builtin_description
+
+    console = console or Console(width=max(Console().width, 110))
+    bad = sorted(set(args.fidelities) - {"fast", "reference"})
+    if bad:
+        raise SystemExit(f"--fidelities: unknown fidelity {bad[0]!r}; known: fast, reference")
+    if args.steps < 1 or args.repeats < 1 or any(n < 1 for n in args.sizes):
+        raise SystemExit(
+            f"--steps = {args.steps}, --repeats = {args.repeats}, "
+            f"--sizes = {list(args.sizes)}: all must be >= 1"
+        )
+    desc = builtin_description(args.robot)
+    if args.ls_iterations is not None:
+        desc = dataclasses.replace(
+            desc, sim=dataclasses.replace(desc.sim, ls_iterations=args.ls_iterations)
+        )
+    rows: list[dict[str, Any]] = []
+    for fidelity in args.fidelities:
+        robot = physics.Robot(desc, fidelity)  # type: ignore[arg-type]
+        params1 = robot.nominal_params()
+        cmd1 = kinematics.inverse(robot.geometry, jnp.array([0.3, 0.1, 0.5]))
+
+        run = jax.jit(jax.vmap(functools.partial(robot.step, substeps=args.steps)))
+        reset = jax.jit(jax.vmap(robot.reset))
+        for size in args.sizes:
+            if fidelity == "reference" and size > args.max_reference_size:
+                continue
+            p = jax.tree_util.tree_map(
+                lambda x, n=size: jnp.broadcast_to(x, (n, *x.shape)), params1
+            )
+            cmd = jnp.broadcast_to(cmd1, (size, cmd1.shape[0]))
+            state = reset(p, jnp.zeros((size, 3)))
+            t0 = time.perf_counter()
+            state = jax.block_until_ready(run(state, cmd, p))
+            compile_s = time.perf_counter() - t0
+            samples = []
+            for _ in range(args.repeats):
+                t0 = time.perf_counter()
+                state = jax.block_until_ready(run(state, cmd, p))
+                samples.append(time.perf_counter() - t0)
+            t = statistics.median(samples)
+            unstable = int(np.asarray(state.unstable).sum())
+            rows.append(
+                {"fidelity": fidelity, "size": size, "seconds_per_call": t,
+                 "compile_s": compile_s, "steps_per_s": size * args.steps / t, "unstable": unstable}
+            )  # fmt: skip
+            console.print(f"{fidelity:9s} batch {size:6d}: {size * args.steps / t:12.4g} steps/s")
+    device = jax.devices()[0]
+    result = {
+        "benchmark": "physics",
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "device": f"{device.platform}: {device.device_kind}",
+        "jax": jax.__version__,
+        "config": {
+            k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(args).items()
+        },
+        "results": rows,
+    }
+    table = Table(title=f"MJX physics on {result['device']} (jax {result['jax']})")
+    for col in ("fidelity", "batch", "physics steps/s", "ms per step", "compile s", "unstable"):
+        table.add_column(col, justify="right")
+    for r in rows:
+        ms = 1e3 * r["seconds_per_call"] / args.steps
+        table.add_row(r["fidelity"], str(r["size"]), f"{r['steps_per_s']:.4g}", f"{ms:.3f}",
+                      f"{r['compile_s']:.1f}", str(r["unstable"]))  # fmt: skip
+    console.print(table)
+    _write_json(result, args.json_out, console)
+    return result
+
+
+def _write_json(result: dict[str, Any], path: Path | None, console: Console) -> None:
+    if path is None:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(result, indent=2))
+    tmp.replace(path)  # never leaves a half-written file
+    console.print(f"wrote {path}")
+
+
 def _available_bytes() -> int:
     dev = jax.devices()[0]
     try:
@@ -265,12 +370,7 @@ def run_kinematics(args: KinematicsBench, console: Console | None = None) -> dic
         "results": rows,
     }
     _print_table(result, console)
-    if args.json_out is not None:
-        args.json_out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = args.json_out.with_suffix(args.json_out.suffix + ".tmp")
-        tmp.write_text(json.dumps(result, indent=2))
-        tmp.replace(args.json_out)  # never leaves a half-written file
-        console.print(f"wrote {args.json_out}")
+    _write_json(result, args.json_out, console)
     return result
 
 
@@ -337,9 +437,13 @@ def _ensure_malloc_tuning(argv: list[str] | None) -> None:
 def main(argv: list[str] | None = None) -> None:
     """Entry point of ``mecanum-bench``."""
     _ensure_malloc_tuning(argv)
-    cmd = tyro.extras.subcommand_cli_from_dict({"kinematics": KinematicsBench}, args=argv)
+    cmd = tyro.extras.subcommand_cli_from_dict(
+        {"kinematics": KinematicsBench, "physics": PhysicsBench}, args=argv
+    )
     if isinstance(cmd, KinematicsBench):
         run_kinematics(cmd)
+    elif isinstance(cmd, PhysicsBench):
+        run_physics(cmd)
 
 
 if __name__ == "__main__":
