@@ -1,0 +1,31 @@
+"""Rendering: a rollout becomes a video (OSMesa on CPU) and a trajectory plot."""
+
+from mecanum_jax.render import ensure_gl_backend
+
+ensure_gl_backend()
+
+import imageio.v3 as iio  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from mecanum_jax import render  # noqa: E402
+
+
+def test_six_modes_video_and_plot(tmp_path):
+    out = tmp_path / "six.gif"
+    render.main(["--out", str(out), "--seconds-per-mode", "0.2", "--fps", "10", "--width", "160",
+                 "--height", "120"])  # fmt: skip
+    frames = iio.imread(out)
+    assert frames.shape[0] == 12  # 6 modes × 2 frames
+    assert frames.shape[1:3] == (120, 160)
+    assert frames.std() > 5  # a scene, not a blank image
+    assert not np.array_equal(frames[0], frames[-1])  # the robot moved
+    assert (tmp_path / "six_trajectory.png").stat().st_size > 1000
+    assert not list(tmp_path.glob("*.partial*"))
+
+
+def test_render_rejects_bad_arguments(tmp_path):
+    with pytest.raises(SystemExit):
+        render.main(["--out", str(tmp_path / "x.avi")])
+    with pytest.raises(SystemExit):
+        render.main(["--out", str(tmp_path / "x.gif"), "--fps", "0"])
