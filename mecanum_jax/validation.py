@@ -77,9 +77,9 @@ def simulate(
         s, (tw, pose, ang) = jax.lax.scan(body, state, None, length=samples)
         return tw, pose, ang, s.unstable
 
-    # Chunks of CHUNK robots (the last one padded, so one compilation serves all): a single
-    # vmapped rollout of 34 reference-fidelity robots hung on XLA:CPU (jax 0.10.2, threads
-    # idle on a futex) while 16 and 18 ran; see the issue notes.
+    # Chunks of CHUNK robots (the last one padded, so one compilation serves all): on the
+    # CPU, jaxlib 0.10.2's batched LAPACK kernel (used by MJX's Newton solver) deadlocks in
+    # its thread pool above a batch threshold (34 reference robots hung; docs/benchmarks.md).
     fn = jax.jit(jax.vmap(one))
     parts = []
     n = len(cases)
