@@ -3,12 +3,16 @@
 - Two host CPU devices, so multi-device code (pmap, the compat shim) is exercised.
 - ``jax_numpy_rank_promotion = "raise"``: accidental broadcasting is an error (as Equinox does).
 - JAX's persistent compilation cache, shared across test processes and CI runs.
+- MuJoCo renders through OSMesa when there is no display (.ci/run installs libosmesa6).
 """
 
 import os
 
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+if not os.environ.get("DISPLAY"):  # headless rendering; must precede the first mujoco import
+    os.environ.setdefault("MUJOCO_GL", "osmesa")
+    os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
 import jax
 import pytest
