@@ -50,6 +50,15 @@ def check_last_axis(x: jax.Array, size: int, name: str, meaning: str) -> None:
         )
 
 
+def checked_twist(twist: Any, finite: bool = True) -> jax.Array:
+    """Body twists (..., 3) as a float array; shape always checked, values when concrete."""
+    t = as_float_array(twist, "twist")
+    check_last_axis(t, 3, "twist", "vx, vy, wz")
+    if finite:
+        check_finite(t, "twist")
+    return t
+
+
 def check_finite(x: Any, name: str, error: type[InputError] = InputError) -> None:
     """Raise naming the first non-finite entry of ``x`` (only for concrete values)."""
     if not is_concrete(x):

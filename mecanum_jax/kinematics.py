@@ -38,6 +38,7 @@ from mecanum_jax._checks import (
     as_float_array,
     check_finite,
     check_last_axis,
+    checked_twist,
     is_concrete,
 )
 from mecanum_jax.geometry import GeometryError, SingularLayoutError, WheelGeometry
@@ -86,9 +87,7 @@ def inverse(geometry: WheelGeometry, twist: jax.typing.ArrayLike) -> jax.Array:
     Raises:
       InputError: if the twist's last axis is not 3, or (eagerly) if it is not finite.
     """
-    t = as_float_array(twist, "twist")
-    check_last_axis(t, 3, "twist", "vx, vy, wz")
-    check_finite(t, "twist")
+    t = checked_twist(twist)
     _checked_geometry(geometry)
     return apply_rows(jacobian(geometry), t)
 
@@ -143,9 +142,8 @@ def condition_number(geometry: WheelGeometry) -> jax.Array:
     return jnp.where(s[-1] > _singular_tolerance(geometry) * s[0], s[0] / s[-1], jnp.inf)
 
 
-def _gram_adjugate(geometry: WheelGeometry) -> tuple[jax.Array, jax.Array, jax.Array]:
+def _gram_adjugate(J: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     """(JᵀJ, adj(JᵀJ), det(JᵀJ)) in closed form: elementwise ops XLA fuses, no solver call."""
-    J = jacobian(geometry)
     G = J.T @ J
     a, b, c = G[0, 0], G[0, 1], G[0, 2]
     d, e, f = G[1, 1], G[1, 2], G[2, 2]
@@ -167,7 +165,11 @@ def is_singular(geometry: WheelGeometry) -> jax.Array:
     singular values σ1 ≥ σ2 ≥ σ3 the ratio is about (σ3/σ1)²(σ2/σ1)², so it fires for rank
     deficiency (σ3/σ1 below ~tol) and otherwise only for hopelessly conditioned layouts.
     """
-    G, _, det = _gram_adjugate(geometry)
+    G, _, det = _gram_adjugate(jacobian(geometry))
+    return _gram_singular(G, det, geometry)
+
+
+def _gram_singular(G: jax.Array, det: jax.Array, geometry: WheelGeometry) -> jax.Array:
     trace = G[0, 0] + G[1, 1] + G[2, 2]
     return det <= (_singular_tolerance(geometry) ** 2) * trace**3
 
@@ -186,8 +188,8 @@ def forward_matrix(geometry: WheelGeometry) -> jax.Array:
     Traceable; for a singular layout every entry is NaN (never a silent pseudo-inverse).
     """
     J = jacobian(geometry)
-    _, adj, det = _gram_adjugate(geometry)
-    singular = jax.lax.stop_gradient(is_singular(geometry))
+    G, adj, det = _gram_adjugate(J)
+    singular = jax.lax.stop_gradient(_gram_singular(G, det, geometry))
     F = (adj @ J.T) / jnp.where(singular, 1.0, det)
     return jnp.where(singular, jnp.nan, F)
 
@@ -238,8 +240,7 @@ def consistency_residual(geometry: WheelGeometry, wheel_rates: jax.typing.ArrayL
 
 def contact_velocities(geometry: WheelGeometry, twist: jax.typing.ArrayLike) -> jax.Array:
     """Velocities (..., n, 2) m/s of the wheels' contact points, ``v_c + ω × p_i``."""
-    t = as_float_array(twist, "twist")
-    check_last_axis(t, 3, "twist", "vx, vy, wz")
+    t = checked_twist(twist, finite=False)
     p = geometry.positions
     vx = t[..., 0:1] - t[..., 2:3] * p[:, 1].reshape((1,) * (t.ndim - 1) + (-1,))
     vy = t[..., 1:2] + t[..., 2:3] * p[:, 0].reshape((1,) * (t.ndim - 1) + (-1,))
@@ -269,9 +270,7 @@ def icr(twist: jax.typing.ArrayLike, omega_tol: float = 1e-9) -> ICR:
     translation, reported by the flag ``translating`` and a NaN point, never as a huge
     number.
     """
-    t = as_float_array(twist, "twist")
-    check_last_axis(t, 3, "twist", "vx, vy, wz")
-    check_finite(t, "twist")
+    t = checked_twist(twist)
     w = t[..., 2]
     rotating = jnp.abs(w) > omega_tol
     safe_w = jnp.where(rotating, w, jnp.ones_like(w))

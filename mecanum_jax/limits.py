@@ -24,7 +24,7 @@ from mecanum_jax._checks import (
     InputError,
     as_float_array,
     check_finite,
-    check_last_axis,
+    checked_twist,
     fmt,
     is_concrete,
 )
@@ -51,18 +51,11 @@ def _limits(geometry: WheelGeometry, max_rates: jax.typing.ArrayLike) -> jax.Arr
     return m
 
 
-def _twist(twist: jax.typing.ArrayLike) -> jax.Array:
-    t = as_float_array(twist, "twist")
-    check_last_axis(t, 3, "twist", "vx, vy, wz")
-    check_finite(t, "twist")
-    return t
-
-
 def saturation(
     geometry: WheelGeometry, twist: jax.typing.ArrayLike, max_rates: jax.typing.ArrayLike
 ) -> jax.Array:
     """max_i |ω_i| / m_i for twists (...,3): ≤ 1 means feasible, 2 means twice too fast."""
-    t, m = _twist(twist), _limits(geometry, max_rates)
+    t, m = checked_twist(twist), _limits(geometry, max_rates)
     rates = apply_rows(jacobian(geometry), t)
     return jnp.max(jnp.abs(rates) / m.reshape((1,) * (t.ndim - 1) + (-1,)), axis=-1)
 
@@ -82,7 +75,7 @@ def desaturate(
     Returns ``(scaled_twist, scale)`` with ``scale = min(1, 1/saturation)`` (...,).
     Feasible twists pass unchanged. Differentiable almost everywhere.
     """
-    t = _twist(twist)
+    t = checked_twist(twist)
     sat = saturation(geometry, t, max_rates)
     scale = 1.0 / jnp.maximum(sat, 1.0)
     return t * scale[..., None], scale
@@ -156,7 +149,7 @@ def max_speed(
     geometry: WheelGeometry, direction: jax.typing.ArrayLike, max_rates: jax.typing.ArrayLike
 ) -> jax.Array:
     """Largest feasible scale s (...) of unit twists ``direction`` (..., 3): the set's radius."""
-    d = _twist(direction)
+    d = checked_twist(direction)
     norm = jnp.linalg.norm(d, axis=-1)
     sat = saturation(geometry, d / jnp.where(norm > 0, norm, 1.0)[..., None], max_rates)
     return jnp.where(sat > 0, 1.0 / jnp.where(sat > 0, sat, 1.0), jnp.inf)
@@ -181,7 +174,7 @@ def limit_acceleration(
     ):
         if not (isinstance(value, int | float) and value > 0):
             raise InputError(f"{name} = {value!r}: expected a number > 0")
-    prev, tgt = _twist(previous), _twist(target)
+    prev, tgt = checked_twist(previous), checked_twist(target)
     dv = tgt[..., :2] - prev[..., :2]
     norm = jnp.linalg.norm(dv, axis=-1, keepdims=True)
     cap = max_linear_accel * dt

@@ -30,7 +30,6 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 from mujoco import mjx
 
@@ -329,9 +328,6 @@ class Robot:
         step = jax.jit(jax.vmap(lambda s, c, p: self.step(s, c, p, substeps)))
         sensors = jax.jit(jax.vmap(self.sensors))
         return reset, step, sensors
-
-    def render_model(self) -> mujoco.MjModel:
-        return self.mj_model
 
 
 def stack_params(params: list[RobotParams]) -> RobotParams:

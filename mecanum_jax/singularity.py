@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mecanum_jax._checks import as_float_array, check_finite, check_last_axis
+from mecanum_jax._checks import checked_twist
 from mecanum_jax.geometry import WheelGeometry
 from mecanum_jax.kinematics import (
     apply_rows,
@@ -53,9 +53,7 @@ def singular_wheels(
     ``tol`` of the rate the same speed would need in its best direction. A zero twist
     makes no wheel singular.
     """
-    t = as_float_array(twist, "twist")
-    check_last_axis(t, 3, "twist", "vx, vy, wz")
-    check_finite(t, "twist")
+    t = checked_twist(twist)
     J = jacobian(geometry)
     rates = apply_rows(J, t)
     row_norm = jnp.linalg.norm(J, axis=-1)
