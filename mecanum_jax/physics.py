@@ -38,6 +38,8 @@ from mecanum_jax.description import RobotDescription
 from mecanum_jax.geometry import WheelGeometry
 
 GRAVITY = 9.81
+MAX_ABS_QVEL = 2.0e3  # rad/s or m/s: beyond this a state counts as unstable
+MAX_ABS_QPOS = 1.0e5  # m or rad (wheel angles accumulate; 1e5 rad is > 1 h at 20 rad/s)
 
 
 class RobotParams(NamedTuple):
@@ -267,7 +269,11 @@ class Robot:
         ctrl = setpoint + jnp.where(has_i, params.ki / params.kp, 0.0) * integral
         with jax.numpy_rank_promotion("allow"):  # MJX relies on implicit rank promotion
             data = mjx.step(model, data.replace(ctrl=data.ctrl.at[self._acts].set(ctrl)))
-        finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
+        # Non-finite, or blown up while still finite (a diverging solve passes through huge
+        # values first): either way the robot is reset. Normal |qvel| stays below ~300.
+        finite = jnp.all(jnp.abs(data.qpos) < MAX_ABS_QPOS) & jnp.all(
+            jnp.abs(data.qvel) < MAX_ABS_QVEL
+        )
         data = data.replace(
             qpos=jnp.where(finite, data.qpos, state.initial_qpos),
             qvel=jnp.where(finite, data.qvel, 0.0),

@@ -1,0 +1,168 @@
+"""The tracking environment and the analytic baseline policy."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mecanum_jax import kinematics, limits
+from mecanum_jax.config import ConfigError, from_mapping
+from mecanum_jax.env import EnvConfig, MecanumEnv, TrainingEnv, baseline_policy
+
+
+@pytest.fixture(scope="session")
+def env():
+    return MecanumEnv(EnvConfig(episode_length=6))
+
+
+@pytest.fixture(scope="session")
+def rollout(env):
+    """Eight robots, twelve steps (two episodes) under the baseline; compiled once."""
+    tenv = TrainingEnv(env)
+    policy = baseline_policy(env)
+
+    @jax.jit
+    def run(keys):
+        s0 = tenv.reset(keys)
+
+        def f(s, _):
+            a, _ = policy(s.obs, None)
+            ns = tenv.step(s, a)
+            return ns, (ns, a)
+
+        return s0, jax.lax.scan(f, s0, None, length=12)
+
+    return run(jax.random.split(jax.random.PRNGKey(0), 8))
+
+
+def test_spaces(env):
+    n = env.n_wheels
+    assert env.action_size == n
+    assert env.observation_size["state"] == (3 + n + 1 + 3 + 3 + n,)
+    assert env.substeps == 5  # 20 ms control / 4 ms physics
+
+
+def test_commands_cover_kinds_and_respect_reach(env):
+    cmds = np.asarray(jax.vmap(env.sample_command)(jax.random.split(jax.random.PRNGKey(1), 4000)))
+    sat = np.asarray(limits.saturation(env.geometry, cmds, env.max_rates))
+    zero = np.all(cmds == 0, axis=1)
+    spin = ~zero & (np.abs(cmds[:, 0]) < 1e-6) & (np.abs(cmds[:, 1]) < 1e-6)
+    translation = ~zero & (cmds[:, 2] == 0)
+    beyond = sat > 1.0
+    for name, mask, p in [
+        ("zero", zero, 0.1),
+        ("spin", spin, 0.15),
+        ("translation", translation, 0.3),
+        ("beyond", beyond, 0.1),
+    ]:
+        assert abs(mask.mean() - p) < 0.03, (name, mask.mean())
+    c = env.config.commands
+    assert sat[~beyond & ~zero].max() <= c.max_fraction + 1e-4
+    assert sat[~zero].min() >= c.min_fraction - 1e-4
+    assert sat[beyond].max() <= c.beyond_max_fraction + 1e-4
+    angles = np.arctan2(cmds[translation, 1], cmds[translation, 0])
+    assert np.histogram(angles, bins=8, range=(-np.pi, np.pi))[0].min() > 0  # all directions
+    assert (cmds[spin, 2] > 0).any()
+    assert (cmds[spin, 2] < 0).any()
+
+
+def test_baseline_is_desaturated_inverse(env):
+    cmd = jnp.array([3.0, -1.0, 4.0])  # beyond reach
+    rates = env.baseline_rates(cmd)
+    scaled, scale = limits.desaturate(env.geometry, cmd, env.max_rates)
+    assert float(scale) < 1
+    np.testing.assert_allclose(rates, kinematics.inverse(env.geometry, scaled), rtol=1e-5)
+    assert float(jnp.max(jnp.abs(rates))) == pytest.approx(env.max_rate, rel=1e-5)
+    # residual mode: the zero action is exactly the baseline
+    np.testing.assert_allclose(env.wheel_setpoints(cmd, jnp.zeros(4)), rates, rtol=1e-6)
+
+
+def test_direct_mode_baseline_action_reproduces_rates():
+    env = MecanumEnv(EnvConfig(residual=False))
+    policy = baseline_policy(env)
+    cmd = jnp.array([0.5, 0.2, -1.0])
+    obs = {"state": jnp.concatenate([cmd / env.command_scale, jnp.zeros(14)])}
+    action, _ = policy(obs, None)
+    np.testing.assert_allclose(env.wheel_setpoints(cmd, action), env.baseline_rates(cmd), atol=1e-4)
+
+
+def test_rollout_resets_episodes_with_fresh_robots(env, rollout):
+    s0, (_, (states, _)) = rollout
+    done = np.asarray(states.done)  # (T, B)
+    trunc = np.asarray(states.info["truncation"])
+    np.testing.assert_array_equal(done[:, 0], [0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 1])
+    np.testing.assert_array_equal(done, trunc)
+    # after the reset the robot's randomized parameters changed (not Brax's restore-first)
+    f0 = np.asarray(s0.info["params"].friction)
+    f_after = np.asarray(states.info["params"].friction[6])
+    assert np.all(np.abs(f0 - f_after).max(axis=1) > 0)
+    assert np.all(np.asarray(states.info["step"][6]) == 1)
+
+
+def test_rewards_and_metrics_are_consistent(env, rollout):
+    _, (_, (states, _)) = rollout
+    m = {k: np.asarray(v) for k, v in states.metrics.items()}
+    r = env.config.reward
+    expected = (
+        r.tracking_lin * m["reward/tracking_lin"]
+        + r.tracking_ang * m["reward/tracking_ang"]
+        + r.action_rate * m["reward/action_rate"]
+        + r.energy * m["reward/energy"]
+    )
+    np.testing.assert_allclose(np.asarray(states.reward), expected, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(
+        m["reward/tracking_lin"],
+        np.exp(-(m["error/vx2"] + m["error/vy2"]) / r.sigma_lin),
+        rtol=1e-5,
+    )
+    assert np.all(m["energy_j"] >= 0)
+    assert np.all((m["saturated"] >= 0) & (m["saturated"] <= 1))
+    assert np.all(np.isfinite(np.asarray(states.obs["state"])))
+
+
+def test_observation_latency_delays_sensors():
+    cfg = EnvConfig(
+        randomization=dataclasses.replace(EnvConfig().randomization, latency_steps=(2, 2))
+    )
+    env = MecanumEnv(cfg)
+    s = env.reset(jax.random.PRNGKey(0))
+    step = jax.jit(env.step)
+    sensors = []
+    for _ in range(4):
+        s = step(s, jnp.full(4, 0.5))
+        sensors.append(np.asarray(s.info["history"][0]))
+    n = env.n_wheels
+    # what the policy sees now is what the sensors read two steps ago
+    np.testing.assert_allclose(np.asarray(s.obs["state"][3 : 3 + n + 7]), sensors[1], rtol=1e-6)
+
+
+def test_nominal_scenario_is_deterministic_and_unrandomized():
+    env = MecanumEnv(EnvConfig().nominal())
+    a = env.reset(jax.random.PRNGKey(0))
+    b = env.reset(jax.random.PRNGKey(1))
+    for x, y in zip(
+        jax.tree.leaves(a.info["params"]), jax.tree.leaves(b.info["params"]), strict=True
+    ):
+        np.testing.assert_array_equal(x, y)
+    assert int(a.info["latency"]) == 0
+
+
+@pytest.mark.parametrize(
+    ("table", "message"),
+    [
+        ({"control_dt": 0.021}, "env.control_dt = 0.021"),
+        ({"episode_length": 0}, "env.episode_length = 0"),
+        ({"randomization": {"friction": [1.0, 0.5]}}, "env.randomization.friction"),
+        ({"randomization": {"friction": [0.0, 0.5]}}, "must be > 0"),
+        ({"commands": {"p_zero": -1}}, "env.commands.p_zero = -1"),
+        ({"reward": {"sigma_lin": 0}}, "env.reward.sigma_lin = 0"),
+        ({"robot": "no_such_robot"}, "env.robot = 'no_such_robot'"),
+        ({"noise": {"gyro": "big"}}, "env.noise.gyro = 'big'"),
+        ({"colour": "red"}, "env.colour = 'red': unknown key"),
+    ],
+)
+def test_bad_env_config_names_field(table, message):
+    with pytest.raises(ConfigError, match=message.replace(".", r"\.").replace("[", r"\[")):
+        from_mapping(EnvConfig, table, "env").validate()

@@ -1,0 +1,243 @@
+"""The PPO trainer: configs, run directories, interrupt and resume, NaN stop, inference.
+
+All runs use ``configs/train/tiny.toml`` on the suite's two CPU devices (so the pmap path
+with gradient averaging is exercised) and share one compiled :class:`Learner`.
+"""
+
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from mecanum_jax.config import ConfigError
+from train import checkpoint, cli
+from train.config import TrainConfig, load_train_config, parse_train_config
+from train.ppo import Learner
+from train.run import Run, RunDirError, TrainingDiverged, beats
+
+
+@pytest.fixture(scope="session")
+def tiny():
+    return load_train_config("tiny")
+
+
+@pytest.fixture(scope="session")
+def learner(tiny):
+    return Learner(tiny)
+
+
+@pytest.fixture(scope="session")
+def full_run(tiny, learner, tmp_path_factory):
+    """The uninterrupted reference run (3 epochs)."""
+    run = Run.create(tiny, tmp_path_factory.mktemp("runs") / "full")
+    summary = run.train(learner=learner)
+    return run, summary
+
+
+def _params(run_dir, epoch=None):
+    _, meta = checkpoint.read_meta(run_dir, epoch)
+    return meta
+
+
+def _final_train_state(run, learner):
+    state, env_state = learner.init()
+    host, _, meta = checkpoint.restore(
+        run.dir, jax.tree.map(np.asarray, state), jax.tree.map(np.asarray, env_state)
+    )
+    return host, meta
+
+
+def test_learner_uses_both_devices(learner):
+    assert learner.n_devices == 2
+    assert learner.envs_per_device == 4
+
+
+def test_full_run_writes_its_directory(full_run, tiny):
+    run, summary = full_run
+    d = run.dir
+    assert json.loads((d / "status.json").read_text())["state"] == "finished"
+    assert parse_train_config(json.loads((d / "config.json").read_text()), "saved") == tiny
+    lines = [json.loads(x) for x in (d / "metrics.jsonl").read_text().splitlines()]
+    assert [x["epoch"] for x in lines] == [1, 2, 3]
+    assert lines[-1]["env_steps"] == 3 * tiny.steps_per_iteration * tiny.run.epoch_iterations
+    for key in (
+        "reward/tracking_lin",
+        "reward/tracking_ang",
+        "reward/action_rate",
+        "reward/energy",
+    ):
+        assert key in lines[0]["train"]
+    assert {"randomized", "nominal"} <= set(lines[0]["eval"])
+    assert lines[0]["baseline"] == lines[-1]["baseline"]  # fixed held-out episodes
+    assert list((d / "tb" / "seed_0").iterdir())  # TensorBoard events
+    assert checkpoint.latest_epoch(d) == 3
+    assert summary["epochs"] == 3
+    assert summary["seeds"][0]["eval"]["nominal"]["rmse_lin"] > 0
+
+
+def test_interrupted_run_resumes_exactly(full_run, tiny, learner, tmp_path, monkeypatch):
+    reference, _ = full_run
+    run = Run.create(tiny, tmp_path / "run")
+    calls = {"n": 0}
+    real_epoch = learner.epoch
+
+    def epoch_then_ctrl_c(*args):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt  # Ctrl-C during the second epoch
+        return real_epoch(*args)
+
+    monkeypatch.setattr(learner, "epoch", epoch_then_ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        run.train(learner=learner)
+    monkeypatch.setattr(learner, "epoch", real_epoch)
+    assert json.loads((run.dir / "status.json").read_text())["state"] == "interrupted"
+    assert checkpoint.latest_epoch(run.dir) == 1  # the last completed epoch was saved
+
+    resumed = Run.resume(run.dir)
+    resumed.train(learner=learner)
+    a, meta_a = _final_train_state(reference, learner)
+    b, meta_b = _final_train_state(resumed, learner)
+    assert meta_a["env_steps"] == meta_b["env_steps"]
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        np.testing.assert_array_equal(x, y)  # optimizer, params, normalizer, keys: identical
+    lines = [json.loads(x) for x in (run.dir / "metrics.jsonl").read_text().splitlines()]
+    assert [x["epoch"] for x in lines] == [1, 2, 3]
+
+
+def test_nan_stops_and_keeps_last_good_checkpoint(tiny, learner, tmp_path, monkeypatch):
+    run = Run.create(tiny, tmp_path / "nan")
+    calls = {"n": 0}
+    real_epoch = learner.epoch
+
+    def poisoned(*args):
+        calls["n"] += 1
+        ts, es, metrics = real_epoch(*args)
+        if calls["n"] == 2:
+            ts = ts.replace(params=jax.tree.map(lambda x: x * np.nan, ts.params))
+            metrics = dict(metrics, finite=metrics["finite"] * 0)
+        return ts, es, metrics
+
+    monkeypatch.setattr(learner, "epoch", poisoned)
+    with pytest.raises(
+        TrainingDiverged, match=r"non-finite .* epoch 2 .* last good checkpoint: epoch 1"
+    ):
+        run.train(learner=learner)
+    assert json.loads((run.dir / "status.json").read_text())["state"] == "diverged"
+    host, _ = _final_train_state(run, learner)
+    assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(host.params))
+
+
+def test_nan_check_detects_non_finite_params(learner):
+    ts, env_state = learner.init()
+
+    def poison(x):
+        x = np.array(x)
+        if x.dtype.kind == "f":
+            x[0, 0] = np.nan
+        return x
+
+    ts = ts.replace(params=jax.tree.map(poison, ts.params))
+    _, _, metrics = learner.epoch(ts, env_state)
+    assert float(np.asarray(metrics["finite"])[0, 0]) == 0.0
+
+
+def test_run_directory_is_never_overwritten(full_run, tiny):
+    run, _ = full_run
+    before = (run.dir / "metrics.jsonl").read_text()
+    with pytest.raises(RunDirError, match="already exists"):
+        Run.create(tiny, run.dir)
+    assert cli.main(["--config", "tiny", "--run-dir", str(run.dir)]) == 2
+    assert (run.dir / "metrics.jsonl").read_text() == before
+
+
+def test_resume_refuses_changed_config(full_run, tiny):
+    run, _ = full_run
+    import dataclasses
+
+    changed = dataclasses.replace(tiny, ppo=dataclasses.replace(tiny.ppo, learning_rate=1.0))
+    with pytest.raises(ConfigError, match=r"ppo\.learning_rate: cannot change when resuming"):
+        Run.resume(run.dir, overrides=changed)
+
+
+def test_policy_loads_into_plain_inference_function(full_run, learner):
+    run, _ = full_run
+    act, meta = checkpoint.load_policy(run.dir)
+    assert meta["epoch"] == 3
+    assert meta["robot"] == "o_rectangle"
+    assert meta["observation_layout"][0] == ["command", 3]
+    host, _ = _final_train_state(run, learner)
+    one = jax.tree.map(lambda x: x[0, 0], host)
+    policy = learner.make_policy(
+        (one.normalizer_params, one.params.policy, one.params.value), deterministic=True
+    )
+    rng = np.random.default_rng(0)
+    obs = {
+        k: rng.normal(size=(5, *shape)).astype(np.float32)
+        for k, shape in learner.env.observation_size.items()
+    }
+    a = np.asarray(act(obs))
+    assert a.shape == (5, 4)
+    assert np.all(np.abs(a) <= 1)
+    np.testing.assert_allclose(
+        a, np.asarray(policy(obs, jax.random.PRNGKey(1))[0]), rtol=1e-5, atol=1e-6
+    )
+
+
+def test_load_policy_errors(tmp_path):
+    with pytest.raises(checkpoint.CheckpointError, match="no such directory"):
+        checkpoint.load_policy(tmp_path / "missing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(checkpoint.CheckpointError, match="no checkpoints"):
+        checkpoint.load_policy(tmp_path / "empty")
+
+
+def test_evaluation_is_paired_and_held_out(learner):
+    ts, _ = learner.init_training()
+    one = jax.tree.map(lambda x: x[0], ts)
+    a = learner.evaluate_baseline(one)
+    b = learner.evaluate_baseline(one)
+    assert a == b  # same fixed episodes every time
+    assert learner.cfg.run.eval_seed not in learner.cfg.run.seeds
+
+
+def test_beats():
+    base = {"rmse_lin": 0.2, "rmse_wz": 0.5}
+    assert beats({"rmse_lin": 0.1, "rmse_wz": 0.4}, base)
+    assert not beats({"rmse_lin": 0.1, "rmse_wz": 0.6}, base)
+    assert beats({"rmse_lin": 0.09, "rmse_wz": 0.2}, base, factor=0.5)
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--ppo.num-envs", "7"], "ppo.num_envs = 7"),
+        (["--ppo.learning-rate", "-1"], "ppo.learning_rate = -1.0"),
+        (["--run.seeds", "1", "1"], "run.seeds"),
+        (["--env.randomization.friction", "0.5", "0.1"], "env.randomization.friction"),
+    ],
+)
+def test_cli_rejects_bad_overrides_before_compiling(args, message, tmp_path, capsys):
+    code = cli.main(["--config", "tiny", "--run-dir", str(tmp_path / "r"), *args])
+    assert code == 2
+    assert message in capsys.readouterr().err.replace("\n", "")
+    assert not (tmp_path / "r").exists()
+
+
+def test_bad_config_files(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "x"\n[ppo]\nnum_envz = 3\n')
+    with pytest.raises(ConfigError, match=r"ppo\.num_envz = 3: unknown key"):
+        load_train_config(bad)
+    with pytest.raises(ConfigError, match="no such file"):
+        load_train_config(tmp_path / "missing.toml")
+    with pytest.raises(ConfigError, match="built-in configs"):
+        load_train_config("no_such_config")
+    assert TrainConfig().validate().num_iterations >= 1
+
+
+def test_shipped_configs_validate():
+    for name in ("quick", "tiny", "gpu"):
+        cfg = load_train_config(name)
+        assert cfg.name == name

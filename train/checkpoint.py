@@ -1,0 +1,201 @@
+"""Checkpoints (orbax): full training state for resume, and a plain inference function.
+
+A checkpoint at ``<run>/checkpoints/<epoch>/`` holds three items:
+
+- ``train``: the :class:`~train.ppo.TrainingState` of every seed and device (optimizer
+  state, parameters, observation normalizer, rng keys);
+- ``env``: the environment state of every robot (so resuming continues the same episodes);
+- ``meta``: JSON — epoch, environment steps, wall time, the resolved config, the robot
+  and the observation layout (so a checkpoint from another robot or layout is refused).
+
+:func:`load_policy` restores only ``train`` and ``meta`` and returns a jitted
+deterministic ``obs -> action`` function for evaluation and deployment.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+import orbax.checkpoint as ocp
+
+from mecanum_jax.config import ConfigError
+
+CHECKPOINT_DIR = "checkpoints"
+
+
+class CheckpointError(ValueError):
+    """A checkpoint is missing, corrupt, or does not match what is being loaded."""
+
+
+def manager(run_dir: Path, max_to_keep: int = 3, create: bool = True) -> ocp.CheckpointManager:
+    options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=create)
+    return ocp.CheckpointManager((run_dir / CHECKPOINT_DIR).absolute(), options=options)
+
+
+def pack(tree: Any) -> dict[str, np.ndarray]:
+    """A pytree as a flat ``{leaf index: array}`` dict (orbax refuses zero-size arrays,
+    which MJX data has; they are rebuilt from the template on restore)."""
+    leaves = jax.tree.leaves(tree)
+    return {f"{i:05d}": np.asarray(x) for i, x in enumerate(leaves) if np.size(x)}
+
+
+def unpack(template: Any, flat: dict[str, Any]) -> Any:
+    """Inverse of :func:`pack`, shaped like ``template``."""
+    leaves, treedef = jax.tree.flatten(template)
+    out = []
+    for i, x in enumerate(leaves):
+        key = f"{i:05d}"
+        if np.size(x) == 0:
+            out.append(np.zeros(np.shape(x), np.asarray(x).dtype))
+            continue
+        value = np.asarray(flat[key])
+        if value.shape != np.shape(x):
+            raise CheckpointError(
+                f"checkpoint leaf {key}: shape {value.shape}, expected {np.shape(x)} "
+                "(saved with another config or device count?)"
+            )
+        out.append(value)
+    return jax.tree.unflatten(treedef, out)
+
+
+def save(
+    mgr: ocp.CheckpointManager, epoch: int, train: Any, env: Any, meta: dict[str, Any]
+) -> None:
+    """Save host (numpy) trees; blocks until written so a crash cannot leave it half done."""
+    mgr.save(
+        epoch,
+        args=ocp.args.Composite(
+            train=ocp.args.StandardSave(pack(train)),
+            env=ocp.args.StandardSave(pack(env)),
+            meta=ocp.args.JsonSave(meta),
+        ),
+        force=True,
+    )
+    mgr.wait_until_finished()
+
+
+def latest_epoch(run_dir: Path) -> int | None:
+    if not (run_dir / CHECKPOINT_DIR).is_dir():
+        return None
+    return manager(run_dir, create=False).latest_step()
+
+
+def _abstract(tree: Any) -> Any:
+    return jax.tree.map(lambda x: np.zeros(np.shape(x), np.asarray(x).dtype), tree)
+
+
+def restore(
+    run_dir: Path, train_like: Any, env_like: Any, epoch: int | None = None
+) -> tuple[Any, Any, dict[str, Any]]:
+    """Restore the full state of ``epoch`` (default: latest) into trees shaped like the given."""
+    mgr = manager(run_dir, create=False)
+    epoch = mgr.latest_step() if epoch is None else epoch
+    if epoch is None:
+        raise CheckpointError(f"run directory {str(run_dir)!r}: no checkpoint to resume from")
+    try:
+        out = mgr.restore(
+            epoch,
+            args=ocp.args.Composite(
+                train=ocp.args.StandardRestore(pack(_abstract(train_like))),
+                env=ocp.args.StandardRestore(pack(_abstract(env_like))),
+                meta=ocp.args.JsonRestore(),
+            ),
+        )
+    except Exception as err:  # orbax raises many types for unreadable/mismatched files
+        raise CheckpointError(
+            f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r} cannot be restored "
+            f"into this run's state: {type(err).__name__}: {err}"
+        ) from err
+    train = unpack(train_like, out["train"])
+    env = unpack(env_like, out["env"])
+    return train, env, dict(out["meta"])
+
+
+def read_meta(run_dir: Path, epoch: int | None = None) -> tuple[int, dict[str, Any]]:
+    mgr = manager(run_dir, create=False)
+    epoch = mgr.latest_step() if epoch is None else epoch
+    if epoch is None:
+        raise CheckpointError(f"{str(run_dir)!r}: no checkpoints in {CHECKPOINT_DIR}/")
+    try:
+        meta = mgr.restore(epoch, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
+    except Exception as err:
+        raise CheckpointError(
+            f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r}: metadata unreadable: {err}"
+        ) from err
+    return epoch, dict(meta)
+
+
+def load_policy(
+    run_dir: str | Path, seed: int | None = None, epoch: int | None = None
+) -> tuple[Callable[[dict[str, Any]], jax.Array], dict[str, Any]]:
+    """A deterministic ``policy(obs) -> action`` from a run's checkpoint.
+
+    Args:
+      run_dir: the run directory (holding ``checkpoints/``).
+      seed: which of the run's seeds (default: the first).
+      epoch: which checkpoint (default: the latest).
+
+    Returns:
+      ``(policy, meta)``; ``meta["policy_params"]`` holds the host arrays
+      ``(normalizer, policy_params)`` for export.
+    """
+    from train.config import parse_train_config
+    from train.ppo import Learner, allow_rank_promotion
+
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise CheckpointError(f"run directory {str(run_dir)!r}: no such directory")
+    epoch, meta = read_meta(run_dir, epoch)
+    try:
+        cfg = parse_train_config(meta["config"], f"{run_dir}/checkpoint meta")
+    except (KeyError, ConfigError) as err:
+        raise CheckpointError(
+            f"checkpoint {str(run_dir)!r}: bad config in metadata: {err}"
+        ) from err
+    seeds = list(cfg.run.seeds)
+    seed = seeds[0] if seed is None else seed
+    if seed not in seeds:
+        raise CheckpointError(f"seed = {seed}: this run trained seeds {seeds}")
+    learner = Learner(cfg, devices=jax.local_devices()[:1])
+    # the saved device count may differ from ours: restore with the saved leading shape
+    d = int(meta["devices"])
+    template, _ = learner.init_training()
+    train_like = jax.tree.map(lambda x: np.zeros((d, *x.shape[1:]), x.dtype), template)
+    mgr = manager(run_dir, create=False)
+    try:
+        train = mgr.restore(
+            epoch, args=ocp.args.Composite(train=ocp.args.StandardRestore(pack(train_like)))
+        )["train"]
+        train = unpack(train_like, train)
+    except Exception as err:
+        raise CheckpointError(
+            f"checkpoint {str(run_dir)!r} epoch {epoch}: unreadable: {err}"
+        ) from err
+    i = seeds.index(seed)
+    one = jax.tree.map(lambda x: x[0, i], train)
+    params = (one.normalizer_params, one.params.policy, one.params.value)
+    policy = learner.make_policy(params, deterministic=True)
+    key = jax.random.PRNGKey(0)
+
+    @jax.jit
+    @allow_rank_promotion
+    def act(obs: dict[str, Any]) -> jax.Array:
+        return policy(obs, key)[0]
+
+    meta = dict(meta, epoch=epoch, seed=seed, policy_params=(params[0], params[1]))
+    return act, meta
+
+
+__all__ = [
+    "CheckpointError",
+    "latest_epoch",
+    "load_policy",
+    "manager",
+    "read_meta",
+    "restore",
+    "save",
+]

@@ -1,0 +1,235 @@
+"""The trainer's configuration: frozen dataclasses read from ``configs/train/*.toml``.
+
+Every key is validated (type by :func:`mecanum_jax.config.from_mapping`, value by
+:meth:`TrainConfig.validate`) and unknown keys are rejected, all before anything compiles.
+Command-line overrides are tyro flags over the same dataclasses (``--ppo.learning-rate``).
+The resolved configuration is saved as ``config.json`` in each run directory.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any, Literal
+
+from mecanum_jax.config import ConfigError, from_mapping, load_toml
+from mecanum_jax.description import CONFIG_DIR
+from mecanum_jax.env import EnvConfig
+
+TRAIN_CONFIG_DIR = CONFIG_DIR / "train"
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkConfig:
+    """Policy and value MLPs (Brax's ``make_ppo_networks``)."""
+
+    policy_hidden: tuple[int, ...] = (128, 128, 128)
+    value_hidden: tuple[int, ...] = (256, 256, 256)
+    activation: Literal["swish", "tanh", "relu", "elu"] = "swish"
+    init_noise_std: float = 0.5
+    privileged_critic: bool = True
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """PPO hyper-parameters with Brax's meanings.
+
+    One training iteration collects ``batch_size · num_minibatches`` trajectories of
+    ``unroll_length`` steps from ``num_envs`` environments, then runs
+    ``num_updates_per_batch`` passes of ``num_minibatches`` gradient steps.
+    """
+
+    num_timesteps: int = 400_000
+    num_envs: int = 64
+    unroll_length: int = 20
+    batch_size: int = 64
+    num_minibatches: int = 4
+    num_updates_per_batch: int = 4
+    learning_rate: float = 3e-4
+    entropy_cost: float = 1e-3
+    discounting: float = 0.97
+    gae_lambda: float = 0.95
+    clipping_epsilon: float = 0.2
+    max_grad_norm: float = 1.0
+    reward_scaling: float = 1.0
+    normalize_observations: bool = True
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+    """Seeds, evaluation, checkpoints, devices.
+
+    ``seeds`` are trained side by side, vectorized in one program (``jax.vmap``).
+    ``epoch_iterations`` training iterations run per compiled call; logging, the NaN
+    check and Ctrl-C checkpoints happen between calls. Evaluation and periodic
+    checkpoints happen every ``eval_every`` / ``checkpoint_every`` epochs and at the end.
+    """
+
+    seeds: tuple[int, ...] = (0,)
+    epoch_iterations: int = 10
+    eval_every: int = 1
+    checkpoint_every: int = 1
+    max_checkpoints: int = 3
+    eval_seed: int = 20_261_122
+    num_eval_envs: int = 32
+    eval_episode_length: int = 250
+    max_devices: int = 0
+    matmul_precision: Literal["default", "high", "highest"] = "highest"
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """A whole training run."""
+
+    name: str = "run"
+    env: EnvConfig = EnvConfig()  # noqa: RUF009 (frozen, so a shared default is safe)
+    network: NetworkConfig = NetworkConfig()
+    ppo: PPOConfig = PPOConfig()
+    run: RunConfig = RunConfig()
+
+    def validate(self) -> TrainConfig:
+        """Value checks (types were checked on load); raise :class:`ConfigError`."""
+
+        def bad(field: str, value: Any, why: str) -> ConfigError:
+            return ConfigError(f"{field} = {value!r}: {why}")
+
+        if not self.name or any(c in self.name for c in "/\\ \t\n"):
+            raise bad("name", self.name, "must be a non-empty name without slashes or spaces")
+        self.env.validate("env")
+        n = self.network
+        for field in ("policy_hidden", "value_hidden"):
+            sizes = getattr(n, field)
+            if not sizes or any(s < 1 for s in sizes):
+                raise bad(f"network.{field}", list(sizes), "need at least one layer, sizes >= 1")
+        if n.init_noise_std <= 0:
+            raise bad("network.init_noise_std", n.init_noise_std, "must be > 0")
+        p = self.ppo
+        for field in (
+            "num_timesteps",
+            "num_envs",
+            "unroll_length",
+            "batch_size",
+            "num_minibatches",
+            "num_updates_per_batch",
+        ):
+            if getattr(p, field) < 1:
+                raise bad(f"ppo.{field}", getattr(p, field), "must be >= 1")
+        for field in ("learning_rate", "max_grad_norm", "reward_scaling", "clipping_epsilon"):
+            if getattr(p, field) <= 0:
+                raise bad(f"ppo.{field}", getattr(p, field), "must be > 0")
+        if p.entropy_cost < 0:
+            raise bad("ppo.entropy_cost", p.entropy_cost, "must be >= 0")
+        for field in ("discounting", "gae_lambda"):
+            if not 0 < getattr(p, field) <= 1:
+                raise bad(f"ppo.{field}", getattr(p, field), "must be in (0, 1]")
+        if (p.batch_size * p.num_minibatches) % p.num_envs:
+            raise bad(
+                "ppo.num_envs",
+                p.num_envs,
+                f"must divide batch_size * num_minibatches = {p.batch_size * p.num_minibatches}",
+            )
+        r = self.run
+        if not r.seeds:
+            raise bad("run.seeds", [], "need at least one seed")
+        if len(set(r.seeds)) != len(r.seeds):
+            raise bad("run.seeds", list(r.seeds), "seeds must be distinct")
+        if any(s < 0 for s in r.seeds):
+            raise bad("run.seeds", list(r.seeds), "seeds must be >= 0")
+        if r.eval_seed in r.seeds:
+            raise bad("run.eval_seed", r.eval_seed, "must differ from the training seeds")
+        for field in (
+            "epoch_iterations",
+            "eval_every",
+            "checkpoint_every",
+            "max_checkpoints",
+            "num_eval_envs",
+            "eval_episode_length",
+        ):
+            if getattr(r, field) < 1:
+                raise bad(f"run.{field}", getattr(r, field), "must be >= 1")
+        if r.max_devices < 0:
+            raise bad("run.max_devices", r.max_devices, "must be >= 0 (0: all local devices)")
+        return self
+
+    def check_devices(self, device_count: int) -> None:
+        """Checks that depend on how many devices train (before compiling)."""
+        p = self.ppo
+        if p.num_envs % device_count:
+            raise ConfigError(
+                f"ppo.num_envs = {p.num_envs}: must be a multiple of the {device_count} devices"
+            )
+        if p.batch_size % device_count:
+            raise ConfigError(
+                f"ppo.batch_size = {p.batch_size}: must be a multiple of the {device_count} devices"
+            )
+
+    @property
+    def steps_per_iteration(self) -> int:
+        p = self.ppo
+        return p.batch_size * p.num_minibatches * p.unroll_length
+
+    @property
+    def num_iterations(self) -> int:
+        """Training iterations: enough to reach ``ppo.num_timesteps``."""
+        return -(-self.ppo.num_timesteps // self.steps_per_iteration)
+
+    @property
+    def num_epochs(self) -> int:
+        return -(-self.num_iterations // self.run.epoch_iterations)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def parse_train_config(data: Any, source: str) -> TrainConfig:
+    try:
+        return from_mapping(TrainConfig, data).validate()
+    except ConfigError as err:
+        raise ConfigError(f"{source}: {err}") from None
+
+
+def load_train_config(path: str | Path) -> TrainConfig:
+    """Load a training config from TOML, or from a run directory's ``config.json``.
+
+    A bare name (``quick``) means ``configs/train/<name>.toml``.
+    """
+    p = Path(path)
+    if not p.suffix and not p.exists() and (TRAIN_CONFIG_DIR / f"{path}.toml").exists():
+        p = TRAIN_CONFIG_DIR / f"{path}.toml"
+    if p.suffix == ".json":
+        try:
+            data = json.loads(p.read_text())
+        except FileNotFoundError:
+            raise ConfigError(f"config file {str(p)!r}: no such file") from None
+        except json.JSONDecodeError as err:
+            raise ConfigError(f"config file {str(p)!r}: invalid JSON: {err}") from None
+    else:
+        if not p.exists():
+            known = sorted(q.stem for q in TRAIN_CONFIG_DIR.glob("*.toml"))
+            raise ConfigError(f"config = {str(path)!r}: no such file; built-in configs: {known}")
+        data = load_toml(p)
+    return parse_train_config(data, str(p))
+
+
+def config_diff(a: Any, b: Any, where: str = "") -> list[str]:
+    """Dotted paths of the fields that differ between two configs."""
+    if dataclasses.is_dataclass(a) and dataclasses.is_dataclass(b):
+        out = []
+        for f in dataclasses.fields(a):
+            path = f"{where}.{f.name}" if where else f.name
+            out += config_diff(getattr(a, f.name), getattr(b, f.name), path)
+        return out
+    return [] if a == b else [where]
+
+
+__all__ = [
+    "TRAIN_CONFIG_DIR",
+    "NetworkConfig",
+    "PPOConfig",
+    "RunConfig",
+    "TrainConfig",
+    "config_diff",
+    "load_train_config",
+    "parse_train_config",
+]

@@ -1,0 +1,362 @@
+"""PPO on the mecanum tracking task, from Brax's PPO components, with full resume.
+
+Brax's ``ppo.train`` restores only network weights, so this module drives Brax's own
+pieces (``make_ppo_networks``, ``compute_ppo_loss``, ``loss_and_pgrad``, the running
+observation normalizer) from an outer loop whose whole state is explicit:
+
+- :class:`TrainingState` (optimizer state, parameters, normalizer, rng key) and the
+  environment state are the only things that change between epochs, and both go into
+  every checkpoint, so a resumed run continues exactly as the uninterrupted one would have;
+- several seeds train side by side in one compiled program (``jax.vmap`` over a seed
+  axis), and the program is ``jax.pmap``-ed over local devices (gradients and normalizer
+  statistics are averaged across devices, as in Brax);
+- between epochs the host checks for NaNs, evaluates the policy and the analytic
+  baseline on the same fixed, held-out episodes, logs and checkpoints.
+
+Array layout on the host: training state ``(D, S, ...)`` (replicated over the D devices),
+environment state ``(D, S, E/D, ...)``, where S is the number of seeds and E ``num_envs``.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import Any
+
+import flax
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from brax.training import gradients, types
+from brax.training.acme import running_statistics, specs
+from brax.training.agents.ppo import losses as ppo_losses
+from brax.training.agents.ppo import networks as ppo_networks
+from flax import linen
+
+from mecanum_jax.env import MecanumEnv, TrainingEnv, baseline_policy
+from train.config import TrainConfig
+
+AXIS = "devices"
+ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
+    "swish": linen.swish,
+    "tanh": linen.tanh,
+    "relu": linen.relu,
+    "elu": linen.elu,
+}
+# Domain tags: training and evaluation rng streams never meet, whatever the seeds are.
+TRAIN_STREAM, EVAL_STREAM = 0x7A1, 0xE7A1
+
+
+def allow_rank_promotion(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """Trace ``fn`` with implicit rank promotion allowed: Brax's normalizer and
+    distributions rely on it (the project's own code does not)."""
+
+    @functools.wraps(fn)
+    def wrapped(*args: Any, **kwargs: Any) -> Any:
+        with jax.numpy_rank_promotion("allow"):
+            return fn(*args, **kwargs)
+
+    return wrapped
+
+
+@flax.struct.dataclass
+class TrainingState:
+    """Everything the learner updates; one seed's (leaves gain S and D axes when batched)."""
+
+    optimizer_state: Any
+    params: ppo_losses.PPONetworkParams
+    normalizer_params: running_statistics.RunningStatisticsState
+    key: jax.Array
+
+
+def make_networks(env: MecanumEnv, cfg: TrainConfig) -> ppo_networks.PPONetworks:
+    """Brax PPO networks for this task (the critic sees privileged state if configured)."""
+    normalize: Any = (
+        running_statistics.normalize
+        if cfg.ppo.normalize_observations
+        else types.identity_observation_preprocessor
+    )
+    n = cfg.network
+    return ppo_networks.make_ppo_networks(
+        env.observation_size,
+        env.action_size,
+        preprocess_observations_fn=normalize,
+        policy_hidden_layer_sizes=n.policy_hidden,
+        value_hidden_layer_sizes=n.value_hidden,
+        activation=ACTIVATIONS[n.activation],
+        policy_obs_key="state",
+        value_obs_key="privileged_state" if n.privileged_critic else "state",
+        init_noise_std=n.init_noise_std,
+    )
+
+
+def make_optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
+    return optax.chain(
+        optax.clip_by_global_norm(cfg.ppo.max_grad_norm), optax.adam(cfg.ppo.learning_rate)
+    )
+
+
+def all_finite(tree: Any) -> jax.Array:
+    """Whether every floating-point leaf of ``tree`` is finite (a traced bool)."""
+    leaves = [
+        x for x in jax.tree.leaves(tree) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)
+    ]
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
+
+
+class Learner:
+    """The compiled pieces of a run: init, the per-epoch training program, evaluation."""
+
+    def __init__(self, cfg: TrainConfig, devices: list[Any] | None = None):
+        self.cfg = cfg.validate()
+        self.devices = devices or jax.local_devices()[: cfg.run.max_devices or None]
+        self.n_devices = len(self.devices)
+        self.n_processes = jax.process_count()
+        cfg.check_devices(self.n_devices * self.n_processes)
+        self.n_seeds = len(cfg.run.seeds)
+        self.env = MecanumEnv(cfg.env)
+        self.train_env = TrainingEnv(self.env)
+        p = cfg.ppo
+        self.envs_per_device = p.num_envs // (self.n_devices * self.n_processes)
+        self.unrolls_per_iteration = p.batch_size * p.num_minibatches // p.num_envs
+        self.networks = make_networks(self.env, cfg)
+        self.make_policy = ppo_networks.make_inference_fn(self.networks)
+        self.optimizer = make_optimizer(cfg)
+        loss_fn = functools.partial(
+            ppo_losses.compute_ppo_loss,
+            ppo_network=self.networks,
+            entropy_cost=p.entropy_cost,
+            discounting=p.discounting,
+            reward_scaling=p.reward_scaling,
+            gae_lambda=p.gae_lambda,
+            clipping_epsilon=p.clipping_epsilon,
+            normalize_advantage=True,
+        )
+        self._loss_and_grad = gradients.loss_and_pgrad(loss_fn, pmap_axis_name=AXIS, has_aux=True)
+        self.epoch = jax.pmap(jax.vmap(self._epoch), axis_name=AXIS, devices=self.devices)
+        self._reset = jax.pmap(jax.vmap(self.train_env.reset), axis_name=AXIS, devices=self.devices)
+        self.eval_envs = {
+            "randomized": TrainingEnv(self.env, cfg.run.eval_episode_length),
+            "nominal": TrainingEnv(MecanumEnv(cfg.env.nominal()), cfg.run.eval_episode_length),
+        }
+        self._eval = {
+            name: jax.jit(
+                jax.vmap(functools.partial(self._evaluate, scenario=name), in_axes=(0, None))
+            )
+            for name in self.eval_envs
+        }
+
+    # --- state ------------------------------------------------------------------------------
+
+    def init(self) -> tuple[TrainingState, Any]:
+        """Fresh training and environment state, laid out ``(D, S, ...)``."""
+        state, env_keys = self.init_training()
+        return state, self._reset(env_keys)
+
+    def init_training(self) -> tuple[TrainingState, np.ndarray]:
+        """Fresh host training state ``(D, S, ...)`` and environment keys ``(D, S, E/D, 2)``."""
+        obs_spec = {
+            k: specs.Array(shape, jnp.dtype("float32"))
+            for k, shape in self.env.observation_size.items()
+        }
+        seeds = self.cfg.run.seeds
+        D, E = self.n_devices, self.envs_per_device
+        states, env_keys = [], []
+        for seed in seeds:
+            root = jax.random.fold_in(jax.random.PRNGKey(seed), TRAIN_STREAM)
+            k_policy, k_value, k_env, k_loop = jax.random.split(root, 4)
+            params = ppo_losses.PPONetworkParams(
+                policy=self.networks.policy_network.init(k_policy),
+                value=self.networks.value_network.init(k_value),
+            )
+            state = TrainingState(
+                optimizer_state=self.optimizer.init(params),
+                params=params,
+                normalizer_params=running_statistics.init_state(obs_spec),
+                key=k_loop,
+            )
+            states.append(state)
+            k_env = jax.random.fold_in(k_env, jax.process_index())
+            env_keys.append(jax.random.split(k_env, D * E).reshape(D, E, -1))
+        seeded = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *states)
+        # replicate over devices; each device gets its own loop key
+        per_device = jax.tree.map(lambda x: np.broadcast_to(x, (D, *x.shape)).copy(), seeded)
+        loop_keys = np.stack(
+            [np.stack([np.asarray(jax.random.fold_in(s.key, d)) for s in states]) for d in range(D)]
+        )
+        per_device = per_device.replace(key=loop_keys)
+        return per_device, np.stack(env_keys, axis=1)
+
+    # --- training ---------------------------------------------------------------------------
+
+    def _unroll(self, policy: Any, env_state: Any, key: jax.Array) -> tuple[Any, Any, Any]:
+        env = self.train_env
+
+        def step(carry: tuple[Any, jax.Array], _: None) -> tuple[Any, Any]:
+            s, k = carry
+            k, k_act = jax.random.split(k)
+            actions, extras = policy(s.obs, k_act)
+            ns = env.step(s, actions)
+            transition = types.Transition(
+                observation=s.obs,
+                action=actions,
+                reward=ns.reward,
+                discount=1.0 - ns.done,
+                next_observation=ns.obs,
+                extras={
+                    "policy_extras": extras,
+                    "state_extras": {"truncation": ns.info["truncation"]},
+                },
+            )
+            return (ns, k), (transition, ns.metrics)
+
+        (env_state, _), (data, metrics) = jax.lax.scan(
+            step, (env_state, key), None, length=self.cfg.ppo.unroll_length
+        )
+        return env_state, data, metrics
+
+    def _iteration(
+        self, carry: tuple[TrainingState, Any], _: None
+    ) -> tuple[tuple[TrainingState, Any], dict[str, jax.Array]]:
+        ts, env_state = carry
+        p = self.cfg.ppo
+        key, k_unroll, k_sgd = jax.random.split(ts.key, 3)
+        policy = self.make_policy((ts.normalizer_params, ts.params.policy, ts.params.value))
+
+        def unroll(c: Any, _: None) -> tuple[Any, Any]:
+            s, k = c
+            k, k_now = jax.random.split(k)
+            s, data, metrics = self._unroll(policy, s, k_now)
+            return (s, k), (data, metrics)
+
+        (env_state, _), (data, env_metrics) = jax.lax.scan(
+            unroll, (env_state, k_unroll), None, length=self.unrolls_per_iteration
+        )
+        # (unrolls, T, E, ...) -> (unrolls * E, T, ...)
+        data = jax.tree.map(lambda x: jnp.swapaxes(x, 1, 2), data)
+        data = jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), data)
+        normalizer = ts.normalizer_params
+        if p.normalize_observations:
+            normalizer = running_statistics.update(
+                normalizer, data.observation, pmap_axis_name=AXIS
+            )
+
+        def minibatch(c: Any, batch: Any) -> tuple[Any, Any]:
+            opt_state, params, k = c
+            k, k_loss = jax.random.split(k)
+            (_, metrics), grads = self._loss_and_grad(params, normalizer, batch, k_loss)
+            updates, opt_state = self.optimizer.update(grads, opt_state)
+            params = optax.apply_updates(params, updates)
+            return (opt_state, params, k), metrics
+
+        def sgd(c: Any, _: None) -> tuple[Any, Any]:
+            opt_state, params, k = c
+            k, k_perm, k_grad = jax.random.split(k, 3)
+
+            def shuffle(x: jax.Array) -> jax.Array:
+                x = jax.random.permutation(k_perm, x)
+                return x.reshape((p.num_minibatches, -1, *x.shape[1:]))
+
+            (opt_state, params, _), metrics = jax.lax.scan(
+                minibatch, (opt_state, params, k_grad), jax.tree.map(shuffle, data)
+            )
+            return (opt_state, params, k), metrics
+
+        (opt_state, params, _), loss_metrics = jax.lax.scan(
+            sgd, (ts.optimizer_state, ts.params, k_sgd), None, length=p.num_updates_per_batch
+        )
+        ts = TrainingState(
+            optimizer_state=opt_state, params=params, normalizer_params=normalizer, key=key
+        )
+        metrics = {f"loss/{k}": jnp.mean(v) for k, v in loss_metrics.items()}
+        metrics |= {k: jnp.mean(v) for k, v in env_metrics.items()}
+        metrics["reward"] = jnp.mean(data.reward)
+        return (ts, env_state), metrics
+
+    @allow_rank_promotion
+    def _epoch(self, ts: TrainingState, env_state: Any) -> tuple[TrainingState, Any, Any]:
+        (ts, env_state), metrics = jax.lax.scan(
+            self._iteration, (ts, env_state), None, length=self.cfg.run.epoch_iterations
+        )
+        metrics = jax.tree.map(jnp.mean, metrics)
+        metrics = jax.lax.pmean(metrics, axis_name=AXIS)
+        metrics["finite"] = (all_finite(ts.params) & all_finite(ts.normalizer_params.mean)).astype(
+            jnp.float32
+        )
+        metrics["finite"] = jax.lax.pmin(metrics["finite"], axis_name=AXIS)
+        return ts, env_state, metrics
+
+    # --- evaluation -------------------------------------------------------------------------
+
+    def eval_keys(self) -> jax.Array:
+        root = jax.random.fold_in(jax.random.PRNGKey(self.cfg.run.eval_seed), EVAL_STREAM)
+        return jax.random.split(root, self.cfg.run.num_eval_envs)
+
+    def _rollout(self, policy: Any, scenario: str) -> dict[str, jax.Array]:
+        env = self.eval_envs[scenario]
+        keys = self.eval_keys()
+        state = env.reset(keys)
+
+        def step(s: Any, k: jax.Array) -> tuple[Any, Any]:
+            a, _ = policy(s.obs, k)
+            ns = env.step(s, a)
+            return ns, (ns.metrics, ns.reward)
+
+        act_keys = jax.random.split(jax.random.fold_in(keys[0], 1), env.episode_length)
+        _, (metrics, reward) = jax.lax.scan(step, state, act_keys)
+        out = {f"rmse_{c}": jnp.sqrt(jnp.mean(metrics[f"error/{c}2"])) for c in ("vx", "vy", "wz")}
+        out["rmse_lin"] = jnp.sqrt(jnp.mean(metrics["error/vx2"] + metrics["error/vy2"]))
+        out["reward"] = jnp.mean(reward)
+        out["energy_j"] = jnp.mean(jnp.sum(metrics["energy_j"], axis=0))
+        out["saturated"] = jnp.mean(metrics["saturated"])
+        return out
+
+    @allow_rank_promotion
+    def _evaluate(
+        self, params: Any, use_baseline: jax.Array, scenario: str
+    ) -> dict[str, jax.Array]:
+        learned = self.make_policy(params, deterministic=True)
+        baseline = baseline_policy(self.eval_envs[scenario].menv)
+
+        def policy(obs: Any, key: jax.Array) -> tuple[jax.Array, dict[str, Any]]:
+            # one compiled program serves both: the baseline is selected at run time
+            a, _ = learned(obs, key)
+            b, _ = baseline(obs, key)
+            return jnp.where(use_baseline, b, a), {}
+
+        return self._rollout(policy, scenario)
+
+    def evaluate(self, ts: TrainingState) -> dict[str, dict[str, np.ndarray]]:
+        """Per scenario, per-seed metrics (S,) of the deterministic policy."""
+        params = (ts.normalizer_params, ts.params.policy, ts.params.value)
+        return {
+            name: {k: np.asarray(v) for k, v in fn(params, jnp.asarray(False)).items()}
+            for name, fn in self._eval.items()
+        }
+
+    def evaluate_baseline(self, ts: TrainingState) -> dict[str, dict[str, float]]:
+        """The analytic baseline on the same episodes (``ts`` only fixes shapes)."""
+        params = (ts.normalizer_params, ts.params.policy, ts.params.value)
+        return {
+            name: {k: float(np.asarray(v)[0]) for k, v in fn(params, jnp.asarray(True)).items()}
+            for name, fn in self._eval.items()
+        }
+
+
+def first_device(tree: Any) -> Any:
+    """The device-0 copy of a ``(D, ...)`` tree, as host numpy arrays."""
+
+    def first(x: Any) -> np.ndarray:
+        if isinstance(x, jax.Array):
+            return np.asarray(x.addressable_shards[0].data)[0]
+        return np.asarray(x)[0]
+
+    return jax.tree.map(first, tree)
+
+
+def to_host(tree: Any) -> Any:
+    return jax.tree.map(np.asarray, tree)
+
+
+__all__ = ["Learner", "TrainingState", "all_finite", "first_device", "make_networks"]

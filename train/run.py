@@ -1,0 +1,412 @@
+"""One training run on disk: directory, logs, evaluation, checkpoints, resume, failures.
+
+A run directory holds::
+
+    config.json        the resolved configuration (written before anything compiles)
+    status.json        running | finished | interrupted | diverged, with the epoch
+    metrics.jsonl      one line per seed per epoch (training, evaluation, baseline)
+    tb/seed_<k>/       TensorBoard event files
+    checkpoints/<e>/   orbax checkpoints (full state; see train.checkpoint)
+    summary.json       final figures per seed (when finished)
+
+Rules: a run directory is never overwritten (an existing one is only *resumed*); a NaN
+stops the run with a message and keeps the last good checkpoint; Ctrl-C writes a
+checkpoint of the last completed epoch before exiting.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+
+from mecanum_jax.config import ConfigError
+from train import checkpoint
+from train.config import TrainConfig, config_diff, parse_train_config
+from train.ppo import Learner, first_device, to_host
+
+# Fields a resumed run may change: its length and its logging/evaluation cadence.
+RESUMABLE_CHANGES = {
+    "ppo.num_timesteps",
+    "run.eval_every",
+    "run.checkpoint_every",
+    "run.max_checkpoints",
+}
+
+
+class TrainingDiverged(RuntimeError):  # noqa: N818 (reads as the event it reports)
+    """Loss or parameters went non-finite; the last good checkpoint was kept."""
+
+
+class RunDirError(ValueError):
+    """The run directory cannot be used as asked (exists, or is not a run)."""
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {k: _jsonable(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.generic | np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, float) and not math.isfinite(x):
+        return str(x)
+    return x
+
+
+def _write_json(path: Path, data: Any) -> None:
+    """Write atomically: a crash never leaves a half-written file that looks complete."""
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(_jsonable(data), indent=2) + "\n")
+    os.replace(tmp, path)
+
+
+def beats(policy: dict[str, Any], baseline: dict[str, Any], factor: float = 1.0) -> bool:
+    """Policy's linear and angular RMSE both below ``factor`` × the baseline's."""
+    return bool(
+        policy["rmse_lin"] < factor * baseline["rmse_lin"]
+        and policy["rmse_wz"] < factor * baseline["rmse_wz"]
+    )
+
+
+class Run:
+    """A training run bound to its directory. ``Run.create`` or ``Run.resume``, then ``train``."""
+
+    def __init__(self, cfg: TrainConfig, run_dir: Path, console: Console | None = None):
+        self.cfg = cfg
+        self.dir = run_dir
+        self.console = console or Console(stderr=True)
+        self.is_writer = jax.process_index() == 0
+        self.learner: Learner | None = None
+        self._writers: list[Any] = []
+
+    # --- directories ------------------------------------------------------------------------
+
+    @classmethod
+    def create(cls, cfg: TrainConfig, run_dir: str | Path, **kw: Any) -> Run:
+        """A new run; refuses a directory that already has content."""
+        cfg.validate()
+        run_dir = Path(run_dir)
+        if run_dir.exists() and any(run_dir.iterdir()):
+            raise RunDirError(
+                f"run directory {str(run_dir)!r} already exists and is not empty; "
+                f"resume it with --resume {run_dir} or choose another --run-dir"
+            )
+        run = cls(cfg, run_dir, **kw)
+        if run.is_writer:
+            run_dir.mkdir(parents=True, exist_ok=True)
+            _write_json(run_dir / "config.json", cfg.to_dict())
+            run._status("created", epoch=0)
+        return run
+
+    @classmethod
+    def resume(cls, run_dir: str | Path, overrides: TrainConfig | None = None, **kw: Any) -> Run:
+        """Reopen a run directory; ``overrides`` may only lengthen it or change cadences."""
+        run_dir = Path(run_dir)
+        path = run_dir / "config.json"
+        if not path.exists():
+            raise RunDirError(f"--resume {str(run_dir)!r}: not a run directory (no config.json)")
+        saved = parse_train_config(json.loads(path.read_text()), str(path))
+        cfg = saved
+        if overrides is not None:
+            changed = [f for f in config_diff(saved, overrides) if f not in RESUMABLE_CHANGES]
+            if changed:
+                raise ConfigError(
+                    f"{changed[0]}: cannot change when resuming {str(run_dir)!r} "
+                    f"(saved {_get(saved, changed[0])!r}, given {_get(overrides, changed[0])!r}); "
+                    f"only {sorted(RESUMABLE_CHANGES)} may change"
+                )
+            cfg = overrides.validate()
+            _write_json(path, cfg.to_dict())
+        if checkpoint.latest_epoch(run_dir) is None:
+            raise RunDirError(f"--resume {str(run_dir)!r}: no checkpoint to resume from")
+        return cls(cfg, run_dir, **kw)
+
+    def _status(self, state: str, **extra: Any) -> None:
+        if self.is_writer:
+            _write_json(self.dir / "status.json", {"state": state, "time": time.time(), **extra})
+
+    # --- logging ----------------------------------------------------------------------------
+
+    def _open_logs(self) -> None:
+        if not self.is_writer:
+            return
+        from tensorboardX import SummaryWriter
+
+        self._writers = [
+            SummaryWriter(str(self.dir / "tb" / f"seed_{s}")) for s in self.cfg.run.seeds
+        ]
+
+    def _log(self, epoch: int, steps: int, walltime: float, rows: list[dict[str, Any]]) -> None:
+        if not self.is_writer:
+            return
+        with (self.dir / "metrics.jsonl").open("a") as f:
+            for row in rows:
+                line = {"epoch": epoch, "env_steps": steps, "walltime": walltime, **row}
+                f.write(json.dumps(_jsonable(line)) + "\n")
+        for writer, row in zip(self._writers, rows, strict=True):
+            for key, value in _flatten(row).items():
+                if isinstance(value, int | float) and key != "seed":
+                    writer.add_scalar(key, value, steps)
+            writer.flush()
+
+    # --- training ---------------------------------------------------------------------------
+
+    def train(
+        self,
+        stop_after_epochs: int | None = None,
+        learner: Learner | None = None,
+        time_limit_s: float | None = None,
+    ) -> dict[str, Any]:
+        """Train to ``ppo.num_timesteps`` (or ``stop_after_epochs`` more epochs).
+
+        Returns the summary (also written to ``summary.json``).
+
+        ``learner`` reuses already compiled programs of a run with the same config.
+        ``time_limit_s`` stops (resumably, with a checkpoint) after the first epoch that
+        ends past that many seconds of this session.
+        """
+        cfg = self.cfg
+        if cfg.run.matmul_precision != "default":
+            jax.config.update("jax_default_matmul_precision", cfg.run.matmul_precision)
+        t_start = time.time()
+        if learner is not None and config_diff(learner.cfg, cfg):
+            raise ValueError(
+                f"learner was built for another config: {config_diff(learner.cfg, cfg)}"
+            )
+        learner = self.learner = learner or Learner(cfg)
+        seeds = list(cfg.run.seeds)
+        meta_base = {
+            "config": cfg.to_dict(),
+            "robot": learner.env.desc.robot.name,
+            "observation_layout": [list(x) for x in learner.env.layout],
+            "privileged_layout": [list(x) for x in learner.env.privileged_layout],
+            "action_size": learner.env.action_size,
+            "devices": learner.n_devices,
+        }
+        mgr = checkpoint.manager(self.dir, cfg.run.max_checkpoints) if self.is_writer else None
+        state, env_state = learner.init()
+        epoch, walltime_before, beat_at = 0, 0.0, {}
+        if checkpoint.latest_epoch(self.dir) is not None:
+            host_state, host_env, meta = checkpoint.restore(
+                self.dir, to_host(state), to_host(env_state)
+            )
+            if meta.get("observation_layout") != meta_base["observation_layout"]:
+                raise checkpoint.CheckpointError(
+                    f"checkpoint observation layout {meta.get('observation_layout')} "
+                    f"differs from this code's {meta_base['observation_layout']}"
+                )
+            state, env_state = host_state, host_env
+            epoch, walltime_before = int(meta["epoch"]), float(meta["walltime"])
+            beat_at = meta.get("beat_baseline", {})
+            self.console.log(f"resumed {self.dir} at epoch {epoch} ({meta['env_steps']:,} steps)")
+        self._open_logs()
+        self._status("running", epoch=epoch)
+
+        baseline = learner.evaluate_baseline(first_device(state))
+        steps_per_epoch = cfg.steps_per_iteration * cfg.run.epoch_iterations
+        total_epochs = cfg.num_epochs
+        last_epoch = (
+            total_epochs
+            if stop_after_epochs is None
+            else min(total_epochs, epoch + stop_after_epochs)
+        )
+        saved_epoch = epoch
+        last_eval: dict[str, Any] = {}
+        t0 = time.time() - walltime_before  # wall time counts compilation, across resumes
+
+        def meta_for(ep: int) -> dict[str, Any]:
+            return {
+                **meta_base,
+                "epoch": ep,
+                "env_steps": ep * steps_per_epoch,
+                "walltime": time.time() - t0,
+                "beat_baseline": beat_at,
+            }
+
+        def save(ep: int, ts: Any, es: Any) -> None:
+            nonlocal saved_epoch
+            if mgr is not None and ep != saved_epoch:
+                checkpoint.save(mgr, ep, to_host(ts), to_host(es), meta_for(ep))
+            saved_epoch = ep
+
+        progress = Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            TextColumn("{task.completed:,.0f}/{task.total:,.0f} steps"),
+            TextColumn("{task.fields[sps]} steps/s"),
+            TextColumn("{task.fields[info]}"),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+            console=self.console,
+            disable=not self.is_writer,
+        )
+        task = progress.add_task(
+            cfg.name,
+            total=total_epochs * steps_per_epoch,
+            completed=epoch * steps_per_epoch,
+            sps="-",
+            info="compiling",
+        )
+        try:
+            with progress:
+                while epoch < last_epoch:
+                    t_epoch = time.time()
+                    try:
+                        new_state, new_env, metrics = learner.epoch(state, env_state)
+                        metrics = {k: np.asarray(v)[0] for k, v in metrics.items()}  # (S,)
+                    except KeyboardInterrupt:
+                        self.console.log(f"interrupted: saving epoch {epoch}")
+                        save(epoch, state, env_state)
+                        self._status("interrupted", epoch=epoch)
+                        raise
+                    if not np.all(metrics["finite"] > 0):
+                        bad = [s for s, f in zip(seeds, metrics["finite"], strict=True) if not f]
+                        save(epoch, state, env_state)
+                        self._log(
+                            epoch + 1,
+                            (epoch + 1) * steps_per_epoch,
+                            time.time() - t0,
+                            self._rows(metrics, {}, baseline),
+                        )
+                        self._status("diverged", epoch=epoch, seeds=bad)
+                        raise TrainingDiverged(
+                            f"non-finite loss or parameters in epoch {epoch + 1} for seeds {bad}; "
+                            f"stopped, last good checkpoint: epoch {epoch} "
+                            f"in {self.dir / 'checkpoints'}"
+                        )
+                    state, env_state = new_state, new_env
+                    epoch += 1
+                    sps = steps_per_epoch * len(seeds) / (time.time() - t_epoch)
+                    is_last = epoch == total_epochs
+                    evals: dict[str, Any] = {}
+                    if epoch % cfg.run.eval_every == 0 or is_last:
+                        evals = learner.evaluate(first_device(state))
+                        last_eval = evals
+                        for i, seed in enumerate(seeds):
+                            pol = {k: float(v[i]) for k, v in evals["randomized"].items()}
+                            if str(seed) not in beat_at and beats(pol, baseline["randomized"]):
+                                beat_at[str(seed)] = {
+                                    "epoch": epoch,
+                                    "env_steps": epoch * steps_per_epoch,
+                                    "walltime": time.time() - t0,
+                                }
+                    walltime = time.time() - t0
+                    rows = self._rows(metrics, evals, baseline, sps)
+                    self._log(epoch, epoch * steps_per_epoch, walltime, rows)
+                    info = f"reward {np.mean(metrics['reward']):.3f}"
+                    if evals:
+                        r = evals["randomized"]
+                        b = baseline["randomized"]
+                        info += (
+                            f" | rmse v {np.mean(r['rmse_lin']):.3f} (base {b['rmse_lin']:.3f})"
+                            f" ω {np.mean(r['rmse_wz']):.3f} (base {b['rmse_wz']:.3f})"
+                        )
+                    progress.update(
+                        task, completed=epoch * steps_per_epoch, sps=f"{sps:,.0f}", info=info
+                    )
+                    out_of_time = time_limit_s is not None and time.time() - t_start > time_limit_s
+                    if epoch % cfg.run.checkpoint_every == 0 or is_last or out_of_time:
+                        save(epoch, state, env_state)
+                    if out_of_time and not is_last:
+                        if not evals:
+                            last_eval = learner.evaluate(first_device(state))
+                        self.console.log(f"time limit reached after epoch {epoch}")
+                        break
+        finally:
+            for w in self._writers:
+                w.close()
+        save(epoch, state, env_state)
+        done = epoch >= total_epochs
+        summary = self._summary(epoch, time.time() - t0, last_eval, baseline, beat_at, t_start)
+        if self.is_writer:
+            _write_json(self.dir / "summary.json", summary)
+        self._status("finished" if done else "stopped", epoch=epoch)
+        return summary
+
+    def _rows(
+        self,
+        metrics: dict[str, np.ndarray],
+        evals: dict[str, Any],
+        baseline: dict[str, Any],
+        sps: float | None = None,
+    ) -> list[dict[str, Any]]:
+        rows = []
+        for i, seed in enumerate(self.cfg.run.seeds):
+            row: dict[str, Any] = {"seed": seed}
+            row["train"] = {k: float(v[i]) for k, v in metrics.items()}
+            if sps is not None:
+                row["train"]["steps_per_s"] = sps
+            if evals:
+                row["eval"] = {
+                    name: {k: float(v[i]) for k, v in res.items()} for name, res in evals.items()
+                }
+                row["baseline"] = baseline
+            rows.append(row)
+        return rows
+
+    def _summary(
+        self,
+        epoch: int,
+        walltime: float,
+        evals: dict[str, Any],
+        baseline: dict[str, Any],
+        beat_at: dict[str, Any],
+        t_start: float,
+    ) -> dict[str, Any]:
+        per_seed = []
+        for i, seed in enumerate(self.cfg.run.seeds):
+            entry: dict[str, Any] = {"seed": seed, "beat_baseline": beat_at.get(str(seed))}
+            if evals:
+                entry["eval"] = {
+                    name: {k: float(v[i]) for k, v in res.items()} for name, res in evals.items()
+                }
+            per_seed.append(entry)
+        return {
+            "name": self.cfg.name,
+            "run_dir": str(self.dir),
+            "epochs": epoch,
+            "env_steps_per_seed": epoch
+            * self.cfg.steps_per_iteration
+            * self.cfg.run.epoch_iterations,
+            "walltime_s": walltime,
+            "session_s": time.time() - t_start,
+            "devices": self.learner.n_devices if self.learner else None,
+            "device_kind": jax.devices()[0].device_kind,
+            "baseline": baseline,
+            "seeds": per_seed,
+        }
+
+
+def _get(cfg: Any, dotted: str) -> Any:
+    for part in dotted.split("."):
+        cfg = getattr(cfg, part)
+    return cfg
+
+
+def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        key = f"{prefix}/{k}" if prefix else k
+        if isinstance(v, dict):
+            out |= _flatten(v, key)
+        else:
+            out[key] = v
+    return out
+
+
+__all__ = ["Run", "RunDirError", "TrainingDiverged", "beats"]
