@@ -134,7 +134,10 @@ class Learner:
             normalize_advantage=True,
         )
         self._loss_and_grad = gradients.loss_and_pgrad(loss_fn, pmap_axis_name=AXIS, has_aux=True)
-        self.epoch = jax.pmap(jax.vmap(self._epoch), axis_name=AXIS, devices=self.devices)
+        self._pmapped_epoch = jax.pmap(
+            jax.vmap(self._epoch), axis_name=AXIS, devices=self.devices
+        )
+        self._identity = jax.pmap(lambda *x: x, axis_name=AXIS, devices=self.devices)
         self._reset = jax.pmap(jax.vmap(self.train_env.reset), axis_name=AXIS, devices=self.devices)
         self.eval_envs = {
             "randomized": TrainingEnv(self.env, cfg.run.eval_episode_length),
@@ -152,7 +155,7 @@ class Learner:
     def init(self) -> tuple[TrainingState, Any]:
         """Fresh training and environment state, laid out ``(D, S, ...)``."""
         state, env_keys = self.init_training()
-        return state, self._reset(env_keys)
+        return self.place(state, self._reset(env_keys))
 
     def init_training(self) -> tuple[TrainingState, np.ndarray]:
         """Fresh host training state ``(D, S, ...)`` and environment keys ``(D, S, E/D, 2)``."""
@@ -189,6 +192,19 @@ class Learner:
         return per_device, np.stack(env_keys, axis=1)
 
     # --- training ---------------------------------------------------------------------------
+
+    def epoch(self, ts: TrainingState, env_state: Any) -> tuple[TrainingState, Any, Any]:
+        """One compiled epoch on all devices and seeds: ``(state, env_state, metrics)``.
+
+        Pass states from :meth:`init`, :meth:`place` or a previous epoch: they share one
+        signature (dtypes and shardings), so the program compiles once.
+        """
+        return self._pmapped_epoch(ts, env_state)
+
+    def place(self, ts: TrainingState, env_state: Any) -> tuple[TrainingState, Any]:
+        """Put host ``(D, ...)`` states on the devices exactly as :meth:`epoch` returns them
+        (same shardings, no weak types), so fresh and restored runs hit the compiled epoch."""
+        return self._identity(strip_weak_types(ts), strip_weak_types(env_state))
 
     def _unroll(self, policy: Any, env_state: Any, key: jax.Array) -> tuple[Any, Any, Any]:
         env = self.train_env
@@ -342,6 +358,16 @@ class Learner:
             name: {k: float(np.asarray(v)[0]) for k, v in fn(params, jnp.asarray(True)).items()}
             for name, fn in self._eval.items()
         }
+
+
+def strip_weak_types(tree: Any) -> Any:
+    """Arrays with concrete (non-weak) dtypes, so jit signatures do not flip between calls."""
+
+    def strip(x: Any) -> Any:
+        x = jnp.asarray(x)
+        return jnp.astype(x, x.dtype) if x.weak_type else x
+
+    return jax.tree.map(strip, tree)
 
 
 def first_device(tree: Any) -> Any:

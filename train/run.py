@@ -210,7 +210,7 @@ class Run:
                     f"checkpoint observation layout {meta.get('observation_layout')} "
                     f"differs from this code's {meta_base['observation_layout']}"
                 )
-            state, env_state = host_state, host_env
+            state, env_state = learner.place(host_state, host_env)
             epoch, walltime_before = int(meta["epoch"]), float(meta["walltime"])
             beat_at = meta.get("beat_baseline", {})
             self.console.log(f"resumed {self.dir} at epoch {epoch} ({meta['env_steps']:,} steps)")

@@ -1,0 +1,156 @@
+"""Training-throughput benchmark: PPO environment steps per second, variants side by side.
+
+Each variant is a training config plus overrides; for each, the benchmark builds the
+compiled training program, times the first epoch (compilation included) and then
+``--epochs`` further epochs, and reports end-to-end training throughput (rollouts and PPO
+updates; evaluation and checkpointing excluded), summed over vectorized seeds::
+
+    python -m train.bench --config gpu --epochs 3 \\
+        --variant base= \\
+        --variant tf32=run.matmul_precision=default \\
+        --variant envs16k=ppo.num_envs=16384,ppo.batch_size=2048
+
+Prints a table and writes JSON (``--json-out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from typing import Any
+
+import jax
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from mecanum_jax.config import ConfigError, from_mapping
+from train.config import TrainConfig, load_train_config
+from train.ppo import Learner
+
+
+def apply_overrides(cfg: TrainConfig, spec: str) -> TrainConfig:
+    """``a.b=1,c.d=x`` (TOML-ish scalars; ``|`` separates list items) onto ``cfg``."""
+    data = cfg.to_dict()
+    for item in filter(None, spec.split(",")):
+        if "=" not in item:
+            raise ConfigError(f"--variant override {item!r}: expected key=value")
+        key, raw = item.split("=", 1)
+        node = data
+        *parents, leaf = key.split(".")
+        for part in parents:
+            if part not in node or not isinstance(node[part], dict):
+                raise ConfigError(f"{key} = {raw!r}: no such config field")
+            node = node[part]
+        if leaf not in node:
+            raise ConfigError(f"{key} = {raw!r}: no such config field")
+        node[leaf] = _parse(raw)
+    return from_mapping(TrainConfig, data).validate()
+
+
+def _parse(raw: str) -> Any:
+    if "|" in raw:
+        return [_parse(x) for x in raw.split("|")]
+    for conv in (int, float):
+        try:
+            return conv(raw)
+        except ValueError:
+            pass
+    return {"true": True, "false": False}.get(raw, raw)
+
+
+def measure(cfg: TrainConfig, epochs: int) -> dict[str, Any]:
+    if cfg.run.matmul_precision != "default":
+        jax.config.update("jax_default_matmul_precision", cfg.run.matmul_precision)
+    else:
+        jax.config.update("jax_default_matmul_precision", None)
+    t0 = time.perf_counter()
+    learner = Learner(cfg)
+    state, env_state = learner.init()
+    state, env_state, metrics = learner.epoch(state, env_state)
+    jax.block_until_ready(metrics)
+    first = time.perf_counter() - t0
+    steps = cfg.steps_per_iteration * cfg.run.epoch_iterations * len(cfg.run.seeds)
+    times = []
+    for _ in range(epochs):
+        t = time.perf_counter()
+        state, env_state, metrics = learner.epoch(state, env_state)
+        jax.block_until_ready(metrics)
+        times.append(time.perf_counter() - t)
+    best = min(times)
+    return {
+        "num_envs": cfg.ppo.num_envs,
+        "seeds": len(cfg.run.seeds),
+        "batch_size": cfg.ppo.batch_size,
+        "num_minibatches": cfg.ppo.num_minibatches,
+        "substeps": learner.env.substeps,
+        "matmul_precision": cfg.run.matmul_precision,
+        "devices": learner.n_devices,
+        "first_epoch_s": first,
+        "epoch_s": times,
+        "steps_per_epoch": steps,
+        "steps_per_s_median": steps / float(np.median(times)),
+        "steps_per_s_best": steps / best,
+        "physics_steps_per_s_median": steps * learner.env.substeps / float(np.median(times)),
+        "finite": bool(np.all(np.asarray(metrics["finite"]) > 0)),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m train.bench", description=__doc__)
+    parser.add_argument("--config", default="gpu")
+    parser.add_argument("--epochs", type=int, default=3)
+    parser.add_argument("--variant", action="append", default=None, help="name=overrides")
+    parser.add_argument("--json-out", default=None)
+    args = parser.parse_args(argv)
+    console = Console()
+    try:
+        if args.epochs < 1:
+            raise ConfigError(f"--epochs = {args.epochs}: must be >= 1")
+        base = load_train_config(args.config)
+        variants = []
+        for v in args.variant or ["base="]:
+            name, _, spec = v.partition("=")
+            variants.append((name, apply_overrides(base, spec)))
+    except ConfigError as err:
+        console.print(f"[red]error:[/] {err}")
+        return 2
+    results = []
+    for name, cfg in variants:
+        console.log(f"variant {name}")
+        results.append({"variant": name, **measure(cfg, args.epochs)})
+        console.log(json.dumps(results[-1]))
+    table = Table(title=f"PPO training throughput ({jax.devices()[0].device_kind})")
+    for col in ("variant", "envs", "seeds", "precision", "1st epoch s", "env steps/s", "phys steps/s"):
+        table.add_column(col)
+    for r in results:
+        table.add_row(
+            r["variant"],
+            str(r["num_envs"]),
+            str(r["seeds"]),
+            r["matmul_precision"],
+            f"{r['first_epoch_s']:.1f}",
+            f"{r['steps_per_s_median']:,.0f}",
+            f"{r['physics_steps_per_s_median']:,.0f}",
+        )
+    console.print(table)
+    if args.json_out:
+        out = {
+            "device": jax.devices()[0].device_kind,
+            "jax": jax.__version__,
+            "date": time.strftime("%Y-%m-%d"),
+            "config": args.config,
+            "results": results,
+        }
+        with open(args.json_out, "w") as f:
+            json.dump(out, f, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+
+
+__all__ = ["apply_overrides", "main", "measure"]
