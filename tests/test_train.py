@@ -241,3 +241,21 @@ def test_shipped_configs_validate():
     for name in ("quick", "tiny", "gpu"):
         cfg = load_train_config(name)
         assert cfg.name == name
+
+
+def test_untrained_policy_is_the_baseline(learner):
+    """zero_init_mean + residual actions: the deterministic untrained policy outputs 0."""
+    ts, _ = learner.init_training()
+    one = jax.tree.map(lambda x: x[0, 0], ts)
+    policy = learner.make_policy(
+        (one.normalizer_params, one.params.policy, one.params.value), deterministic=True
+    )
+    rng = np.random.default_rng(1)
+    obs = {
+        k: rng.normal(size=(7, *shape)).astype(np.float32)
+        for k, shape in learner.env.observation_size.items()
+    }
+    with jax.numpy_rank_promotion("allow"):
+        action = np.asarray(policy(obs, jax.random.PRNGKey(0))[0])
+    np.testing.assert_array_equal(action, np.zeros((7, learner.env.action_size)))
+    assert learner.cfg.env.residual

@@ -22,13 +22,19 @@ TRAIN_CONFIG_DIR = CONFIG_DIR / "train"
 
 @dataclasses.dataclass(frozen=True)
 class NetworkConfig:
-    """Policy and value MLPs (Brax's ``make_ppo_networks``)."""
+    """Policy and value MLPs (Brax's ``make_ppo_networks``).
+
+    ``zero_init_mean``: the policy's output layer starts with zero weights for the action
+    mean, so the untrained deterministic policy outputs 0, which with residual actions is
+    exactly the analytic baseline; learning starts from the baseline, not from noise.
+    """
 
     policy_hidden: tuple[int, ...] = (128, 128, 128)
     value_hidden: tuple[int, ...] = (256, 256, 256)
     activation: Literal["swish", "tanh", "relu", "elu"] = "swish"
     init_noise_std: float = 0.5
     privileged_critic: bool = True
+    zero_init_mean: bool = True
 
 
 @dataclasses.dataclass(frozen=True)

@@ -170,7 +170,7 @@ class Learner:
             root = jax.random.fold_in(jax.random.PRNGKey(seed), TRAIN_STREAM)
             k_policy, k_value, k_env, k_loop = jax.random.split(root, 4)
             params = ppo_losses.PPONetworkParams(
-                policy=self.networks.policy_network.init(k_policy),
+                policy=self._initial_policy(k_policy),
                 value=self.networks.value_network.init(k_value),
             )
             state = TrainingState(
@@ -190,6 +190,18 @@ class Learner:
         )
         per_device = per_device.replace(key=loop_keys)
         return per_device, np.stack(env_keys, axis=1)
+
+    def _initial_policy(self, key: jax.Array) -> Any:
+        params = self.networks.policy_network.init(key)
+        if not self.cfg.network.zero_init_mean:
+            return params
+        layers = params["params"]
+        last = max(layers, key=lambda name: int(name.rsplit("_", 1)[-1]))
+        a = self.env.action_size  # outputs [0, a) are the mean, [a, 2a) the scale
+        out = dict(layers[last])
+        out["kernel"] = out["kernel"].at[:, :a].set(0.0)
+        out["bias"] = out["bias"].at[:a].set(0.0)
+        return {**params, "params": {**layers, last: out}}
 
     # --- training ---------------------------------------------------------------------------
 
