@@ -89,7 +89,7 @@ class TrainConfig:
     """A whole training run."""
 
     name: str = "run"
-    env: EnvConfig = EnvConfig()  # noqa: RUF009 (frozen, so a shared default is safe)
+    env: EnvConfig = EnvConfig()
     network: NetworkConfig = NetworkConfig()
     ppo: PPOConfig = PPOConfig()
     run: RunConfig = RunConfig()
