@@ -138,7 +138,9 @@ class Learner:
             jax.vmap(self._epoch), axis_name=AXIS, devices=self.devices
         )
         self._identity = jax.pmap(lambda *x: x, axis_name=AXIS, devices=self.devices)
-        self._reset = jax.pmap(jax.vmap(self.train_env.reset), axis_name=AXIS, devices=self.devices)
+        # reset on one device, then :meth:`place` spreads it (a pmapped MJX reset crashed
+        # XLA's compiler on 2 H200s with jax 0.11.2)
+        self._reset = jax.jit(jax.vmap(jax.vmap(self.train_env.reset)))
         self.eval_envs = {
             "randomized": TrainingEnv(self.env, cfg.run.eval_episode_length),
             "nominal": TrainingEnv(MecanumEnv(cfg.env.nominal()), cfg.run.eval_episode_length),
