@@ -123,7 +123,15 @@ def main(argv: list[str] | None = None) -> int:
         results.append({"variant": name, **measure(cfg, args.epochs)})
         console.log(json.dumps(results[-1]))
     table = Table(title=f"PPO training throughput ({jax.devices()[0].device_kind})")
-    for col in ("variant", "envs", "seeds", "precision", "1st epoch s", "env steps/s", "phys steps/s"):
+    for col in (
+        "variant",
+        "envs",
+        "seeds",
+        "precision",
+        "1st epoch s",
+        "env steps/s",
+        "phys steps/s",
+    ):
         table.add_column(col)
     for r in results:
         table.add_row(

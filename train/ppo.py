@@ -20,6 +20,7 @@ environment state ``(D, S, E/D, ...)``, where S is the number of seeds and E ``n
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -134,13 +135,14 @@ class Learner:
             normalize_advantage=True,
         )
         self._loss_and_grad = gradients.loss_and_pgrad(loss_fn, pmap_axis_name=AXIS, has_aux=True)
-        self._pmapped_epoch = jax.pmap(
-            jax.vmap(self._epoch), axis_name=AXIS, devices=self.devices
-        )
+        self._pmapped_epoch = jax.pmap(jax.vmap(self._epoch), axis_name=AXIS, devices=self.devices)
         self._identity = jax.pmap(lambda *x: x, axis_name=AXIS, devices=self.devices)
         # reset on one device, then :meth:`place` spreads it (a pmapped MJX reset crashed
         # XLA's compiler on 2 H200s with jax 0.11.2)
         self._reset = jax.jit(jax.vmap(jax.vmap(self.train_env.reset)))
+        self._env_template = jax.eval_shape(
+            self.train_env.reset, jax.ShapeDtypeStruct((self.envs_per_device, 2), jnp.uint32)
+        )
         self.eval_envs = {
             "randomized": TrainingEnv(self.env, cfg.run.eval_episode_length),
             "nominal": TrainingEnv(MecanumEnv(cfg.env.nominal()), cfg.run.eval_episode_length),
@@ -157,7 +159,7 @@ class Learner:
     def init(self) -> tuple[TrainingState, Any]:
         """Fresh training and environment state, laid out ``(D, S, ...)``."""
         state, env_keys = self.init_training()
-        return self.place(state, self._reset(env_keys))
+        return self.place(state, self.pack_env(self._reset(env_keys)))
 
     def init_training(self) -> tuple[TrainingState, np.ndarray]:
         """Fresh host training state ``(D, S, ...)`` and environment keys ``(D, S, E/D, 2)``."""
@@ -214,6 +216,25 @@ class Learner:
         signature (dtypes and shardings), so the program compiles once.
         """
         return self._pmapped_epoch(ts, env_state)
+
+    def pack_env(self, env_state: Any) -> dict[str, Any]:
+        """The environment state without its zero-size leaves (MJX has several).
+
+        Zero-size arrays crashed XLA's compiler inside ``pmap`` on 2 GPUs (jax 0.11.2), so
+        the state crosses device programs packed; :meth:`unpack_env` rebuilds it inside.
+        """
+        leaves = jax.tree.leaves(env_state)
+        return {f"{i:05d}": x for i, x in enumerate(leaves) if math.prod(jnp.shape(x))}
+
+    def unpack_env(self, packed: dict[str, Any]) -> Any:
+        """Inverse of :meth:`pack_env` for one seed's per-device batch (inside the program)."""
+        template = self._env_template
+        leaves, treedef = jax.tree.flatten(template)
+        out = [
+            packed[f"{i:05d}"] if math.prod(x.shape) else jnp.zeros(x.shape, x.dtype)
+            for i, x in enumerate(leaves)
+        ]
+        return jax.tree.unflatten(treedef, out)
 
     def place(self, ts: TrainingState, env_state: Any) -> tuple[TrainingState, Any]:
         """Put host ``(D, ...)`` states on the devices exactly as :meth:`epoch` returns them
@@ -305,7 +326,8 @@ class Learner:
         return (ts, env_state), metrics
 
     @allow_rank_promotion
-    def _epoch(self, ts: TrainingState, env_state: Any) -> tuple[TrainingState, Any, Any]:
+    def _epoch(self, ts: TrainingState, packed: Any) -> tuple[TrainingState, Any, Any]:
+        env_state = self.unpack_env(packed)
         (ts, env_state), metrics = jax.lax.scan(
             self._iteration, (ts, env_state), None, length=self.cfg.run.epoch_iterations
         )
@@ -315,7 +337,7 @@ class Learner:
             jnp.float32
         )
         metrics["finite"] = jax.lax.pmin(metrics["finite"], axis_name=AXIS)
-        return ts, env_state, metrics
+        return ts, self.pack_env(env_state), metrics
 
     # --- evaluation -------------------------------------------------------------------------
 
