@@ -50,12 +50,12 @@ def main() -> None:
     sat = np.asarray(limits.saturation(env.geometry, cmd.reshape(-1, 3), env.max_rates))
     beyond = sat.reshape(cmd.shape[:2]) > 1.0
     total_lin, total_ang = lin2.sum(), ang2.sum()
-    print(
-        f"scenario: {'randomized' if args.randomized else 'nominal'}, {args.robots} robots x {args.steps} steps"
-    )
+    name = "randomized" if args.randomized else "nominal"
+    print(f"scenario: {name}, {args.robots} robots x {args.steps} steps")
     print(f"overall RMSE: v {np.sqrt(lin2.mean()):.3f} m/s, ω {np.sqrt(ang2.mean()):.3f} rad/s")
     print(
-        "| part | share of steps | RMSE v (m/s) | RMSE ω (rad/s) | share of Σ v-err² | share of Σ ω-err² |"
+        "| part | share of steps | RMSE v (m/s) | RMSE ω (rad/s) "
+        "| share of Σ v-err² | share of Σ ω-err² |"
     )
     print("|---|---|---|---|---|---|")
     parts = {
