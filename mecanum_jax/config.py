@@ -19,7 +19,7 @@ import math
 import tomllib
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any, Literal, TypeVar, get_args, get_origin
 
@@ -91,6 +91,24 @@ def _convert(value: Any, tp: Any, where: str) -> Any:
     if dataclasses.is_dataclass(tp) and isinstance(tp, type):
         return from_mapping(tp, value, where)
     raise TypeError(f"{where}: unsupported config field type {tp!r}")  # a bug in the schema
+
+
+def invalid(path: str, value: Any, why: str) -> ConfigError:
+    """The error for a well-typed value out of its range: ``path = value: why``."""
+    return ConfigError(f"{path} = {value!r}: {why}")
+
+
+def require(
+    section: Any, where: str, names: Iterable[str], ok: Callable[[Any], bool], why: str
+) -> None:
+    """Raise :func:`invalid` for the first field of ``section`` among ``names`` failing ``ok``.
+
+    ``where`` is the dotted path of ``section`` (e.g. ``"env.noise"``).
+    """
+    for name in names:
+        value = getattr(section, name)
+        if not ok(value):
+            raise invalid(f"{where}.{name}", value, why)
 
 
 def from_mapping(cls: type[T], data: Any, where: str = "") -> T:

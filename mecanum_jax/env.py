@@ -43,9 +43,9 @@ import numpy as np
 from brax.envs.base import Env, State, Wrapper
 
 from mecanum_jax import kinematics, limits
-from mecanum_jax.config import ConfigError, from_mapping, load_toml
+from mecanum_jax.config import ConfigError, from_mapping, invalid, load_toml, require
 from mecanum_jax.description import RobotDescription, builtin_description, load_description
-from mecanum_jax.physics import GRAVITY, Robot, RobotParams
+from mecanum_jax.physics import GRAVITY, Robot, RobotParams, Sensors
 
 Policy = Callable[[Any, jax.Array], tuple[jax.Array, dict[str, Any]]]
 
@@ -131,40 +131,45 @@ class EnvConfig:
 
     def validate(self, where: str = "env") -> EnvConfig:
         """Check values (not only types); raise :class:`ConfigError` naming the field."""
-
-        def bad(field: str, value: Any, why: str) -> ConfigError:
-            return ConfigError(f"{where}.{field} = {value!r}: {why}")
-
-        for field in ("control_dt", "physics_timestep", "contact_timeconst", "residual_scale"):
-            if getattr(self, field) <= 0:
-                raise bad(field, getattr(self, field), "must be > 0")
+        require(
+            self,
+            where,
+            ("control_dt", "physics_timestep", "contact_timeconst", "residual_scale"),
+            lambda v: v > 0,
+            "must be > 0",
+        )
         ratio = self.control_dt / self.physics_timestep
         if abs(ratio - round(ratio)) > 1e-6:
-            raise bad(
-                "control_dt",
+            raise invalid(
+                f"{where}.control_dt",
                 self.control_dt,
                 f"must be a whole multiple of physics_timestep = {self.physics_timestep}",
             )
-        if self.episode_length < 1:
-            raise bad("episode_length", self.episode_length, "must be >= 1")
+        require(self, where, ("episode_length",), lambda v: v >= 1, "must be >= 1")
         c = self.commands
-        weights = [c.p_zero, c.p_translation, c.p_spin, c.p_combined, c.p_beyond]
-        for name in ("p_zero", "p_translation", "p_spin", "p_combined", "p_beyond"):
-            if getattr(c, name) < 0:
-                raise bad(f"commands.{name}", getattr(c, name), "must be >= 0")
+        kinds = ("p_zero", "p_translation", "p_spin", "p_combined", "p_beyond")
+        require(c, f"{where}.commands", kinds, lambda v: v >= 0, "must be >= 0")
+        weights = [getattr(c, k) for k in kinds]
         if sum(weights) <= 0:
-            raise bad("commands.p_*", weights, "at least one kind must have weight > 0")
+            raise invalid(
+                f"{where}.commands.p_*", weights, "at least one kind must have weight > 0"
+            )
         if not 0 <= c.min_fraction <= c.max_fraction:
-            raise bad("commands.min_fraction", c.min_fraction, "need 0 <= min <= max_fraction")
+            raise invalid(
+                f"{where}.commands.min_fraction", c.min_fraction, "need 0 <= min <= max_fraction"
+            )
         if not 1 <= c.beyond_min_fraction <= c.beyond_max_fraction:
-            raise bad(
-                "commands.beyond_min_fraction",
+            raise invalid(
+                f"{where}.commands.beyond_min_fraction",
                 c.beyond_min_fraction,
                 "need 1 <= beyond_min_fraction <= beyond_max_fraction",
             )
         if not 0 < c.resample_min_s <= c.resample_max_s:
-            raise bad("commands.resample_min_s", c.resample_min_s, "need 0 < min <= max")
+            raise invalid(
+                f"{where}.commands.resample_min_s", c.resample_min_s, "need 0 < min <= max"
+            )
         r = self.randomization
+        rw = f"{where}.randomization"
         for name in (
             "friction",
             "payload_mass",
@@ -176,33 +181,37 @@ class EnvConfig:
         ):
             lo, hi = getattr(r, name)
             if lo > hi:
-                raise bad(f"randomization.{name}", [lo, hi], "lower bound above upper bound")
-        positive = {"friction": r.friction[0], "radius_scale": r.radius_scale[0]}
-        positive |= {"torque_scale": r.torque_scale[0], "gain_scale": r.gain_scale[0]}
-        for name, lo in positive.items():
-            if lo <= 0:
-                raise bad(f"randomization.{name}", list(getattr(r, name)), "must be > 0")
+                raise invalid(f"{rw}.{name}", [lo, hi], "lower bound above upper bound")
+        for name in ("friction", "radius_scale", "torque_scale", "gain_scale"):
+            if getattr(r, name)[0] <= 0:
+                raise invalid(f"{rw}.{name}", list(getattr(r, name)), "must be > 0")
         if r.payload_mass[0] < 0:
-            raise bad("randomization.payload_mass", list(r.payload_mass), "must be >= 0")
+            raise invalid(f"{rw}.payload_mass", list(r.payload_mass), "must be >= 0")
         if r.latency_steps[0] < 0 or r.latency_steps[1] > 10:
-            raise bad(
-                "randomization.latency_steps", list(r.latency_steps), "need 0 <= lo <= hi <= 10"
-            )
-        for name in ("wheel_friction_spread", "wheel_radius_spread", "payload_com_xy"):
-            value = getattr(r, name)
-            if not 0 <= value < 1:
-                raise bad(f"randomization.{name}", value, "must be in [0, 1)")
-        n = self.noise
-        for name in ("scale", "wheel_rate", "gyro", "accel"):
-            if getattr(n, name) < 0:
-                raise bad(f"noise.{name}", getattr(n, name), "must be >= 0")
-        w = self.reward
-        for name in ("sigma_lin", "sigma_ang"):
-            if getattr(w, name) <= 0:
-                raise bad(f"reward.{name}", getattr(w, name), "must be > 0")
-        for name in ("tracking_lin", "tracking_ang", "action_rate", "energy"):
-            if getattr(w, name) < 0:
-                raise bad(f"reward.{name}", getattr(w, name), "must be >= 0 (a weight)")
+            raise invalid(f"{rw}.latency_steps", list(r.latency_steps), "need 0 <= lo <= hi <= 10")
+        require(
+            r,
+            rw,
+            ("wheel_friction_spread", "wheel_radius_spread", "payload_com_xy"),
+            lambda v: 0 <= v < 1,
+            "must be in [0, 1)",
+        )
+        require(
+            self.noise,
+            f"{where}.noise",
+            ("scale", "wheel_rate", "gyro", "accel"),
+            lambda v: v >= 0,
+            "must be >= 0",
+        )
+        w, ww = self.reward, f"{where}.reward"
+        require(w, ww, ("sigma_lin", "sigma_ang"), lambda v: v > 0, "must be > 0")
+        require(
+            w,
+            ww,
+            ("tracking_lin", "tracking_ang", "action_rate", "energy"),
+            lambda v: v >= 0,
+            "must be >= 0 (a weight)",
+        )
         self.description(where)  # the robot must load
         return self
 
@@ -307,7 +316,8 @@ class MecanumEnv(Env):
         sim = self.robot.reset(params)
         command = self.sample_command(k_cmd)
         zeros = jnp.zeros(self.n_wheels)
-        sensors = self._sensor_vector(sim, k_noise)
+        sens = self.robot.sensors(sim)
+        sensors = self._sensor_vector(sens, k_noise)
         history = jnp.broadcast_to(sensors, (self.max_latency + 1, self._sensor_size))
         info = {
             "rng": rng,
@@ -320,7 +330,7 @@ class MecanumEnv(Env):
             "history": history,
             "truncation": jnp.asarray(0.0),
         }
-        obs = self._observe(sim, info)
+        obs = self._observe(sens, info)
         metrics = {k: jnp.asarray(0.0) for k in self.metric_names}
         return State(sim, obs, jnp.asarray(0.0), jnp.asarray(0.0), metrics, info)
 
@@ -373,9 +383,9 @@ class MecanumEnv(Env):
         info["step"] = step
         info["rng"] = rng
         info["last_action"] = action
-        sensors = self._sensor_vector(sim, k_noise)
+        sensors = self._sensor_vector(sens, k_noise)
         info["history"] = jnp.concatenate([sensors[None], info["history"][:-1]], axis=0)
-        obs = self._observe(sim, info)
+        obs = self._observe(sens, info)
         return state.replace(pipeline_state=sim, obs=obs, reward=reward, metrics=metrics, info=info)
 
     metric_names = (
@@ -470,9 +480,8 @@ class MecanumEnv(Env):
         hi = max(lo, round(c.resample_max_s / self.config.control_dt))
         return now + jax.random.randint(key, (), lo, hi + 1)
 
-    def _sensor_vector(self, sim: Any, key: jax.Array) -> jax.Array:
+    def _sensor_vector(self, s: Sensors, key: jax.Array) -> jax.Array:
         """Noisy encoder rates, gyro z, accelerometer and the odometry twist (scaled)."""
-        s = self.robot.sensors(sim)
         nc = self.config.noise
         k1, k2, k3 = jax.random.split(key, 3)
         n = self.n_wheels
@@ -489,20 +498,14 @@ class MecanumEnv(Env):
             ]
         )
 
-    def _observe(self, sim: Any, info: dict[str, Any]) -> dict[str, jax.Array]:
+    def _observe(self, sens: Sensors, info: dict[str, Any]) -> dict[str, jax.Array]:
         delayed = jnp.take(info["history"], info["latency"], axis=0)
-        n = self.n_wheels
         state = jnp.concatenate(
-            [
-                info["command"] / self.command_scale,
-                delayed[: n + 4],
-                delayed[n + 4 :],
-                info["last_action"],
-            ]
+            [info["command"] / self.command_scale, delayed, info["last_action"]]
         )
         p: RobotParams = info["params"]
         nom = self._nominal
-        truth = self.robot.sensors(sim).twist / self.command_scale
+        truth = sens.twist / self.command_scale
         privileged = jnp.concatenate(
             [
                 state,

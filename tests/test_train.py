@@ -35,17 +35,28 @@ def full_run(tiny, learner, tmp_path_factory):
     return run, summary
 
 
-def _params(run_dir, epoch=None):
-    _, meta = checkpoint.read_meta(run_dir, epoch)
-    return meta
-
-
 def _final_train_state(run, learner):
     state, env_state = learner.init()
     host, _, meta = checkpoint.restore(
         run.dir, jax.tree.map(np.asarray, state), jax.tree.map(np.asarray, env_state)
     )
     return host, meta
+
+
+def _deterministic_policy(learner, state):
+    """The deterministic policy of seed 0 (device 0) of a ``(D, S, ...)`` training state."""
+    one = jax.tree.map(lambda x: x[0, 0], state)
+    return learner.make_policy(
+        (one.normalizer_params, one.params.policy, one.params.value), deterministic=True
+    )
+
+
+def _random_obs(learner, n, seed):
+    rng = np.random.default_rng(seed)
+    return {
+        k: rng.normal(size=(n, *shape)).astype(np.float32)
+        for k, shape in learner.env.observation_size.items()
+    }
 
 
 def test_learner_uses_both_devices(learner):
@@ -168,15 +179,8 @@ def test_policy_loads_into_plain_inference_function(full_run, learner):
     assert meta["robot"] == "o_rectangle"
     assert meta["observation_layout"][0] == ["command", 3]
     host, _ = _final_train_state(run, learner)
-    one = jax.tree.map(lambda x: x[0, 0], host)
-    policy = learner.make_policy(
-        (one.normalizer_params, one.params.policy, one.params.value), deterministic=True
-    )
-    rng = np.random.default_rng(0)
-    obs = {
-        k: rng.normal(size=(5, *shape)).astype(np.float32)
-        for k, shape in learner.env.observation_size.items()
-    }
+    policy = _deterministic_policy(learner, host)
+    obs = _random_obs(learner, 5, seed=0)
     a = np.asarray(act(obs))
     assert a.shape == (5, 4)
     assert np.all(np.abs(a) <= 1)
@@ -246,15 +250,8 @@ def test_shipped_configs_validate():
 def test_untrained_policy_is_the_baseline(learner):
     """zero_init_mean + residual actions: the deterministic untrained policy outputs 0."""
     ts, _ = learner.init_training()
-    one = jax.tree.map(lambda x: x[0, 0], ts)
-    policy = learner.make_policy(
-        (one.normalizer_params, one.params.policy, one.params.value), deterministic=True
-    )
-    rng = np.random.default_rng(1)
-    obs = {
-        k: rng.normal(size=(7, *shape)).astype(np.float32)
-        for k, shape in learner.env.observation_size.items()
-    }
+    policy = _deterministic_policy(learner, ts)
+    obs = _random_obs(learner, 7, seed=1)
     with jax.numpy_rank_promotion("allow"):
         action = np.asarray(policy(obs, jax.random.PRNGKey(0))[0])
     np.testing.assert_array_equal(action, np.zeros((7, learner.env.action_size)))

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 import time
 from pathlib import Path
@@ -30,7 +29,7 @@ from rich.table import Table
 from mecanum_jax.config import ConfigError
 from train import checkpoint
 from train.config import TrainConfig, load_train_config
-from train.run import Run, RunDirError, TrainingDiverged
+from train.run import Run, RunDirError, TrainingDiverged, write_json
 
 console = Console(stderr=True)
 
@@ -181,7 +180,7 @@ def batch_main(argv: list[str] | None = None) -> int:
             return 130
     table = batch_table(summaries)
     Console().print(table)
-    (out / "summary.json").write_text(json.dumps(summaries, indent=2, default=str) + "\n")
+    write_json(out / "summary.json", summaries)
     console.log(f"summary: {out / 'summary.json'}")
     return 0
 

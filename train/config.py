@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 from typing import Any, Literal
 
-from mecanum_jax.config import ConfigError, from_mapping, load_toml
+from mecanum_jax.config import ConfigError, from_mapping, invalid, load_toml, require
 from mecanum_jax.description import CONFIG_DIR
 from mecanum_jax.env import EnvConfig
 
@@ -96,66 +96,61 @@ class TrainConfig:
 
     def validate(self) -> TrainConfig:
         """Value checks (types were checked on load); raise :class:`ConfigError`."""
-
-        def bad(field: str, value: Any, why: str) -> ConfigError:
-            return ConfigError(f"{field} = {value!r}: {why}")
-
         if not self.name or any(c in self.name for c in "/\\ \t\n"):
-            raise bad("name", self.name, "must be a non-empty name without slashes or spaces")
+            raise invalid("name", self.name, "must be a non-empty name without slashes or spaces")
         self.env.validate("env")
         n = self.network
         for field in ("policy_hidden", "value_hidden"):
             sizes = getattr(n, field)
             if not sizes or any(s < 1 for s in sizes):
-                raise bad(f"network.{field}", list(sizes), "need at least one layer, sizes >= 1")
-        if n.init_noise_std <= 0:
-            raise bad("network.init_noise_std", n.init_noise_std, "must be > 0")
+                raise invalid(
+                    f"network.{field}", list(sizes), "need at least one layer, sizes >= 1"
+                )
+        require(n, "network", ("init_noise_std",), lambda v: v > 0, "must be > 0")
         p = self.ppo
-        for field in (
+        counts = (
             "num_timesteps",
             "num_envs",
             "unroll_length",
             "batch_size",
             "num_minibatches",
             "num_updates_per_batch",
-        ):
-            if getattr(p, field) < 1:
-                raise bad(f"ppo.{field}", getattr(p, field), "must be >= 1")
-        for field in ("learning_rate", "max_grad_norm", "reward_scaling", "clipping_epsilon"):
-            if getattr(p, field) <= 0:
-                raise bad(f"ppo.{field}", getattr(p, field), "must be > 0")
-        if p.entropy_cost < 0:
-            raise bad("ppo.entropy_cost", p.entropy_cost, "must be >= 0")
-        for field in ("discounting", "gae_lambda"):
-            if not 0 < getattr(p, field) <= 1:
-                raise bad(f"ppo.{field}", getattr(p, field), "must be in (0, 1]")
+        )
+        require(p, "ppo", counts, lambda v: v >= 1, "must be >= 1")
+        require(
+            p,
+            "ppo",
+            ("learning_rate", "max_grad_norm", "reward_scaling", "clipping_epsilon"),
+            lambda v: v > 0,
+            "must be > 0",
+        )
+        require(p, "ppo", ("entropy_cost",), lambda v: v >= 0, "must be >= 0")
+        require(p, "ppo", ("discounting", "gae_lambda"), lambda v: 0 < v <= 1, "must be in (0, 1]")
         if (p.batch_size * p.num_minibatches) % p.num_envs:
-            raise bad(
+            raise invalid(
                 "ppo.num_envs",
                 p.num_envs,
                 f"must divide batch_size * num_minibatches = {p.batch_size * p.num_minibatches}",
             )
         r = self.run
         if not r.seeds:
-            raise bad("run.seeds", [], "need at least one seed")
+            raise invalid("run.seeds", [], "need at least one seed")
         if len(set(r.seeds)) != len(r.seeds):
-            raise bad("run.seeds", list(r.seeds), "seeds must be distinct")
+            raise invalid("run.seeds", list(r.seeds), "seeds must be distinct")
         if any(s < 0 for s in r.seeds):
-            raise bad("run.seeds", list(r.seeds), "seeds must be >= 0")
+            raise invalid("run.seeds", list(r.seeds), "seeds must be >= 0")
         if r.eval_seed in r.seeds:
-            raise bad("run.eval_seed", r.eval_seed, "must differ from the training seeds")
-        for field in (
+            raise invalid("run.eval_seed", r.eval_seed, "must differ from the training seeds")
+        cadences = (
             "epoch_iterations",
             "eval_every",
             "checkpoint_every",
             "max_checkpoints",
             "num_eval_envs",
             "eval_episode_length",
-        ):
-            if getattr(r, field) < 1:
-                raise bad(f"run.{field}", getattr(r, field), "must be >= 1")
-        if r.max_devices < 0:
-            raise bad("run.max_devices", r.max_devices, "must be >= 0 (0: all local devices)")
+        )
+        require(r, "run", cadences, lambda v: v >= 1, "must be >= 1")
+        require(r, "run", ("max_devices",), lambda v: v >= 0, "must be >= 0 (0: all local devices)")
         return self
 
     def check_devices(self, device_count: int) -> None:

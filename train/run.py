@@ -36,7 +36,7 @@ from rich.progress import (
 
 from mecanum_jax.config import ConfigError
 from train import checkpoint
-from train.config import TrainConfig, config_diff, parse_train_config
+from train.config import TrainConfig, config_diff, load_train_config
 from train.ppo import Learner, first_device, to_host
 
 # Fields a resumed run may change: its length and its logging/evaluation cadence.
@@ -68,7 +68,7 @@ def _jsonable(x: Any) -> Any:
     return x
 
 
-def _write_json(path: Path, data: Any) -> None:
+def write_json(path: Path, data: Any) -> None:
     """Write atomically: a crash never leaves a half-written file that looks complete."""
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(json.dumps(_jsonable(data), indent=2) + "\n")
@@ -109,7 +109,7 @@ class Run:
         run = cls(cfg, run_dir, **kw)
         if run.is_writer:
             run_dir.mkdir(parents=True, exist_ok=True)
-            _write_json(run_dir / "config.json", cfg.to_dict())
+            write_json(run_dir / "config.json", cfg.to_dict())
             run._status("created", epoch=0)
         return run
 
@@ -120,7 +120,7 @@ class Run:
         path = run_dir / "config.json"
         if not path.exists():
             raise RunDirError(f"--resume {str(run_dir)!r}: not a run directory (no config.json)")
-        saved = parse_train_config(json.loads(path.read_text()), str(path))
+        saved = load_train_config(path)
         cfg = saved
         if overrides is not None:
             changed = [f for f in config_diff(saved, overrides) if f not in RESUMABLE_CHANGES]
@@ -131,14 +131,14 @@ class Run:
                     f"only {sorted(RESUMABLE_CHANGES)} may change"
                 )
             cfg = overrides.validate()
-            _write_json(path, cfg.to_dict())
+            write_json(path, cfg.to_dict())
         if checkpoint.latest_epoch(run_dir) is None:
             raise RunDirError(f"--resume {str(run_dir)!r}: no checkpoint to resume from")
         return cls(cfg, run_dir, **kw)
 
     def _status(self, state: str, **extra: Any) -> None:
         if self.is_writer:
-            _write_json(self.dir / "status.json", {"state": state, "time": time.time(), **extra})
+            write_json(self.dir / "status.json", {"state": state, "time": time.time(), **extra})
 
     # --- logging ----------------------------------------------------------------------------
 
@@ -334,7 +334,7 @@ class Run:
         done = epoch >= total_epochs
         summary = self._summary(epoch, time.time() - t0, last_eval, baseline, beat_at, t_start)
         if self.is_writer:
-            _write_json(self.dir / "summary.json", summary)
+            write_json(self.dir / "summary.json", summary)
         self._status("finished" if done else "stopped", epoch=epoch)
         return summary
 
@@ -409,4 +409,4 @@ def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
-__all__ = ["Run", "RunDirError", "TrainingDiverged", "beats"]
+__all__ = ["Run", "RunDirError", "TrainingDiverged", "beats", "write_json"]
