@@ -9,6 +9,8 @@ use, are rejected with an error naming the key and the value.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import math
 from pathlib import Path
 from typing import Literal
@@ -328,3 +330,10 @@ def builtin_description(name: str) -> RobotDescription:
         known = sorted(p.stem for p in (CONFIG_DIR / "robots").glob("*.toml"))
         raise ConfigError(f"robot = {name!r}: no such built-in description; known: {known}")
     return load_description(path)
+
+
+def fingerprint(desc: RobotDescription) -> str:
+    """A short hash of everything in a description (geometry, motors, body, actuators,
+    simulation): two descriptions with the same fingerprint build the same robot."""
+    text = json.dumps(dataclasses.asdict(desc), sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]

@@ -76,7 +76,11 @@ class CommandConfig:
 @dataclasses.dataclass(frozen=True)
 class RandomizationConfig:
     """Per-robot domain randomization, drawn uniformly at each reset (``enabled = false``:
-    the nominal robot on the description's floor friction, no payload, no latency)."""
+    the nominal robot on the description's floor friction, no payload, no latency).
+
+    The payload's centre of mass is ``payload_com_offset`` plus a uniform draw in
+    ``±payload_com_xy`` (x, y) and ``payload_com_z`` (z), in the body frame.
+    """
 
     enabled: bool = True
     friction: tuple[float, float] = (0.1, 1.2)
@@ -84,6 +88,7 @@ class RandomizationConfig:
     payload_mass: tuple[float, float] = (0.0, 3.0)
     payload_com_xy: float = 0.08
     payload_com_z: tuple[float, float] = (0.0, 0.06)
+    payload_com_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     radius_scale: tuple[float, float] = (0.95, 1.05)
     wheel_radius_spread: float = 0.01
     torque_scale: tuple[float, float] = (0.5, 1.0)
@@ -187,6 +192,8 @@ class EnvConfig:
                 raise invalid(f"{rw}.{name}", list(getattr(r, name)), "must be > 0")
         if r.payload_mass[0] < 0:
             raise invalid(f"{rw}.payload_mass", list(r.payload_mass), "must be >= 0")
+        if any(abs(x) >= 1 for x in r.payload_com_offset):
+            raise invalid(f"{rw}.payload_com_offset", list(r.payload_com_offset), "need |x| < 1 m")
         if r.latency_steps[0] < 0 or r.latency_steps[1] > 10:
             raise invalid(f"{rw}.latency_steps", list(r.latency_steps), "need 0 <= lo <= hi <= 10")
         require(
@@ -311,18 +318,32 @@ class MecanumEnv(Env):
         return "mjx"
 
     def reset(self, rng: jax.Array) -> State:
-        k_params, k_cmd, k_time, k_noise, rng = jax.random.split(rng, 5)
+        k_params, rng = jax.random.split(rng)
         params, latency = self.sample_params(k_params)
+        return self.reset_to(rng, params, latency, self.noise_std())
+
+    def reset_to(
+        self, rng: jax.Array, params: RobotParams, latency: jax.Array, noise_std: jax.Array
+    ) -> State:
+        """Reset with given physics ``params``, ``latency`` (control steps, at most the
+        config's ``latency_steps[1]``) and sensor ``noise_std`` (wheel rate, gyro, accel).
+
+        Evaluation uses this to run scenarios whose parameters are data, so that one
+        compiled program serves them all.
+        """
+        k_cmd, k_time, k_noise, rng = jax.random.split(rng, 4)
         sim = self.robot.reset(params)
         command = self.sample_command(k_cmd)
         zeros = jnp.zeros(self.n_wheels)
         sens = self.robot.sensors(sim)
-        sensors = self._sensor_vector(sens, k_noise)
+        noise_std = jnp.asarray(noise_std, jnp.float32)
+        sensors = self._sensor_vector(sens, k_noise, noise_std)
         history = jnp.broadcast_to(sensors, (self.max_latency + 1, self._sensor_size))
         info = {
             "rng": rng,
             "params": params,
-            "latency": latency,
+            "latency": jnp.asarray(latency, jnp.int32),
+            "noise_std": noise_std,
             "command": command,
             "next_resample": self._resample_time(k_time, jnp.asarray(0, jnp.int32)),
             "step": jnp.asarray(0, jnp.int32),
@@ -333,6 +354,23 @@ class MecanumEnv(Env):
         obs = self._observe(sens, info)
         metrics = {k: jnp.asarray(0.0) for k in self.metric_names}
         return State(sim, obs, jnp.asarray(0.0), jnp.asarray(0.0), metrics, info)
+
+    def noise_std(self, noise: NoiseConfig | None = None) -> jax.Array:
+        """Sensor noise standard deviations (wheel rate, gyro, accel) of a noise config."""
+        nc = noise or self.config.noise
+        return jnp.asarray(
+            [nc.scale * nc.wheel_rate, nc.scale * nc.gyro, nc.scale * nc.accel], jnp.float32
+        )
+
+    def set_command(self, state: State, command: jax.Array) -> State:
+        """Impose ``command`` from now on (scripted sequences): it replaces the current
+        command, in the observations too, and the environment stops resampling."""
+        info = dict(state.info)
+        info["command"] = command
+        info["next_resample"] = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
+        scaled = command / self.command_scale
+        obs = {k: v.at[:3].set(scaled) for k, v in state.obs.items()}  # command comes first
+        return state.replace(obs=obs, info=info)
 
     def step(self, state: State, action: jax.Array) -> State:
         info = dict(state.info)
@@ -383,7 +421,7 @@ class MecanumEnv(Env):
         info["step"] = step
         info["rng"] = rng
         info["last_action"] = action
-        sensors = self._sensor_vector(sens, k_noise)
+        sensors = self._sensor_vector(sens, k_noise, info["noise_std"])
         info["history"] = jnp.concatenate([sensors[None], info["history"][:-1]], axis=0)
         obs = self._observe(sens, info)
         return state.replace(pipeline_state=sim, obs=obs, reward=reward, metrics=metrics, info=info)
@@ -418,9 +456,12 @@ class MecanumEnv(Env):
             rates = action * self.max_rates
         return jnp.clip(rates, -self.max_rates, self.max_rates)
 
-    def sample_params(self, key: jax.Array) -> tuple[RobotParams, jax.Array]:
-        """Per-robot physical parameters and observation latency (steps)."""
-        r = self.config.randomization
+    def sample_params(
+        self, key: jax.Array, randomization: RandomizationConfig | None = None
+    ) -> tuple[RobotParams, jax.Array]:
+        """Per-robot physical parameters and observation latency (steps), drawn from
+        ``randomization`` (default: the config's)."""
+        r = randomization or self.config.randomization
         nom = self._nominal
         if not r.enabled:
             return nom, jnp.asarray(0, jnp.int32)
@@ -433,7 +474,9 @@ class MecanumEnv(Env):
         spread = r.wheel_friction_spread
         friction = u(ks[0], *r.friction) * u(ks[1], 1 - spread, 1 + spread, (n,))
         xy = u(ks[2], -r.payload_com_xy, r.payload_com_xy, (2,))
-        com = jnp.concatenate([xy, u(ks[3], *r.payload_com_z, (1,))])
+        com = jnp.concatenate([xy, u(ks[3], *r.payload_com_z, (1,))]) + jnp.asarray(
+            r.payload_com_offset, jnp.float32
+        )
         rs = r.wheel_radius_spread
         radius = u(ks[4], *r.radius_scale) * u(ks[5], 1 - rs, 1 + rs, (n,))
         gain = u(ks[7], *r.gain_scale)
@@ -450,9 +493,10 @@ class MecanumEnv(Env):
         latency = jax.random.randint(ks[9], (), lo, hi + 1)
         return params, latency
 
-    def sample_command(self, key: jax.Array) -> jax.Array:
-        """One command (vx, vy, ωz) from the mix of kinds of :class:`CommandConfig`."""
-        c = self.config.commands
+    def sample_command(self, key: jax.Array, commands: CommandConfig | None = None) -> jax.Array:
+        """One command (vx, vy, ωz) from the mix of kinds of ``commands`` (default: the
+        config's :class:`CommandConfig`)."""
+        c = commands or self.config.commands
         k_kind, k_angle, k_dir, k_sign, k_frac, k_beyond = jax.random.split(key, 6)
         weights = jnp.array([c.p_zero, c.p_translation, c.p_spin, c.p_combined, c.p_beyond])
         kind = jax.random.categorical(k_kind, jnp.log(weights))
@@ -474,20 +518,41 @@ class MecanumEnv(Env):
         frac = jnp.where(kind == 4, beyond, frac)
         return jnp.where(kind == 0, 0.0, unit * reach * frac)
 
-    def _resample_time(self, key: jax.Array, now: jax.Array) -> jax.Array:
-        c = self.config.commands
+    def command_schedule(
+        self, key: jax.Array, steps: int, commands: CommandConfig | None = None
+    ) -> jax.Array:
+        """``(steps, 3)`` commands as an episode would draw them: a first command, then a
+        new one at random times (the training task's process, from ``commands``)."""
+        k0, k1, key = jax.random.split(key, 3)
+        first = self.sample_command(k0, commands)
+        start = self._resample_time(k1, jnp.asarray(0, jnp.int32), commands)
+
+        def step(carry: tuple, t: jax.Array) -> tuple[tuple, jax.Array]:
+            cmd, due, k = carry
+            k, k_cmd, k_time = jax.random.split(k, 3)
+            now = t >= due
+            cmd = jnp.where(now, self.sample_command(k_cmd, commands), cmd)
+            due = jnp.where(now, self._resample_time(k_time, t, commands), due)
+            return (cmd, due, k), cmd
+
+        _, out = jax.lax.scan(step, (first, start, key), jnp.arange(steps, dtype=jnp.int32))
+        return out
+
+    def _resample_time(
+        self, key: jax.Array, now: jax.Array, commands: CommandConfig | None = None
+    ) -> jax.Array:
+        c = commands or self.config.commands
         lo = max(1, round(c.resample_min_s / self.config.control_dt))
         hi = max(lo, round(c.resample_max_s / self.config.control_dt))
         return now + jax.random.randint(key, (), lo, hi + 1)
 
-    def _sensor_vector(self, s: Sensors, key: jax.Array) -> jax.Array:
+    def _sensor_vector(self, s: Sensors, key: jax.Array, noise_std: jax.Array) -> jax.Array:
         """Noisy encoder rates, gyro z, accelerometer and the odometry twist (scaled)."""
-        nc = self.config.noise
         k1, k2, k3 = jax.random.split(key, 3)
         n = self.n_wheels
-        rate = s.wheel_rate + nc.scale * nc.wheel_rate * jax.random.normal(k1, (n,))
-        gyro = s.gyro_z + nc.scale * nc.gyro * jax.random.normal(k2)
-        accel = s.accel + nc.scale * nc.accel * jax.random.normal(k3, (3,))
+        rate = s.wheel_rate + noise_std[0] * jax.random.normal(k1, (n,))
+        gyro = s.gyro_z + noise_std[1] * jax.random.normal(k2)
+        accel = s.accel + noise_std[2] * jax.random.normal(k3, (3,))
         odom = self._forward @ rate
         return jnp.concatenate(
             [

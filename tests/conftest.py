@@ -40,3 +40,30 @@ def x64():
     """Run a test body with float64 enabled."""
     with jax.enable_x64(True):
         yield
+
+
+# --- a tiny trained run, shared by the trainer and evaluation tests --------------------------
+
+
+@pytest.fixture(scope="session")
+def tiny():
+    from train.config import load_train_config
+
+    return load_train_config("tiny")
+
+
+@pytest.fixture(scope="session")
+def learner(tiny):
+    from train.ppo import Learner
+
+    return Learner(tiny)
+
+
+@pytest.fixture(scope="session")
+def full_run(tiny, learner, tmp_path_factory):
+    """The uninterrupted reference run of configs/train/tiny.toml (3 epochs)."""
+    from train.run import Run
+
+    run = Run.create(tiny, tmp_path_factory.mktemp("runs") / "full")
+    summary = run.train(learner=learner)
+    return run, summary

@@ -13,26 +13,7 @@ import pytest
 from mecanum_jax.config import ConfigError
 from train import checkpoint, cli
 from train.config import TrainConfig, load_train_config, parse_train_config
-from train.ppo import Learner
 from train.run import Run, RunDirError, TrainingDiverged, beats
-
-
-@pytest.fixture(scope="session")
-def tiny():
-    return load_train_config("tiny")
-
-
-@pytest.fixture(scope="session")
-def learner(tiny):
-    return Learner(tiny)
-
-
-@pytest.fixture(scope="session")
-def full_run(tiny, learner, tmp_path_factory):
-    """The uninterrupted reference run (3 epochs)."""
-    run = Run.create(tiny, tmp_path_factory.mktemp("runs") / "full")
-    summary = run.train(learner=learner)
-    return run, summary
 
 
 def _final_train_state(run, learner):

@@ -14,6 +14,7 @@ deterministic ``obs -> action`` function for evaluation and deployment.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -129,22 +130,44 @@ def read_meta(run_dir: Path, epoch: int | None = None) -> tuple[int, dict[str, A
     return epoch, dict(meta)
 
 
-def load_policy(
+@dataclasses.dataclass(frozen=True)
+class RestoredPolicy:
+    """One seed's policy from a checkpoint: config, networks and host parameters."""
+
+    run_dir: Path
+    epoch: int
+    seed: int
+    cfg: Any  # train.config.TrainConfig
+    networks: Any  # brax PPONetworks
+    normalizer: Any  # running statistics (host arrays)
+    params: Any  # policy network parameters (host arrays)
+    meta: dict[str, Any]
+
+    def apply(self, params: Any, obs: dict[str, Any]) -> jax.Array:
+        """The deterministic action for ``params = (normalizer, policy params)``."""
+        logits = self.networks.policy_network.apply(params[0], params[1], obs)
+        return self.networks.parametric_action_distribution.mode(logits)
+
+
+def split_target(path: str | Path) -> tuple[Path, int | None]:
+    """A run directory, or one checkpoint ``<run>/checkpoints/<epoch>``: ``(run_dir, epoch)``."""
+    path = Path(path)
+    if path.parent.name == CHECKPOINT_DIR and path.name.isdigit():
+        return path.parent.parent, int(path.name)
+    return path, None
+
+
+def restore_policy(
     run_dir: str | Path, seed: int | None = None, epoch: int | None = None
-) -> tuple[Callable[[dict[str, Any]], jax.Array], dict[str, Any]]:
-    """A deterministic ``policy(obs) -> action`` from a run's checkpoint.
+) -> RestoredPolicy:
+    """Restore one seed's policy (not the optimizer or environment) from a run's checkpoint.
 
-    Args:
-      run_dir: the run directory (holding ``checkpoints/``).
-      seed: which of the run's seeds (default: the first).
-      epoch: which checkpoint (default: the latest).
-
-    Returns:
-      ``(policy, meta)``; ``meta["policy_params"]`` holds the host arrays
-      ``(normalizer, policy_params)`` for export.
+    Raises :class:`CheckpointError` naming what is missing, corrupt or mismatched: no
+    run directory or checkpoint, unreadable files, a seed the run did not train, or a
+    checkpoint whose robot description or observation layout differs from what this code
+    builds from the checkpoint's own config (e.g. the robot's TOML file changed since).
     """
     from train.config import parse_train_config
-    from train.ppo import Learner, allow_rank_promotion
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -160,10 +183,14 @@ def load_policy(
     seed = seeds[0] if seed is None else seed
     if seed not in seeds:
         raise CheckpointError(f"seed = {seed}: this run trained seeds {seeds}")
+    from train.ppo import Learner
+
     learner = Learner(cfg, devices=jax.local_devices()[:1])
-    # the saved device count may differ from ours: restore with the saved leading shape
-    d = int(meta["devices"])
+    env, networks = learner.env, learner.networks
+    check_compatible(meta, env, f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r}")
+    # the template of the saved training state: (devices, seeds, ...)
     template, _ = learner.init_training()
+    d = int(meta["devices"])
     train_like = jax.tree.map(lambda x: np.zeros((d, *x.shape[1:]), x.dtype), template)
     mgr = manager(run_dir, create=False)
     try:
@@ -173,29 +200,84 @@ def load_policy(
         train = unpack(train_like, train)
     except Exception as err:
         raise CheckpointError(
-            f"checkpoint {str(run_dir)!r} epoch {epoch}: unreadable: {err}"
+            f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r}: unreadable: {err}"
         ) from err
-    i = seeds.index(seed)
-    one = jax.tree.map(lambda x: x[0, i], train)
-    params = (one.normalizer_params, one.params.policy, one.params.value)
-    policy = learner.make_policy(params, deterministic=True)
-    key = jax.random.PRNGKey(0)
+    one = jax.tree.map(lambda x: x[0, seeds.index(seed)], train)
+    return RestoredPolicy(
+        run_dir=run_dir,
+        epoch=epoch,
+        seed=seed,
+        cfg=cfg,
+        networks=networks,
+        normalizer=one.normalizer_params,
+        params=one.params.policy,
+        meta=meta,
+    )
+
+
+def check_compatible(meta: dict[str, Any], env: Any, what: str) -> None:
+    """Refuse a checkpoint whose robot or observation layout differs from ``env``'s."""
+    from mecanum_jax.description import fingerprint
+
+    robot = env.desc.robot.name
+    if meta.get("robot") not in (None, robot):
+        raise CheckpointError(f"{what}: trained on robot {meta.get('robot')!r}, expected {robot!r}")
+    saved = meta.get("robot_fingerprint")
+    if saved is not None and saved != fingerprint(env.desc):
+        raise CheckpointError(
+            f"{what}: robot {robot!r} has changed since training (description fingerprint "
+            f"{saved}, this code builds {fingerprint(env.desc)}); evaluate with the "
+            "description it was trained on"
+        )
+    layout = [list(x) for x in env.layout]
+    if meta.get("observation_layout") != layout:
+        raise CheckpointError(
+            f"{what}: observation layout {meta.get('observation_layout')}, expected {layout}"
+        )
+    if int(meta.get("action_size", env.action_size)) != env.action_size:
+        raise CheckpointError(
+            f"{what}: action size {meta.get('action_size')}, expected {env.action_size}"
+        )
+
+
+def load_policy(
+    run_dir: str | Path, seed: int | None = None, epoch: int | None = None
+) -> tuple[Callable[[dict[str, Any]], jax.Array], dict[str, Any]]:
+    """A deterministic ``policy(obs) -> action`` from a run's checkpoint.
+
+    Args:
+      run_dir: the run directory (holding ``checkpoints/``).
+      seed: which of the run's seeds (default: the first).
+      epoch: which checkpoint (default: the latest).
+
+    Returns:
+      ``(policy, meta)``; ``meta["policy_params"]`` holds the host arrays
+      ``(normalizer, policy_params)`` for export.
+    """
+    from train.ppo import allow_rank_promotion
+
+    restored = restore_policy(run_dir, seed, epoch)
+    params = (restored.normalizer, restored.params)
 
     @jax.jit
     @allow_rank_promotion
     def act(obs: dict[str, Any]) -> jax.Array:
-        return policy(obs, key)[0]
+        return restored.apply(params, obs)
 
-    meta = dict(meta, epoch=epoch, seed=seed, policy_params=(params[0], params[1]))
+    meta = dict(restored.meta, epoch=restored.epoch, seed=restored.seed, policy_params=params)
     return act, meta
 
 
 __all__ = [
     "CheckpointError",
+    "RestoredPolicy",
+    "check_compatible",
     "latest_epoch",
     "load_policy",
     "manager",
     "read_meta",
     "restore",
+    "restore_policy",
     "save",
+    "split_target",
 ]

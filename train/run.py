@@ -35,6 +35,7 @@ from rich.progress import (
 )
 
 from mecanum_jax.config import ConfigError
+from mecanum_jax.description import fingerprint
 from train import checkpoint
 from train.config import TrainConfig, config_diff, load_train_config
 from train.ppo import Learner, first_device, to_host
@@ -193,6 +194,7 @@ class Run:
         meta_base = {
             "config": cfg.to_dict(),
             "robot": learner.env.desc.robot.name,
+            "robot_fingerprint": fingerprint(learner.env.desc),
             "observation_layout": [list(x) for x in learner.env.layout],
             "privileged_layout": [list(x) for x in learner.env.privileged_layout],
             "action_size": learner.env.action_size,
@@ -205,11 +207,7 @@ class Run:
             host_state, host_env, meta = checkpoint.restore(
                 self.dir, to_host(state), to_host(env_state)
             )
-            if meta.get("observation_layout") != meta_base["observation_layout"]:
-                raise checkpoint.CheckpointError(
-                    f"checkpoint observation layout {meta.get('observation_layout')} "
-                    f"differs from this code's {meta_base['observation_layout']}"
-                )
+            checkpoint.check_compatible(meta, learner.env, f"checkpoint in {str(self.dir)!r}")
             state, env_state = learner.place(host_state, host_env)
             epoch, walltime_before = int(meta["epoch"]), float(meta["walltime"])
             beat_at = meta.get("beat_baseline", {})

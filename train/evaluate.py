@@ -1,0 +1,454 @@
+"""``mecanum-eval``: evaluate a trained policy, or the analytic baseline, on named scenarios.
+
+Examples::
+
+    mecanum-eval baseline                               # the analytic baseline alone
+    mecanum-eval runs/gpu-20261122-101500               # latest checkpoint, first seed
+    mecanum-eval runs/gpu-.../checkpoints/40 --seed 1 --video
+    mecanum-eval runs/gpu-... --only nominal slippery --episodes 8 --out runs/eval-a
+    mecanum-eval runs/gpu-... --scenarios my_scenarios.toml
+    mecanum-export runs/gpu-... policy.npz              # weights + normalizer, for NumPy
+
+With a checkpoint, the analytic baseline always runs on the same episodes (same robots,
+command sequences and sensor noise), and the table, ``report.json`` and the plots put the
+two side by side. Evaluation seeds come from the scenario file, in an rng domain of their
+own: evaluation never replays a training stream.
+
+Everything is written to a ``<out>.partial`` directory that is renamed to ``<out>`` only
+when complete, so an interrupted evaluation never leaves a report that looks finished;
+an existing ``<out>`` is never overwritten. Exit codes: 2 bad input (arguments, scenario
+file, checkpoint), 130 interrupted.
+"""
+
+from __future__ import annotations
+
+from mecanum_jax.render import ensure_gl_backend
+
+ensure_gl_backend()  # before MuJoCo is imported: OSMesa when there is no display
+
+import dataclasses  # noqa: E402
+import shutil  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Annotated, Any, Literal  # noqa: E402
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+import tyro  # noqa: E402
+from rich.console import Console  # noqa: E402
+from rich.progress import (  # noqa: E402
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+)
+from rich.table import Table  # noqa: E402
+
+from mecanum_jax import deploy, kinematics, scenarios  # noqa: E402
+from mecanum_jax import evaluation as ev  # noqa: E402
+from mecanum_jax.config import ConfigError  # noqa: E402
+from mecanum_jax.description import fingerprint  # noqa: E402
+from mecanum_jax.env import MecanumEnv  # noqa: E402
+from mecanum_jax.physics import GRAVITY  # noqa: E402
+from train import checkpoint  # noqa: E402
+from train.config import load_train_config  # noqa: E402
+from train.run import write_json  # noqa: E402
+
+console = Console(stderr=True)
+
+
+@dataclasses.dataclass
+class EvalArgs:
+    """Evaluate a policy against the analytic baseline on named scenarios."""
+
+    target: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="TARGET")]
+    """``baseline``, a run directory (latest checkpoint), or ``<run>/checkpoints/<epoch>``."""
+    scenarios: str = "default"
+    """Scenario file: a name in configs/eval/ or a path to a .toml file."""
+    only: tuple[str, ...] = ()
+    """Evaluate only these scenarios (names from the file), in this order."""
+    episodes: int | None = None
+    """Override every scenario's number of episodes (e.g. fewer, for a quick look)."""
+    seconds: float | None = None
+    """Override every scenario's episode length."""
+    seed: int | None = None
+    """Which of the run's training seeds (default: the first)."""
+    epoch: int | None = None
+    """Which checkpoint (default: the latest)."""
+    robot: str | None = None
+    """``baseline`` only: robot description (built-in name or TOML path)."""
+    config: str | None = None
+    """``baseline`` only: train config whose [env] defines the task (default: quick)."""
+    out: str | None = None
+    """Output directory (default: <run>/eval/epoch<k>-<time>, or runs/eval-baseline-<time>)."""
+    plots: bool = True
+    """Write the PNG plots."""
+    video: bool = False
+    """Render episode 0 of the --video-scenarios: policy and baseline side by side."""
+    video_scenarios: tuple[str, ...] = ()
+    """Scenarios to render (default: six_modes if evaluated, else the first)."""
+    video_size: tuple[int, int] = (320, 240)
+    """Width and height of each policy's view, pixels."""
+    fps: int = 25
+    """Video frame rate (frames are taken from the 50 Hz control steps)."""
+    video_format: Literal["mp4", "gif"] = "mp4"
+    """mp4 (H.264 through imageio-ffmpeg) or gif (Pillow; no ffmpeg needed)."""
+    max_batch: int | None = None
+    """Robots per compiled rollout (default: 64 on CPU, where larger MJX batches deadlock
+    jaxlib 0.10.2; 16384 on GPU, so a whole evaluation is one rollout)."""
+    export: bool = False
+    """Also write the deployable policy (policy.npz + mecanum_policy.py) to the output."""
+
+
+class Target:
+    """What is evaluated: the environment, and the learned policy if any."""
+
+    def __init__(self, args: EvalArgs, scenario_set: scenarios.ScenarioSet):
+        self.restored: checkpoint.RestoredPolicy | None = None
+        if args.target == "baseline":
+            base = load_train_config(args.config or "quick").env
+            if args.robot is not None:
+                base = dataclasses.replace(base, robot=args.robot)
+            for name in ("seed", "epoch"):
+                if getattr(args, name) is not None:
+                    raise ConfigError(f"--{name} = {getattr(args, name)}: only for a checkpoint")
+            self.label = "baseline"
+        else:
+            for name in ("robot", "config"):
+                if getattr(args, name) is not None:
+                    raise ConfigError(
+                        f"--{name} = {getattr(args, name)!r}: a checkpoint evaluates on the "
+                        "task it was trained on; --robot/--config are for `baseline`"
+                    )
+            run_dir, epoch = checkpoint.split_target(args.target)
+            if epoch is not None and args.epoch is not None and epoch != args.epoch:
+                raise ConfigError(f"--epoch = {args.epoch}: the target names epoch {epoch}")
+            self.restored = checkpoint.restore_policy(run_dir, args.seed, epoch or args.epoch)
+            base = self.restored.cfg.env
+            self.label = f"{run_dir} (epoch {self.restored.epoch}, seed {self.restored.seed})"
+        self.env = MecanumEnv(scenarios.eval_env_config(base.validate("env"), scenario_set))
+        apply = None
+        if self.restored is not None:
+            apply = self.restored.apply
+        max_batch = args.max_batch or (64 if jax.default_backend() == "cpu" else 16384)
+        self.evaluator = ev.Evaluator(self.env, apply, max_batch)
+
+    @property
+    def params(self) -> Any:
+        r = self.restored
+        return None if r is None else (r.normalizer, r.params)
+
+
+def default_out(args: EvalArgs, target: Target) -> Path:
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    if target.restored is None:
+        return Path(f"runs/eval-baseline-{stamp}")
+    return target.restored.run_dir / "eval" / f"epoch{target.restored.epoch}-{stamp}"
+
+
+def evaluate(
+    target: Target, scenario_set: scenarios.ScenarioSet
+) -> tuple[dict[str, Any], dict[str, dict[str, ev.Trace]], dict[str, float]]:
+    """Every scenario with the policy (if any) and the baseline, all in as few compiled
+    chunks as the batch limit allows: results, traces and timings."""
+    env = target.env
+    dt = env.config.control_dt
+    t0 = time.time()
+    batches = [scenarios.prepare(env, sc) for sc in scenario_set.scenarios]
+    t_prepare = time.time() - t0
+    whos = (["policy"] if target.restored is not None else []) + ["baseline"]
+    jobs = [(b, who == "baseline") for b in batches for who in whos]
+    columns = (TextColumn("rollouts"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=console, transient=True) as bar:
+        task = bar.add_task("rollouts", total=None)
+        out = target.evaluator.run_many(
+            jobs, target.params, lambda done, total: bar.update(task, completed=done, total=total)
+        )
+    t_rollout = time.time() - t0 - t_prepare
+    results: dict[str, Any] = {}
+    traces: dict[str, dict[str, ev.Trace]] = {}
+    for k, sc in enumerate(scenario_set.scenarios):
+        per = {who: out[k * len(whos) + j] for j, who in enumerate(whos)}
+        traces[sc.name] = per
+        results[sc.name] = {
+            "description": sc.description,
+            "episodes": sc.episodes,
+            "seconds": sc.seconds,
+            "seed": sc.seed,
+            "scripted": sc.scripted,
+            **{who: ev.summarize(tr, dt, sc.scripted) for who, tr in per.items()},
+        }
+    steps = sum(int(np.prod(b.commands.shape[:2])) for b, _ in jobs)
+    timing = {
+        "prepare_s": round(t_prepare, 2),
+        "rollout_s": round(t_rollout, 2),
+        "env_steps": steps,
+        "max_batch": target.evaluator.max_batch,
+    }
+    console.log(
+        f"{len(jobs)} rollouts ({steps:,} control steps) in {t_rollout:.1f} s "
+        f"(compilation included), scenarios prepared in {t_prepare:.1f} s"
+    )
+    return results, traces, timing
+
+
+def results_table(results: dict[str, Any], title: str) -> Table:
+    """Policy against baseline per scenario; the better tracking figure in green."""
+    table = Table(title=title)
+    cols = (
+        "scenario",
+        "who",
+        "RMSE vx",
+        "RMSE vy",
+        "RMSE ωz",
+        "drift m",
+        "heading rad",
+        "energy J",
+        "saturated",
+    )
+    keys = (
+        "rmse_vx",
+        "rmse_vy",
+        "rmse_wz",
+        "drift_m",
+        "heading_drift_rad",
+        "energy_j",
+        "saturated",
+    )
+    for c in cols:
+        table.add_column(c, justify="left" if c in ("scenario", "who") else "right")
+    for name, r in results.items():
+        whos = [w for w in ("policy", "baseline") if w in r]
+        for i, who in enumerate(whos):
+            cells = []
+            for k in keys:
+                v = r[who][k]
+                text = "-" if v is None else (f"{v:.1%}" if k == "saturated" else f"{v:.4g}")
+                other = r.get("baseline" if who == "policy" else "policy")
+                lower_better = k.startswith(("rmse", "drift", "heading"))
+                if (
+                    lower_better
+                    and v is not None
+                    and other
+                    and other[k] is not None
+                    and v < other[k]
+                ):
+                    text = f"[green]{text}[/]"
+                cells.append(text)
+            table.add_row(name if i == 0 else "", who, *cells)
+    return table
+
+
+def write_plots(
+    results: dict[str, Any], traces: dict[str, dict[str, ev.Trace]], dt: float, out: Path
+) -> list[Path]:
+    paths = [
+        ev.plot_errors(
+            {n: {w: r[w] for w in ("policy", "baseline") if w in r} for n, r in results.items()},
+            out / "errors.png",
+        ),
+        ev.plot_trajectories(
+            traces, dt, {n: r["scripted"] for n, r in results.items()}, out / "trajectories.png"
+        ),
+    ]
+    for name, per in traces.items():
+        paths.append(
+            ev.plot_twist(
+                per, dt, f"{name}: {results[name]['description']}", out / f"twist_{name}.png"
+            )
+        )
+    return paths
+
+
+def write_videos(
+    target: Target, traces: dict[str, dict[str, ev.Trace]], args: EvalArgs, out: Path
+) -> list[Path]:
+    from mecanum_jax.render import render_frames, write_video
+
+    names = list(args.video_scenarios) or (
+        ["six_modes"] if "six_modes" in traces else [next(iter(traces))]
+    )
+    unknown = [n for n in names if n not in traces]
+    if unknown:
+        raise ConfigError(
+            f"--video-scenarios: {unknown[0]!r} was not evaluated; have {list(traces)}"
+        )
+    every = max(1, round(1 / (args.fps * target.env.config.control_dt)))
+    fps = round(1 / (every * target.env.config.control_dt))
+    w, h = args.video_size
+    paths = []
+    for name in names:
+        clips, labels = [], []
+        for who, tr in traces[name].items():
+            clips.append(render_frames(target.env.robot.mj_model, tr.qpos[0, ::every], w, h))
+            labels.append(who)
+        frames = ev.side_by_side(clips, labels)
+        paths.append(write_video(frames, out / f"video_{name}.{args.video_format}", fps))
+    return paths
+
+
+def export_policy(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
+    """Write ``policy.npz`` (weights, normalizer, control-loop constants) and copy the
+    NumPy inference module beside it as ``mecanum_policy.py``."""
+    cfg = restored.cfg
+    env = MecanumEnv(cfg.env)
+    layers_tree = restored.params["params"]
+    names = sorted(layers_tree, key=lambda n: int(n.rsplit("_", 1)[-1]))
+    layers = [
+        (np.asarray(layers_tree[n]["kernel"]), np.asarray(layers_tree[n]["bias"])) for n in names
+    ]
+    size = env.observation_size["state"][0]
+    if cfg.ppo.normalize_observations:
+        mean = np.asarray(restored.normalizer.mean["state"])
+        std = np.asarray(restored.normalizer.std["state"])
+    else:
+        mean, std = np.zeros(size, np.float32), np.ones(size, np.float32)
+    meta = {
+        "robot": env.desc.robot.name,
+        "robot_fingerprint": fingerprint(env.desc),
+        "wheels": list(env.geometry.names),
+        "activation": cfg.network.activation,
+        "action_size": env.action_size,
+        "observation_layout": [list(x) for x in env.layout],
+        "residual": cfg.env.residual,
+        "residual_scale": cfg.env.residual_scale,
+        "max_rates": np.asarray(env.max_rates).tolist(),
+        "command_scale": np.asarray(env.command_scale).tolist(),
+        "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),
+        "forward_matrix": np.asarray(kinematics.forward_matrix(env.geometry)).tolist(),
+        "gravity": GRAVITY,
+        "control_dt": cfg.env.control_dt,
+        "source": {"run": str(restored.run_dir), "epoch": restored.epoch, "seed": restored.seed},
+    }
+    path = deploy.save(path, layers, mean, std, meta)
+    shutil.copyfile(deploy.__file__, path.with_name("mecanum_policy.py"))
+    return path
+
+
+def _error(err: BaseException) -> None:
+    console.print(f"[bold red]error:[/] {err}", soft_wrap=True, markup=True, highlight=False)
+
+
+def _parse(argv: list[str], prog: str, cls: type) -> Any:
+    return tyro.cli(cls, args=argv, prog=prog)
+
+
+def _check_args(args: EvalArgs) -> None:
+    w, h = args.video_size
+    if not (16 <= w <= 4096 and 16 <= h <= 4096):
+        raise ConfigError(f"--video-size = {w} {h}: each in [16, 4096] pixels")
+    if not 1 <= args.fps <= 50:
+        raise ConfigError(f"--fps = {args.fps}: must be in [1, 50] (the control rate)")
+    if args.max_batch is not None and args.max_batch < 1:
+        raise ConfigError(f"--max-batch = {args.max_batch}: must be >= 1")
+    if args.video_scenarios and not args.video:
+        raise ConfigError("--video-scenarios: needs --video")
+    if args.export and args.target == "baseline":
+        raise ConfigError("--export: the baseline has no weights to export; give a checkpoint")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``mecanum-eval``: see the module docstring."""
+    argv = sys.argv[1:] if argv is None else argv
+    args = _parse(argv, "mecanum-eval", EvalArgs)
+    t_start = time.time()
+    try:
+        _check_args(args)
+        scenario_set = scenarios.load_scenarios(args.scenarios).select(
+            args.only, args.episodes, args.seconds
+        )
+        target = Target(args, scenario_set)
+        out = Path(args.out) if args.out else default_out(args, target)
+        if out.exists():
+            raise ConfigError(f"--out = {str(out)!r}: already exists; never overwritten")
+        for sc in scenario_set.scenarios:  # fail on bad scenarios before any rollout
+            if sc.scripted:
+                scenarios.scripted_commands(target.env, sc)
+    except (ConfigError, checkpoint.CheckpointError) as err:
+        _error(err)
+        return 2
+    partial = out.with_name(out.name + ".partial")
+    if partial.exists():
+        shutil.rmtree(partial)  # debris of an interrupted evaluation of the same name
+    partial.mkdir(parents=True)
+    try:
+        console.log(f"evaluating {target.label} on {scenario_set.names} ({scenario_set.source})")
+        results, traces, timing = evaluate(target, scenario_set)
+        dt = target.env.config.control_dt
+        files: list[Path] = []
+        if args.plots:
+            files += write_plots(results, traces, dt, partial)
+        if args.video:
+            files += write_videos(target, traces, args, partial)
+        if args.export and target.restored is not None:
+            files.append(export_policy(target.restored, partial / "policy.npz"))
+        report = {
+            "target": args.target,
+            "label": target.label,
+            "epoch": None if target.restored is None else target.restored.epoch,
+            "seed": None if target.restored is None else target.restored.seed,
+            "robot": target.env.desc.robot.name,
+            "scenario_file": scenario_set.source,
+            "device": str(jax.devices()[0]),
+            "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
+            "wall_s": round(time.time() - t_start, 2),
+            "timing": timing,
+            "files": sorted(p.name for p in files),
+            "scenarios": results,
+        }
+        write_json(partial / "report.json", report)
+        partial.rename(out)
+    except ConfigError as err:
+        _error(err)
+        return 2
+    except KeyboardInterrupt:
+        console.print(f"[yellow]interrupted[/]: incomplete output left in {partial}")
+        return 130
+    title = (
+        "the analytic baseline"
+        if target.restored is None
+        else f"{target.label}: policy vs analytic baseline"
+    )
+    Console(width=None if sys.stdout.isatty() else 140).print(results_table(results, title))
+    console.log(f"report: {out / 'report.json'} ({time.time() - t_start:.0f} s)")
+    return 0
+
+
+@dataclasses.dataclass
+class ExportArgs:
+    """Write a trained policy as a small NumPy file (weights + observation normalizer)."""
+
+    run: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN")]
+    """A run directory (latest checkpoint) or ``<run>/checkpoints/<epoch>``."""
+    out: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="OUT.npz")]
+    """The .npz file to write; ``mecanum_policy.py`` (NumPy inference) is copied beside it."""
+    seed: int | None = None
+    epoch: int | None = None
+
+
+def export_main(argv: list[str] | None = None) -> int:
+    """``mecanum-export RUN OUT.npz``."""
+    argv = sys.argv[1:] if argv is None else argv
+    args = _parse(argv, "mecanum-export", ExportArgs)
+    try:
+        if not args.out.endswith(".npz"):
+            raise ConfigError(f"out = {args.out!r}: expected a .npz file name")
+        if Path(args.out).exists():
+            raise ConfigError(f"out = {args.out!r}: already exists; never overwritten")
+        run_dir, epoch = checkpoint.split_target(args.run)
+        restored = checkpoint.restore_policy(run_dir, args.seed, epoch or args.epoch)
+    except (ConfigError, checkpoint.CheckpointError) as err:
+        _error(err)
+        return 2
+    path = export_policy(restored, Path(args.out))
+    console.log(f"wrote {path} and {path.with_name('mecanum_policy.py')}")
+    return 0
+
+
+__all__ = ["EvalArgs", "evaluate", "export_main", "export_policy", "main", "results_table"]
+
+
+if __name__ == "__main__":
+    sys.exit(main())
