@@ -23,6 +23,9 @@ echo "== baseline alone, all default scenarios (includes compilation)"
 echo "== trained policy vs baseline, all default scenarios, video (EGL) and export"
 /usr/bin/time -f "wall %e s" python3 -m train.evaluate /tmp/gpu --out /tmp/eval --video \
   --video-format gif --fps 10 --export 2>&1 | grep -v -i warp
+echo "== the same again, compilation cache warm, no plots or video"
+/usr/bin/time -f "wall %e s" python3 -m train.evaluate /tmp/gpu --out /tmp/eval2 --no-plots \
+  2>&1 | grep -v -i warp | grep -v "│"
 } 2>&1 | tee "$O/log.txt"
 cp /tmp/eval/report.json "$O/report.json"
 cp /tmp/eval-baseline/report.json "$O/report_baseline.json"
