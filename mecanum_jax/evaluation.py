@@ -293,7 +293,7 @@ def plot_errors(results: dict[str, dict[str, dict[str, Any]]], out: Path) -> Pat
     plt = _pyplot()
     names = list(results)
     whos: list[str] = sorted({w for r in results.values() for w in r}, key=_policy_order)
-    fig, axes = plt.subplots(1, 2, figsize=(max(8, 1.3 * len(names) * 2), 3.8))
+    fig, axes = plt.subplots(1, 2, figsize=(min(14.0, 4 + 1.2 * len(names)), 3.8))
     x = np.arange(len(names))
     width = 0.8 / len(whos)
     for ax, key, label in zip(
