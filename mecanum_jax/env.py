@@ -53,6 +53,7 @@ Policy = Callable[[Any, jax.Array], tuple[jax.Array, dict[str, Any]]]
 # --- configuration -------------------------------------------------------------------------
 
 
+@jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class CommandConfig:
     """How commands are drawn. Fractions are of the feasible set's radius in the direction.
@@ -94,6 +95,15 @@ class RandomizationConfig:
     torque_scale: tuple[float, float] = (0.5, 1.0)
     gain_scale: tuple[float, float] = (0.7, 1.3)
     latency_steps: tuple[int, int] = (0, 2)
+
+
+# Both configs are pytrees, so evaluation can pass their values as traced arrays (one
+# compiled sampler for every scenario); ``enabled`` stays static.
+jax.tree_util.register_dataclass(
+    RandomizationConfig,
+    data_fields=[f.name for f in dataclasses.fields(RandomizationConfig) if f.name != "enabled"],
+    meta_fields=["enabled"],
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -542,8 +552,10 @@ class MecanumEnv(Env):
         self, key: jax.Array, now: jax.Array, commands: CommandConfig | None = None
     ) -> jax.Array:
         c = commands or self.config.commands
-        lo = max(1, round(c.resample_min_s / self.config.control_dt))
-        hi = max(lo, round(c.resample_max_s / self.config.control_dt))
+        # jnp (not Python) arithmetic: evaluation passes the config's values as traced arrays
+        dt = self.config.control_dt
+        lo = jnp.maximum(1, jnp.round(jnp.asarray(c.resample_min_s) / dt)).astype(jnp.int32)
+        hi = jnp.maximum(lo, jnp.round(jnp.asarray(c.resample_max_s) / dt).astype(jnp.int32))
         return now + jax.random.randint(key, (), lo, hi + 1)
 
     def _sensor_vector(self, s: Sensors, key: jax.Array, noise_std: jax.Array) -> jax.Array:

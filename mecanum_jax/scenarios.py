@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+import weakref
 import zlib
 from pathlib import Path
 from typing import Any, Literal, NamedTuple
@@ -109,9 +110,8 @@ class Scenario:
         return self.commands.kind != "random"
 
     def randomization_config(self, nominal_friction: float) -> RandomizationConfig:
-        """The scenario's physics as a :class:`RandomizationConfig` (nominal where unset)."""
-        if not self.randomization:
-            return RandomizationConfig(enabled=False)
+        """The scenario's physics as a :class:`RandomizationConfig`: nominal where unset
+        (as ranges pinned to the nominal values, so every scenario samples alike)."""
         return from_mapping(
             RandomizationConfig,
             {**_fixed_nominal(nominal_friction), **self.randomization},
@@ -395,18 +395,37 @@ def prepare(env: MecanumEnv, scenario: Scenario) -> EpisodeBatch:
             f"this environment keeps at most {env.max_latency} steps of history",
         )
     k_params, k_cmd, k_run = jax.random.split(scenario_key(scenario), 3)
-    params, latency = jax.jit(jax.vmap(lambda k: env.sample_params(k, rand)))(
-        jax.random.split(k_params, E)
-    )
+    samplers = _samplers(env, T)
+    params, latency = samplers[0](jax.random.split(k_params, E), _as_arrays(rand))
     if scenario.scripted:
         commands = jnp.broadcast_to(jnp.asarray(scripted_commands(env, scenario)), (E, T, 3))
     else:
         mix = scenario.command_config(env.config.commands)
-        commands = jax.jit(jax.vmap(lambda k: env.command_schedule(k, T, mix)))(
-            jax.random.split(k_cmd, E)
-        )
+        commands = samplers[1](jax.random.split(k_cmd, E), _as_arrays(mix))
     noise = jnp.broadcast_to(env.noise_std(scenario.noise), (E, 3))
     return EpisodeBatch(jax.random.split(k_run, E), params, latency, noise, commands)
+
+
+_SAMPLERS: weakref.WeakKeyDictionary[MecanumEnv, dict[int, tuple[Any, Any]]] = (
+    weakref.WeakKeyDictionary()
+)
+
+
+def _samplers(env: MecanumEnv, steps: int) -> tuple[Any, Any]:
+    """Compiled (parameters, command schedule) samplers of ``env``, taking the scenario's
+    configs as traced values: compiled once per environment and episode length."""
+    cache = _SAMPLERS.setdefault(env, {})
+    if steps not in cache:
+        cache[steps] = (
+            jax.jit(jax.vmap(env.sample_params, in_axes=(0, None))),
+            jax.jit(jax.vmap(lambda k, c: env.command_schedule(k, steps, c), in_axes=(0, None))),
+        )
+    return cache[steps]
+
+
+def _as_arrays(config: Any) -> Any:
+    """A config dataclass (a pytree) with its numbers as float32/int32 arrays."""
+    return jax.tree.map(jnp.asarray, config)
 
 
 def eval_env_config(base: EnvConfig, scenarios: ScenarioSet) -> EnvConfig:

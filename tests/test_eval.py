@@ -448,3 +448,22 @@ def test_run_many_chunks_and_pads_like_single_runs(env, shipped, baseline_evalua
         want = baseline_evaluator.run(b, baseline=True)
         for x, y in zip(got, want, strict=True):
             np.testing.assert_allclose(x, y, atol=1e-4)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--video", "--video-episode", 5], "--video-episode = 5: scenarios have 2 episodes"),
+        (["--video-scenarios", "nominal"], "--video-scenarios: needs --video"),
+        (["--max-batch", 0], "--max-batch = 0: must be >= 1"),
+        (["--fps", 0], "--fps = 0: must be in [1, 50]"),
+        (["--export"], "--export: the baseline has no weights"),
+        (["--seed", 1], "--seed = 1: only for a checkpoint"),
+        (["--scenarios", "missing.toml"], "config file 'missing.toml': no such file"),
+    ],
+)
+def test_eval_cli_rejects_bad_arguments(extra, message, tmp_path, capsys):
+    out = tmp_path / "o"
+    assert _run_cli(["baseline", "--episodes", 2, "--out", out, *extra]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()

@@ -86,9 +86,12 @@ class EvalArgs:
     plots: bool = True
     """Write the PNG plots."""
     video: bool = False
-    """Render episode 0 of the --video-scenarios: policy and baseline side by side."""
+    """Render the --video-scenarios (episode --video-episode): policy and baseline side by
+    side."""
     video_scenarios: tuple[str, ...] = ()
     """Scenarios to render (default: six_modes if evaluated, else the first)."""
+    video_episode: int = 0
+    """Which episode of each rendered scenario."""
     video_size: tuple[int, int] = (320, 240)
     """Width and height of each policy's view, pixels."""
     fps: int = 25
@@ -282,7 +285,8 @@ def write_videos(
     for name in names:
         clips, labels = [], []
         for who, tr in traces[name].items():
-            clips.append(render_frames(target.env.robot.mj_model, tr.qpos[0, ::every], w, h))
+            qpos = tr.qpos[args.video_episode, ::every]
+            clips.append(render_frames(target.env.robot.mj_model, qpos, w, h))
             labels.append(who)
         frames = ev.side_by_side(clips, labels)
         paths.append(write_video(frames, out / f"video_{name}.{args.video_format}", fps))
@@ -341,6 +345,8 @@ def _check_args(args: EvalArgs) -> None:
         raise ConfigError(f"--video-size = {w} {h}: each in [16, 4096] pixels")
     if not 1 <= args.fps <= 50:
         raise ConfigError(f"--fps = {args.fps}: must be in [1, 50] (the control rate)")
+    if args.video_episode < 0:
+        raise ConfigError(f"--video-episode = {args.video_episode}: must be >= 0")
     if args.max_batch is not None and args.max_batch < 1:
         raise ConfigError(f"--max-batch = {args.max_batch}: must be >= 1")
     if args.video_scenarios and not args.video:
@@ -360,6 +366,11 @@ def main(argv: list[str] | None = None) -> int:
             args.only, args.episodes, args.seconds
         )
         target = Target(args, scenario_set)
+        smallest = min(s.episodes for s in scenario_set.scenarios)
+        if args.video and args.video_episode >= smallest:
+            raise ConfigError(
+                f"--video-episode = {args.video_episode}: scenarios have {smallest} episodes"
+            )
         out = Path(args.out) if args.out else default_out(args, target)
         if out.exists():
             raise ConfigError(f"--out = {str(out)!r}: already exists; never overwritten")
