@@ -16,10 +16,20 @@ import os
 
 
 def ensure_gl_backend() -> str:
-    """Pick a headless GL backend for MuJoCo if the user has not (call before importing mujoco)."""
+    """Pick a headless GL backend for MuJoCo if the user has not (call before importing mujoco).
+
+    With no display and no ``MUJOCO_GL``: OSMesa if its library is installed, else EGL if
+    that is, else nothing (MuJoCo then imports fine and only rendering fails). Choosing a
+    backend whose library is missing would break ``import mujoco`` itself.
+    """
     if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
-        os.environ["MUJOCO_GL"] = "osmesa"
-        os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+        import ctypes.util
+
+        for backend, library in (("osmesa", "OSMesa"), ("egl", "EGL")):
+            if ctypes.util.find_library(library):
+                os.environ["MUJOCO_GL"] = backend
+                os.environ.setdefault("PYOPENGL_PLATFORM", backend)
+                break
     return os.environ.get("MUJOCO_GL", "")
 
 

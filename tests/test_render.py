@@ -1,5 +1,7 @@
 """Rendering: a rollout becomes a video (OSMesa on CPU) and a trajectory plot."""
 
+import os
+
 from mecanum_jax.render import ensure_gl_backend
 
 ensure_gl_backend()
@@ -29,3 +31,22 @@ def test_render_rejects_bad_arguments(tmp_path):
         render.main(["--out", str(tmp_path / "x.avi")])
     with pytest.raises(SystemExit):
         render.main(["--out", str(tmp_path / "x.gif"), "--fps", "0"])
+
+
+@pytest.mark.parametrize(
+    ("found", "expected"),
+    [({"OSMesa", "EGL"}, "osmesa"), ({"EGL"}, "egl"), (set(), "")],
+)
+def test_gl_backend_is_only_chosen_when_its_library_exists(found, expected, monkeypatch):
+    """Setting MUJOCO_GL to a backend whose library is missing breaks ``import mujoco``
+    (seen on the GPU machine without OSMesa): no display and nothing installed → unset."""
+    import ctypes.util
+
+    from mecanum_jax import render
+
+    monkeypatch.delenv("MUJOCO_GL", raising=False)
+    monkeypatch.delenv("PYOPENGL_PLATFORM", raising=False)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.setattr(ctypes.util, "find_library", lambda name: name if name in found else None)
+    assert render.ensure_gl_backend() == expected
+    assert os.environ.get("MUJOCO_GL", "") == expected
