@@ -11,6 +11,8 @@ noise stream depends on the episode key only, not on the actions).
 
 - ``rmse_vx``, ``rmse_vy`` (m/s), ``rmse_wz`` (rad/s), ``rmse_lin`` (of the velocity
   vector), over every control step of every episode, against the command in force;
+  ``worst_rmse_lin`` and ``worst_rmse_wz``: the same over the worst single episode (one
+  robot that spins away hides in the mean);
 - for scripted (fixed-sequence) scenarios, the final pose error against the path the
   commands describe — ``drift_m`` and ``heading_drift_rad`` (mean over episodes); on a
   closed sequence that is the distance from the start;
@@ -40,6 +42,8 @@ METRICS = (
     "rmse_vy",
     "rmse_wz",
     "rmse_lin",
+    "worst_rmse_lin",
+    "worst_rmse_wz",
     "drift_m",
     "heading_drift_rad",
     "energy_j",
@@ -194,6 +198,8 @@ def summarize(trace: Trace, dt: float, scripted: bool) -> dict[str, float | None
         "rmse_vy": float(np.sqrt(np.mean(err[..., 1] ** 2))),
         "rmse_wz": float(np.sqrt(np.mean(err[..., 2] ** 2))),
         "rmse_lin": float(np.sqrt(np.mean(err[..., 0] ** 2 + err[..., 1] ** 2))),
+        "worst_rmse_lin": float(np.max(np.sqrt(np.mean(err[..., 0] ** 2 + err[..., 1] ** 2, 1)))),
+        "worst_rmse_wz": float(np.max(np.sqrt(np.mean(err[..., 2] ** 2, axis=1)))),
         "drift_m": None,
         "heading_drift_rad": None,
         "energy_j": float(np.mean(np.sum(trace.energy_j, axis=1))),

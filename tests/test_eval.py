@@ -189,6 +189,7 @@ def test_summarize_on_a_known_trace():
     command[:, :25, 0] = 1.0  # 0.5 m forward, then stop
     twist = command.copy()
     twist[:, :, 1] = 0.1  # a constant sideways error of 0.1 m/s
+    twist[1, :, 2] = 0.3  # episode 1 also turns at 0.3 rad/s
     pose = np.zeros((E, T, 3), np.float32)
     pose[:, :, 0] = np.minimum(np.arange(1, T + 1), 25) * dt
     pose[:, -1, :2] = [0.5, 0.05]  # ends 5 cm to the left of the commanded end point
@@ -207,6 +208,9 @@ def test_summarize_on_a_known_trace():
     assert m["rmse_vx"] == pytest.approx(0.0)
     assert m["rmse_vy"] == pytest.approx(0.1)
     assert m["rmse_lin"] == pytest.approx(0.1)
+    assert m["worst_rmse_lin"] == pytest.approx(0.1)
+    assert m["rmse_wz"] == pytest.approx(np.sqrt(0.09 / 2))
+    assert m["worst_rmse_wz"] == pytest.approx(0.3)
     assert m["drift_m"] == pytest.approx(0.05, abs=1e-6)
     assert m["heading_drift_rad"] == pytest.approx(0.2, abs=1e-6)
     assert m["energy_j"] == pytest.approx(25.0)

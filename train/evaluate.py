@@ -206,6 +206,7 @@ def results_table(results: dict[str, Any], title: str) -> Table:
         "RMSE vx",
         "RMSE vy",
         "RMSE ωz",
+        "worst ωz",
         "drift m",
         "heading rad",
         "energy J",
@@ -215,6 +216,7 @@ def results_table(results: dict[str, Any], title: str) -> Table:
         "rmse_vx",
         "rmse_vy",
         "rmse_wz",
+        "worst_rmse_wz",
         "drift_m",
         "heading_drift_rad",
         "energy_j",
@@ -230,7 +232,7 @@ def results_table(results: dict[str, Any], title: str) -> Table:
                 v = r[who][k]
                 text = "-" if v is None else (f"{v:.1%}" if k == "saturated" else f"{v:.4g}")
                 other = r.get("baseline" if who == "policy" else "policy")
-                lower_better = k.startswith(("rmse", "drift", "heading"))
+                lower_better = k.startswith(("rmse", "worst", "drift", "heading"))
                 if (
                     lower_better
                     and v is not None
