@@ -358,7 +358,11 @@ class Learner:
         act_keys = jax.random.split(jax.random.fold_in(keys[0], 1), env.episode_length)
         _, (metrics, reward) = jax.lax.scan(step, state, act_keys)
         out = {f"rmse_{c}": jnp.sqrt(jnp.mean(metrics[f"error/{c}2"])) for c in ("vx", "vy", "wz")}
-        out["rmse_lin"] = jnp.sqrt(jnp.mean(metrics["error/vx2"] + metrics["error/vy2"]))
+        lin2 = metrics["error/vx2"] + metrics["error/vy2"]  # (T, episodes)
+        out["rmse_lin"] = jnp.sqrt(jnp.mean(lin2))
+        # the worst single episode: one robot that spins away hides in the mean
+        out["worst_rmse_lin"] = jnp.max(jnp.sqrt(jnp.mean(lin2, axis=0)))
+        out["worst_rmse_wz"] = jnp.max(jnp.sqrt(jnp.mean(metrics["error/wz2"], axis=0)))
         out["reward"] = jnp.mean(reward)
         out["energy_j"] = jnp.mean(jnp.sum(metrics["energy_j"], axis=0))
         out["saturated"] = jnp.mean(metrics["saturated"])
