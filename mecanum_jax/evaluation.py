@@ -214,6 +214,21 @@ def summarize(trace: Trace, dt: float, scripted: bool) -> dict[str, float | None
     return out
 
 
+def per_episode(trace: Trace, dt: float, scripted: bool) -> dict[str, list[float]]:
+    """Per-episode RMSE of v and ωz (and final drift of scripted scenarios), for scripts
+    that look for the episodes where a policy fails."""
+    err = trace.twist - trace.command
+    out = {
+        "rmse_lin": np.sqrt(np.mean(err[..., 0] ** 2 + err[..., 1] ** 2, axis=1)).tolist(),
+        "rmse_wz": np.sqrt(np.mean(err[..., 2] ** 2, axis=1)).tolist(),
+    }
+    if scripted:
+        final = relative_poses(trace)[:, -1]
+        goal = intended_poses(trace.command, dt)[:, -1]
+        out["drift_m"] = np.linalg.norm(final[:, :2] - goal[:, :2], axis=-1).tolist()
+    return out
+
+
 # --- plots (matplotlib) ---------------------------------------------------------------------
 
 _COLORS = {"policy": "tab:blue", "baseline": "tab:orange", "command": "black"}
@@ -358,6 +373,7 @@ __all__ = [
     "Evaluator",
     "Trace",
     "intended_poses",
+    "per_episode",
     "plot_errors",
     "plot_trajectories",
     "plot_twist",

@@ -215,6 +215,10 @@ def test_summarize_on_a_known_trace():
     assert m["heading_drift_rad"] == pytest.approx(0.2, abs=1e-6)
     assert m["energy_j"] == pytest.approx(25.0)
     assert evaluation.summarize(trace, dt, scripted=False)["drift_m"] is None
+    detail = evaluation.per_episode(trace, dt, scripted=True)
+    np.testing.assert_allclose(detail["rmse_wz"], [0.0, 0.3], atol=1e-6)
+    np.testing.assert_allclose(detail["drift_m"], [0.05, 0.05], atol=1e-6)
+    assert max(detail["rmse_wz"]) == pytest.approx(m["worst_rmse_wz"])
 
 
 def test_baseline_rollout_tracks_and_is_deterministic(env, small, baseline_evaluator):
@@ -271,6 +275,7 @@ def test_eval_baseline_cli_reduced_set(tmp_path, capsys):
     assert "policy" not in sp
     assert sp["baseline"]["drift_m"] is not None
     assert report["scenarios"]["nominal"]["baseline"]["drift_m"] is None
+    assert len(sp["per_episode"]["baseline"]["drift_m"]) == 2
     for name in ("errors.png", "trajectories.png", "twist_nominal.png", "twist_singular_pass.png"):
         assert (out / name).stat().st_size > 1000
     assert not (tmp_path / "base.partial").exists()

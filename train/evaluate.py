@@ -182,6 +182,7 @@ def evaluate(
             "seed": sc.seed,
             "scripted": sc.scripted,
             **{who: ev.summarize(tr, dt, sc.scripted) for who, tr in per.items()},
+            "per_episode": {who: ev.per_episode(tr, dt, sc.scripted) for who, tr in per.items()},
         }
     steps = sum(int(np.prod(b.commands.shape[:2])) for b, _ in jobs)
     timing = {
