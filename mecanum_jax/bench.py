@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import functools
+import itertools
 import json
 import os
 import platform
@@ -86,6 +87,8 @@ class PhysicsBench:
     """Largest batch for the (slow) reference fidelity."""
     ls_iterations: int | None = None
     """Override the description's line-search iterations (to explore speed)."""
+    servos: tuple[str, ...] = ("chord",)
+    """Servo models to time side by side: chord (the default) and/or mjx (MJX's own)."""
     json_out: Path | None = None
     """Write the results as JSON here."""
 
@@ -99,6 +102,9 @@ def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str,
     bad = sorted(set(args.fidelities) - {"fast", "reference"})
     if bad:
         raise SystemExit(f"--fidelities: unknown fidelity {bad[0]!r}; known: fast, reference")
+    bad = sorted(set(args.servos) - {"chord", "mjx"})
+    if bad or not args.servos:
+        raise SystemExit(f"--servos: {list(args.servos)}: expected chord and/or mjx")
     if args.steps < 1 or args.repeats < 1 or any(n < 1 for n in args.sizes):
         raise SystemExit(
             f"--steps = {args.steps}, --repeats = {args.repeats}, "
@@ -110,8 +116,8 @@ def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str,
             desc, sim=dataclasses.replace(desc.sim, ls_iterations=args.ls_iterations)
         )
     rows: list[dict[str, Any]] = []
-    for fidelity in args.fidelities:
-        robot = physics.Robot(desc, fidelity)  # type: ignore[arg-type]
+    for fidelity, servo in itertools.product(args.fidelities, args.servos):
+        robot = physics.Robot(desc, fidelity, servo=servo)  # type: ignore[arg-type]
         params1 = robot.nominal_params()
         cmd1 = kinematics.inverse(robot.geometry, jnp.array([0.3, 0.1, 0.5]))
 
@@ -136,10 +142,12 @@ def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str,
             t = statistics.median(samples)
             unstable = int(np.asarray(state.unstable).sum())
             rows.append(
-                {"fidelity": fidelity, "size": size, "seconds_per_call": t,
+                {"fidelity": fidelity, "servo": servo, "size": size, "seconds_per_call": t,
                  "compile_s": compile_s, "steps_per_s": size * args.steps / t, "unstable": unstable}
             )  # fmt: skip
-            console.print(f"{fidelity:9s} batch {size:6d}: {size * args.steps / t:12.4g} steps/s")
+            console.print(
+                f"{fidelity:9s} {servo:5s} batch {size:6d}: {size * args.steps / t:12.4g} steps/s"
+            )
     device = jax.devices()[0]
     result = {
         "benchmark": "physics",
@@ -152,12 +160,20 @@ def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str,
         "results": rows,
     }
     table = Table(title=f"MJX physics on {result['device']} (jax {result['jax']})")
-    for col in ("fidelity", "batch", "physics steps/s", "ms per step", "compile s", "unstable"):
+    for col in (
+        "fidelity",
+        "servo",
+        "batch",
+        "physics steps/s",
+        "ms per step",
+        "compile s",
+        "unstable",
+    ):
         table.add_column(col, justify="right")
     for r in rows:
         ms = 1e3 * r["seconds_per_call"] / args.steps
-        table.add_row(r["fidelity"], str(r["size"]), f"{r['steps_per_s']:.4g}", f"{ms:.3f}",
-                      f"{r['compile_s']:.1f}", str(r["unstable"]))  # fmt: skip
+        cells = (r["fidelity"], r["servo"], str(r["size"]), f"{r['steps_per_s']:.4g}")
+        table.add_row(*cells, f"{ms:.3f}", f"{r['compile_s']:.1f}", str(r["unstable"]))
     console.print(table)
     _write_json(result, args.json_out, console)
     return result

@@ -78,11 +78,20 @@ class MotorSpec:
       max_motor_rpm: motor shaft speed limit, rpm.
       gear_ratio: motor turns per wheel turn.
       signs: ±1 per wheel in wheel order; default: right-side wheels mirrored (−1).
+      rotor_inertia: the motor rotor's inertia about its shaft, kg·m². The physics model
+        puts ``rotor_inertia · gear_ratio²`` (the inertia a geared motor reflects to its
+        wheel) on each axle as MuJoCo ``armature``. 0: the wheel's own inertia only.
     """
 
     max_motor_rpm: float
     gear_ratio: float = 1.0
     signs: tuple[int, ...] | None = None
+    rotor_inertia: float = 0.0
+
+    @property
+    def reflected_inertia(self) -> float:
+        """The rotor's inertia seen at the wheel, kg·m²."""
+        return self.rotor_inertia * self.gear_ratio**2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -257,6 +266,10 @@ def parse_description(data: dict, source: str = "robot description") -> RobotDes
         raise ConfigError(f"{source}: motors.max_motor_rpm = {m.max_motor_rpm!r}: must be > 0")
     if m.gear_ratio <= 0:
         raise ConfigError(f"{source}: motors.gear_ratio = {m.gear_ratio!r}: must be > 0")
+    if not m.rotor_inertia >= 0:
+        raise ConfigError(
+            f"{source}: motors.rotor_inertia = {m.rotor_inertia!r}: must be >= 0 kg·m²"
+        )
     if m.signs is not None:
         if len(m.signs) != geometry.n_wheels:
             raise ConfigError(

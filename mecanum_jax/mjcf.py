@@ -183,7 +183,8 @@ def _wheel_fast(desc: RobotDescription, geom: WheelGeometry, i: int) -> str:
       <joint name="{name}_roller" type="hinge" axis="{_fmt(math.cos(gamma), math.sin(gamma), 0.0)}"/>
       <inertial pos="0 0 0" mass="1e-3" diaginertia="1e-7 1e-7 1e-7"/>
       <body name="{name}_hub">
-        <joint name="{name}_axle" type="hinge" axis="0 1 0"/>
+        <joint name="{name}_axle" type="hinge" axis="0 1 0"
+               armature="{desc.motors.reflected_inertia:.6g}"/>
         <inertial pos="0 0 0" mass="{m:.6g}" diaginertia="{_hub_inertia(m, r, w)}"/>
         <geom name="{name}_tyre" type="sphere" size="{r:.6g}" contype="2" conaffinity="1"
               condim="3" friction="{_fmt(mu, 0.0, 0.0)}" solref="{desc.sim.contact_timeconst:.6g} 1" mass="0" rgba="0 0 0 0" group="3"/>
@@ -226,7 +227,8 @@ def _wheel_reference(desc: RobotDescription, geom: WheelGeometry, i: int) -> str
         </body>""")
     return f"""
     <body name="{name}_hub" pos="{_fmt(x, y, 0.0)}" quat="{_quat_z(float(geom.drive_angles[i]))}">
-      <joint name="{name}_axle" type="hinge" axis="0 1 0"/>
+      <joint name="{name}_axle" type="hinge" axis="0 1 0"
+               armature="{desc.motors.reflected_inertia:.6g}"/>
       <inertial pos="0 0 0" mass="{m_hub:.6g}" diaginertia="{_hub_inertia(m_hub, rc, w)}"/>
       <geom type="cylinder" size="{_fmt(0.55 * r, w / 2)}" zaxis="0 1 0" contype="0" conaffinity="0"
             mass="0" rgba="{_WHEEL_RGBA}" group="1"/>

@@ -26,16 +26,21 @@ its ``unstable`` counter incremented, so it never poisons the batch; see
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 from mujoco import mjx
 
 from mecanum_jax import mjcf
 from mecanum_jax.description import RobotDescription
 from mecanum_jax.geometry import WheelGeometry
+
+ServoModel = Literal["chord", "mjx"]
+"""How a saturated servo is integrated: ``"chord"`` (default, see
+:meth:`Robot._chord_servo`) or ``"mjx"`` (MJX's own, with the spurious ``−kp·Δω``)."""
 
 GRAVITY = 9.81
 MAX_ABS_QVEL = 2.0e3  # rad/s or m/s: beyond this a state counts as unstable
@@ -132,9 +137,17 @@ def _quat_to_mat(q: jax.Array) -> jax.Array:
 class Robot:
     """A compiled robot at one fidelity: the host model, its MJX model, and its index."""
 
-    def __init__(self, desc: RobotDescription, fidelity: mjcf.Fidelity = "fast"):
+    def __init__(
+        self,
+        desc: RobotDescription,
+        fidelity: mjcf.Fidelity = "fast",
+        servo: ServoModel = "chord",
+    ):
+        if servo not in ("chord", "mjx"):
+            raise ValueError(f"servo = {servo!r}: must be 'chord' or 'mjx'")
         self.desc = desc
         self.fidelity = fidelity
+        self.servo = servo
         self.mj_model, self.index = mjcf.build_model(desc, fidelity)
         self.mjx_model = mjx.put_model(self.mj_model, impl="jax")
         self.geometry: WheelGeometry = desc.build_geometry(warn_singular=False)
@@ -154,6 +167,7 @@ class Robot:
         self._roller_bodies = jnp.asarray(idx.roller_bodies)
         self._body_pos = jnp.asarray(m.body_pos)
         self._qpos0 = jnp.asarray(m.qpos0)
+        self._axle_inv_inertia = jnp.asarray(_axle_inverse_inertia(m, idx.axle_dof), jnp.float32)
 
     # --- parameters -------------------------------------------------------------------
 
@@ -267,6 +281,8 @@ class Robot:
         bound = jnp.where(has_i, params.torque_limit / jnp.where(has_i, params.ki, 1.0), 0.0)
         integral = jnp.clip(state.integral + (setpoint - rate) * dt, -bound, bound)
         ctrl = setpoint + jnp.where(has_i, params.ki / params.kp, 0.0) * integral
+        if self.servo == "chord":
+            model = self._chord_servo(model, ctrl - rate, params)
         with jax.numpy_rank_promotion("allow"):  # MJX relies on implicit rank promotion
             data = mjx.step(model, data.replace(ctrl=data.ctrl.at[self._acts].set(ctrl)))
         # Non-finite, or blown up while still finite (a diverging solve passes through huge
@@ -284,6 +300,42 @@ class Robot:
             setpoint=jnp.where(finite, setpoint, 0.0),
             integral=jnp.where(finite, integral, 0.0),
             unstable=state.unstable + (~finite).astype(jnp.int32),
+        )
+
+    def _chord_servo(self, model: mjx.Model, error: jax.Array, params: RobotParams) -> mjx.Model:
+        """The servo for this step, linearised so that a saturated one stays at its limit.
+
+        A velocity servo's torque is ``f(Δω) = clip(kp·(e − Δω), ±limit)`` for a rate error
+        ``e`` and a change ``Δω`` over the step. The implicit integrator uses the tangent
+        ``f(0) − kp·Δω``; MJX keeps that ``−kp·Δω`` even when ``f(0)`` is clamped (C MuJoCo
+        drops it), so a saturated wheel spins up as if its inertia were ``I + kp·dt``,
+        11-22x the hub's, while its contact still drives the chassis (docs/physics_model.md).
+
+        Here a saturated servo gets the chord of ``f`` from ``Δω = 0`` to ``D``, the most its
+        wheel can gain in one step (the limit torque on the free wheel, ``limit·dt/I``, at
+        most ``e``): the force starts at exactly the limit, stays at it while the servo
+        would stay saturated for the whole step (slope 0: a constant torque), and bends
+        toward ``kp``'s line only when the step may reach the setpoint. ``f`` is concave on
+        ``[0, e]``, so the chord lies under it: no step exceeds the limit or overshoots the
+        setpoint. Unsaturated servos keep the tangent ``kp``. Written into the actuator's
+        gain and bias (``force = g·ctrl + b₀ − g·ω``), so MJX integrates the slope
+        implicitly.
+        """
+        limit, kp = params.torque_limit, params.kp
+        mag = jnp.abs(error)
+        saturated = kp * mag > limit
+        reach = jnp.minimum(limit * self.dt * self._axle_inv_inertia, mag)
+        reach = jnp.where(saturated, reach, 1.0)
+        at_reach = jnp.minimum(limit, kp * jnp.maximum(mag - reach, 0.0))
+        slope = (limit - at_reach) / reach
+        gain = jnp.where(saturated, slope, kp)
+        offset = jnp.where(saturated, jnp.sign(error) * limit - slope * error, 0.0)
+        return model.replace(
+            actuator_gainprm=model.actuator_gainprm.at[self._acts, 0].set(gain),
+            actuator_biasprm=model.actuator_biasprm.at[self._acts, 0]
+            .set(offset)
+            .at[self._acts, 2]
+            .set(-gain),
         )
 
     def step(
@@ -334,6 +386,16 @@ class Robot:
         step = jax.jit(jax.vmap(lambda s, c, p: self.step(s, c, p, substeps)))
         sensors = jax.jit(jax.vmap(self.sensors))
         return reset, step, sensors
+
+
+def _axle_inverse_inertia(m: Any, axle_dof: np.ndarray) -> np.ndarray:
+    """``(M⁻¹)[a, a]`` per axle at the reset pose: how fast a torque spins the free wheel."""
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    full = np.zeros((m.nv, m.nv))
+    mujoco.mj_fullM(m, d, full)
+    inv = np.linalg.inv(full)
+    return inv[axle_dof, axle_dof]
 
 
 def stack_params(params: list[RobotParams]) -> RobotParams:

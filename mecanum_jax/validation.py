@@ -210,7 +210,8 @@ def run(quick: bool = False, robot_name: str = "o_rectangle") -> dict[str, Any]:
             drift, dist = odometry_drift(robot, out, i)
             slip_rows.append({"case": c.name, "group": c.group, "command": list(c.twist or ()),
                               "mean_twist_first_0.5s": early.tolist(), "final_pose": final_pose.tolist(),
-                              "odometry_error_m": drift, "distance_m": dist})  # fmt: skip
+                              "odometry_error_m": drift, "distance_m": dist,
+                              "resets": int(np.asarray(out["unstable"][i]).max())})  # fmt: skip
         # the X-square against the O-square, same spin pattern; and the X-square's own spin inverse
         xs = physics.Robot(xsq, fidelity)
         os_ = physics.Robot(osq, fidelity)
@@ -302,11 +303,16 @@ def to_markdown(res: dict[str, Any]) -> str:
         "| case | command | fast: mean twist 0–0.5 s | fast: final pose | fast: odometry error / distance | reference: mean twist 0–0.5 s | reference: final pose | reference: odometry error / distance |",
         "|---|---|---|---|---|---|---|---|",
     ]
+
+    def pose(row: dict) -> str:
+        n = row.get("resets", 0)
+        return _f(row["final_pose"]) + (f" **went unstable, reset {n}×**" if n else "")
+
     for a, b in zip(fast["slip"], ref["slip"], strict=True):
         lines.append(
-            f"| {a['case']} | {_f(a['command'])} | {_f(a['mean_twist_first_0.5s'])} | {_f(a['final_pose'])} | "
+            f"| {a['case']} | {_f(a['command'])} | {_f(a['mean_twist_first_0.5s'])} | {pose(a)} | "
             f"{a['odometry_error_m']:.3f} m / {a['distance_m']:.2f} m | {_f(b['mean_twist_first_0.5s'])} | "
-            f"{_f(b['final_pose'])} | {b['odometry_error_m']:.3f} m / {b['distance_m']:.2f} m |"
+            f"{pose(b)} | {b['odometry_error_m']:.3f} m / {b['distance_m']:.2f} m |"
         )
     lines += ["", res.get("notes", ""), ""]
     return "\n".join(lines)
