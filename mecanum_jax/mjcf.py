@@ -257,9 +257,10 @@ def build_mjcf(desc: RobotDescription, fidelity: Fidelity = "fast") -> str:
         for n in geom.names
     )
     sim = desc.sim
+    step = sim.timestep if fidelity == "fast" else sim.reference_timestep
     return f"""<mujoco model="{desc.robot.name}_{fidelity}">
   <compiler angle="radian" autolimits="true"/>
-  <option timestep="{sim.timestep:.6g}" integrator="implicitfast" solver="Newton"
+  <option timestep="{step:.6g}" integrator="implicitfast" solver="Newton"
           iterations="{sim.iterations}" ls_iterations="{sim.ls_iterations}" cone="pyramidal">
     <flag eulerdamp="disable"/>
   </option>
