@@ -29,7 +29,7 @@ import platform
 import statistics
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -93,6 +93,36 @@ class PhysicsBench:
     """Write the results as JSON here."""
 
 
+def time_physics(
+    robot: Any, sizes: Sequence[int], steps: int, repeats: int
+) -> list[dict[str, Any]]:
+    """Time ``robot`` (a :class:`physics.Robot`): one jitted, vmapped call of ``steps``
+    physics steps per batch size, median of ``repeats`` after a compiling call."""
+    params1 = robot.nominal_params()
+    cmd1 = kinematics.inverse(robot.geometry, jnp.array([0.3, 0.1, 0.5]))
+    run = jax.jit(jax.vmap(functools.partial(robot.step, substeps=steps)))
+    reset = jax.jit(jax.vmap(robot.reset))
+    rows = []
+    for size in sizes:
+        p = jax.tree_util.tree_map(lambda x, n=size: jnp.broadcast_to(x, (n, *x.shape)), params1)
+        cmd = jnp.broadcast_to(cmd1, (size, cmd1.shape[0]))
+        state = reset(p, jnp.zeros((size, 3)))
+        t0 = time.perf_counter()
+        state = jax.block_until_ready(run(state, cmd, p))
+        compile_s = time.perf_counter() - t0
+        samples = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            state = jax.block_until_ready(run(state, cmd, p))
+            samples.append(time.perf_counter() - t0)
+        t = statistics.median(samples)
+        rows.append(
+            {"size": size, "seconds_per_call": t, "compile_s": compile_s,
+             "steps_per_s": size * steps / t, "unstable": int(np.asarray(state.unstable).sum())}
+        )  # fmt: skip
+    return rows
+
+
 def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str, Any]:
     """Physics steps per second (robots × steps / wall time) for each fidelity and batch."""
     from mecanum_jax import physics  # MJX import is slow: only when asked
@@ -118,35 +148,12 @@ def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str,
     rows: list[dict[str, Any]] = []
     for fidelity, servo in itertools.product(args.fidelities, args.servos):
         robot = physics.Robot(desc, fidelity, servo=servo)  # type: ignore[arg-type]
-        params1 = robot.nominal_params()
-        cmd1 = kinematics.inverse(robot.geometry, jnp.array([0.3, 0.1, 0.5]))
-
-        run = jax.jit(jax.vmap(functools.partial(robot.step, substeps=args.steps)))
-        reset = jax.jit(jax.vmap(robot.reset))
-        for size in args.sizes:
-            if fidelity == "reference" and size > args.max_reference_size:
-                continue
-            p = jax.tree_util.tree_map(
-                lambda x, n=size: jnp.broadcast_to(x, (n, *x.shape)), params1
-            )
-            cmd = jnp.broadcast_to(cmd1, (size, cmd1.shape[0]))
-            state = reset(p, jnp.zeros((size, 3)))
-            t0 = time.perf_counter()
-            state = jax.block_until_ready(run(state, cmd, p))
-            compile_s = time.perf_counter() - t0
-            samples = []
-            for _ in range(args.repeats):
-                t0 = time.perf_counter()
-                state = jax.block_until_ready(run(state, cmd, p))
-                samples.append(time.perf_counter() - t0)
-            t = statistics.median(samples)
-            unstable = int(np.asarray(state.unstable).sum())
-            rows.append(
-                {"fidelity": fidelity, "servo": servo, "size": size, "seconds_per_call": t,
-                 "compile_s": compile_s, "steps_per_s": size * args.steps / t, "unstable": unstable}
-            )  # fmt: skip
+        sizes = [n for n in args.sizes if fidelity == "fast" or n <= args.max_reference_size]
+        for row in time_physics(robot, sizes, args.steps, args.repeats):
+            rows.append({"fidelity": fidelity, "servo": servo, **row})
             console.print(
-                f"{fidelity:9s} {servo:5s} batch {size:6d}: {size * args.steps / t:12.4g} steps/s"
+                f"{fidelity:9s} {servo:5s} batch {row['size']:6d}: "
+                f"{row['steps_per_s']:12.4g} steps/s"
             )
     device = jax.devices()[0]
     result = {

@@ -66,7 +66,8 @@ class NumpyPolicy:
         return int(self.mean.shape[-1])
 
     def action(self, obs: np.ndarray) -> np.ndarray:
-        """Actions (..., n) in [-1, 1] for policy observations (..., observation_size)."""
+        """Actions (..., action_size) in [-1, 1] for policy observations: a correction per
+        wheel, or of the body twist (``meta["residual_space"]``)."""
         x = np.asarray(obs, np.float32)
         if x.shape[-1:] != (self.observation_size,):
             raise ValueError(
@@ -90,7 +91,7 @@ class NumpyPolicy:
           wheel_rate: (n,) encoder rates, rad/s of the wheel.
           gyro_z: yaw rate, rad/s.
           accel: (3,) accelerometer, specific force in the body frame, m/s² (+9.81 z at rest).
-          last_action: (n,) the previous action returned by :meth:`action`.
+          last_action: (action_size,) the previous action returned by :meth:`action`.
         """
         rate = np.asarray(wheel_rate, np.float32)
         odometry = self.forward @ rate
@@ -116,7 +117,10 @@ class NumpyPolicy:
     def wheel_setpoints(self, command: Any, action: Any) -> np.ndarray:
         """Wheel-rate setpoints (rad/s) for the servos."""
         a = np.clip(np.asarray(action, np.float32), -1.0, 1.0)
-        if self.meta["residual"]:
+        if self.meta["residual"] and self.meta.get("residual_space", "wheel") == "twist":
+            correction = a * (np.float32(self.meta["residual_scale"]) * self.command_scale)
+            rates = self.baseline_rates(command) + correction @ self.jacobian.T
+        elif self.meta["residual"]:
             rates = self.baseline_rates(command) + a * (
                 np.float32(self.meta["residual_scale"]) * self.max_rates
             )

@@ -139,7 +139,9 @@ class SimSpec:
       reference_timestep: the reference fidelity's physics step, s. Its 10 capsule rollers
         per wheel go unstable at 2 ms once a wheel spins up freely on a slippery floor
         (μ = 0.1, lateral 1 m/s: 333 resets in 2 s); 1 ms is stable.
-      iterations: constraint solver (Newton) iterations.
+      solver: the constraint solver, ``"newton"`` or ``"cg"`` (conjugate gradient: cheaper
+        iterations, no factorisation; docs/physics_model.md compares them).
+      iterations: constraint solver iterations.
       ls_iterations: line-search iterations.
       floor_friction: sliding friction coefficient of floor and wheels.
       rollers: passive rollers per wheel in the reference fidelity.
@@ -151,6 +153,7 @@ class SimSpec:
 
     timestep: float = 0.002
     reference_timestep: float = 0.001
+    solver: str = "newton"
     iterations: int = 4
     ls_iterations: int = 4
     floor_friction: float = 1.0
@@ -264,7 +267,7 @@ def parse_description(data: dict, source: str = "robot description") -> RobotDes
         geometry = desc.build_geometry(warn_singular=False)
     except ConfigError as err:
         raise ConfigError(f"{source}: {err}") from None
-    _check_physics(desc, source)
+    check_physics(desc, source)
     m = desc.motors
     if m.max_motor_rpm <= 0:
         raise ConfigError(f"{source}: motors.max_motor_rpm = {m.max_motor_rpm!r}: must be > 0")
@@ -286,7 +289,10 @@ def parse_description(data: dict, source: str = "robot description") -> RobotDes
     return desc
 
 
-def _check_physics(desc: RobotDescription, source: str) -> None:
+SOLVERS = ("newton", "cg")
+
+
+def check_physics(desc: RobotDescription, source: str) -> None:
     positive = {
         "body.mass": desc.body.mass,
         "body.wheel_mass": desc.body.wheel_mass,
@@ -320,6 +326,10 @@ def _check_physics(desc: RobotDescription, source: str) -> None:
     if desc.sim.rollers < 3:
         raise ConfigError(
             f"{source}: sim.rollers = {desc.sim.rollers}: a wheel needs at least 3 rollers"
+        )
+    if desc.sim.solver not in SOLVERS:
+        raise ConfigError(
+            f"{source}: sim.solver = {desc.sim.solver!r}: expected one of {list(SOLVERS)}"
         )
     if desc.sim.iterations < 1 or desc.sim.ls_iterations < 1:
         raise ConfigError(

@@ -19,8 +19,9 @@ drive it unchanged.
   accelerometer, the wheel-odometry body twist, and the last action, with sensor noise
   and an observation latency of whole control steps. The critic's
   ``obs["privileged_state"]`` adds the true twist and the randomized physical parameters.
-- **Reward:** ``w_lin·exp(-|v_err|²/σ_lin) + w_ang·exp(-ω_err²/σ_ang)`` minus small
-  action-rate and energy penalties; every term is reported in ``state.metrics``.
+- **Reward:** ``w_lin·exp(-|v_err|²/σ_lin) + w_ang·exp(-ω_err²/σ_ang)``, optional
+  quadratic error penalties (:class:`RewardConfig`), minus small action-rate and energy
+  penalties; every term is reported in ``state.metrics``.
 - **Domain randomization** per robot at every reset (ranges in the config): floor friction
   and per-wheel spread, payload mass and position, wheel-radius error (the baseline keeps
   the nominal geometry), torque limit, servo gains, sensor noise and latency.
@@ -118,19 +119,41 @@ class NoiseConfig:
 
 @dataclasses.dataclass(frozen=True)
 class RewardConfig:
-    """Reward weights; ``sigma_*`` are in (m/s)² and (rad/s)²."""
+    """Reward weights; ``sigma_*`` are in (m/s)² and (rad/s)².
+
+    ``error_lin`` and ``error_ang`` weigh *quadratic* penalties ``−|v_err|²`` and
+    ``−ω_err²``. The exp kernels saturate: an error of 2 rad/s and one of 5 earn the same
+    nothing, so they ignore exactly the large errors that dominate the RMSE a policy is
+    judged by (scripts/feedback_headroom.py: gyro feedback that cuts the randomized RMSE ω
+    from 2.8 to 1.4 rad/s *lowers* the kernel reward). 0 turns a term off. With the
+    defaults (1 per (m/s)², 0.1 per (rad/s)²: ω errors run ~3x v errors) the learned
+    policy stopped degrading nominal ω (+15% → +1% against the baseline, H100, 105 M
+    steps; docs/training.md).
+    """
 
     tracking_lin: float = 1.0
     tracking_ang: float = 0.5
     sigma_lin: float = 0.25
     sigma_ang: float = 1.0
+    error_lin: float = 1.0
+    error_ang: float = 0.1
     action_rate: float = 0.01
     energy: float = 0.0005
 
 
+RESIDUAL_SPACES = ("wheel", "twist")
+
+
 @dataclasses.dataclass(frozen=True)
 class EnvConfig:
-    """The task. ``robot`` is a built-in description name or a path to a TOML file."""
+    """The task. ``robot`` is a built-in description name or a path to a TOML file.
+
+    ``residual_space`` (with ``residual = true``): ``"wheel"``, one correction per wheel
+    (``± residual_scale · max_rate``); or ``"twist"``, a correction of the body twist
+    (``± residual_scale`` of the largest feasible vx, vy, ωz) mapped through the nominal
+    inverse model, so the policy cannot drive the wheels against each other (the
+    inverse model's null space, which squeezes the rollers and only costs energy).
+    """
 
     robot: str = "o_rectangle"
     control_dt: float = 0.02
@@ -139,6 +162,7 @@ class EnvConfig:
     episode_length: int = 500
     residual: bool = True
     residual_scale: float = 0.1
+    residual_space: str = "wheel"
     commands: CommandConfig = CommandConfig()
     randomization: RandomizationConfig = RandomizationConfig()
     noise: NoiseConfig = NoiseConfig()
@@ -161,6 +185,12 @@ class EnvConfig:
                 f"must be a whole multiple of physics_timestep = {self.physics_timestep}",
             )
         require(self, where, ("episode_length",), lambda v: v >= 1, "must be >= 1")
+        if self.residual_space not in RESIDUAL_SPACES:
+            raise invalid(
+                f"{where}.residual_space", self.residual_space, f"expected one of {RESIDUAL_SPACES}"
+            )
+        if self.residual_space == "twist" and not self.residual:
+            raise invalid(f"{where}.residual_space", self.residual_space, "needs residual = true")
         c = self.commands
         kinds = ("p_zero", "p_translation", "p_spin", "p_combined", "p_beyond")
         require(c, f"{where}.commands", kinds, lambda v: v >= 0, "must be >= 0")
@@ -225,7 +255,7 @@ class EnvConfig:
         require(
             w,
             ww,
-            ("tracking_lin", "tracking_ang", "action_rate", "energy"),
+            ("tracking_lin", "tracking_ang", "error_lin", "error_ang", "action_rate", "energy"),
             lambda v: v >= 0,
             "must be >= 0 (a weight)",
         )
@@ -289,6 +319,8 @@ class MecanumEnv(Env):
         kinematics.require_full_rank(self.geometry)
         self._forward = jnp.asarray(kinematics.forward_matrix(self.geometry), jnp.float32)
         self.max_latency = config.randomization.latency_steps[1]
+        self.twist_residual = config.residual and config.residual_space == "twist"
+        self._action_size = 3 if self.twist_residual else n
         self._sensor_size = n + 1 + 3 + 3
         self.layout: tuple[tuple[str, int], ...] = (
             ("command", 3),
@@ -296,7 +328,7 @@ class MecanumEnv(Env):
             ("gyro_z", 1),
             ("accel", 3),
             ("odometry_twist", 3),
-            ("last_action", n),
+            ("last_action", self._action_size),
         )
         self.privileged_layout: tuple[tuple[str, int], ...] = (
             *self.layout,
@@ -321,7 +353,7 @@ class MecanumEnv(Env):
 
     @property
     def action_size(self) -> int:
-        return self.n_wheels
+        return self._action_size
 
     @property
     def backend(self) -> str:
@@ -344,7 +376,7 @@ class MecanumEnv(Env):
         k_cmd, k_time, k_noise, rng = jax.random.split(rng, 4)
         sim = self.robot.reset(params)
         command = self.sample_command(k_cmd)
-        zeros = jnp.zeros(self.n_wheels)
+        zeros = jnp.zeros(self.action_size)
         sens = self.robot.sensors(sim)
         noise_std = jnp.asarray(noise_std, jnp.float32)
         sensors = self._sensor_vector(sens, k_noise, noise_std)
@@ -403,6 +435,8 @@ class MecanumEnv(Env):
         reward = (
             cfg.tracking_lin * tracking_lin
             + cfg.tracking_ang * tracking_ang
+            - cfg.error_lin * lin_err2
+            - cfg.error_ang * ang_err2
             - cfg.action_rate * action_rate
             - cfg.energy * power
         )
@@ -412,6 +446,8 @@ class MecanumEnv(Env):
         metrics = {
             "reward/tracking_lin": tracking_lin,
             "reward/tracking_ang": tracking_ang,
+            "reward/error_lin": -lin_err2,
+            "reward/error_ang": -ang_err2,
             "reward/action_rate": -action_rate,
             "reward/energy": -power,
             "error/vx2": err[0] ** 2,
@@ -439,6 +475,8 @@ class MecanumEnv(Env):
     metric_names = (
         "reward/tracking_lin",
         "reward/tracking_ang",
+        "reward/error_lin",
+        "reward/error_ang",
         "reward/action_rate",
         "reward/energy",
         "error/vx2",
@@ -457,8 +495,11 @@ class MecanumEnv(Env):
         return kinematics.apply_rows(self._jacobian, twist)
 
     def wheel_setpoints(self, command: jax.Array, action: jax.Array) -> jax.Array:
-        """Wheel-rate setpoints (rad/s) for an action in [-1, 1]^n under ``command``."""
-        if self.config.residual:
+        """Wheel-rate setpoints (rad/s) for an action in [-1, 1]^action_size under ``command``."""
+        if self.twist_residual:
+            correction = action * (self.config.residual_scale * self.command_scale)
+            rates = self.baseline_rates(command) + kinematics.apply_rows(self._jacobian, correction)
+        elif self.config.residual:
             rates = self.baseline_rates(command) + action * (
                 self.config.residual_scale * self.max_rates
             )
@@ -652,7 +693,7 @@ def baseline_policy(env: MecanumEnv) -> Policy:
         del key
         command = env.command_from_obs(obs)
         if env.config.residual:
-            return jnp.zeros((*command.shape[:-1], env.n_wheels)), {}
+            return jnp.zeros((*command.shape[:-1], env.action_size)), {}
         rates = env.baseline_rates(command)
         return rates / env.max_rates.reshape((1,) * (rates.ndim - 1) + (-1,)), {}
 

@@ -76,6 +76,9 @@ class ModelIndex:
     roller_bodies: np.ndarray
 
 
+_SOLVER_NAMES = {"newton": "Newton", "cg": "CG"}
+
+
 def _fmt(*values: float) -> str:
     return " ".join(f"{v:.9g}" for v in values)
 
@@ -260,7 +263,7 @@ def build_mjcf(desc: RobotDescription, fidelity: Fidelity = "fast") -> str:
     step = sim.timestep if fidelity == "fast" else sim.reference_timestep
     return f"""<mujoco model="{desc.robot.name}_{fidelity}">
   <compiler angle="radian" autolimits="true"/>
-  <option timestep="{step:.6g}" integrator="implicitfast" solver="Newton"
+  <option timestep="{step:.6g}" integrator="implicitfast" solver="{_SOLVER_NAMES[sim.solver]}"
           iterations="{sim.iterations}" ls_iterations="{sim.ls_iterations}" cone="pyramidal">
     <flag eulerdamp="disable"/>
   </option>
@@ -291,12 +294,21 @@ def build_mjcf(desc: RobotDescription, fidelity: Fidelity = "fast") -> str:
 
 
 def build_model(
-    desc: RobotDescription, fidelity: Fidelity = "fast"
+    desc: RobotDescription, fidelity: Fidelity = "fast", visual: bool = True
 ) -> tuple[mujoco.MjModel, ModelIndex]:
-    """Compile ``desc`` at ``fidelity``; returns the model and its :class:`ModelIndex`."""
+    """Compile ``desc`` at ``fidelity``; returns the model and its :class:`ModelIndex`.
+
+    ``visual = False`` drops the geoms that only draw (no contact, no mass: hub discs,
+    roller marks, the chassis box). The dynamics are identical, and MJX no longer computes
+    their poses every step; the simulation uses that model, rendering the full one.
+    """
     xml = build_mjcf(desc, fidelity)
     try:
-        model = mujoco.MjModel.from_xml_string(xml)
+        spec = mujoco.MjSpec.from_string(xml)
+        if not visual:
+            for g in [g for g in spec.geoms if g.contype == 0 and g.conaffinity == 0]:
+                spec.delete(g)
+        model = spec.compile()
     except ValueError as err:  # pragma: no cover - the generator's own bug
         raise ConfigError(
             f"robot {desc.robot.name!r} ({fidelity}): MuJoCo rejected the model: {err}"

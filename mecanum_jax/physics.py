@@ -142,14 +142,19 @@ class Robot:
         desc: RobotDescription,
         fidelity: mjcf.Fidelity = "fast",
         servo: ServoModel = "chord",
+        strip_visual: bool = True,
     ):
+        """``strip_visual``: simulate a copy of the model without its draw-only geoms
+        (:func:`mjcf.build_model`, same dynamics, fewer poses per step); ``mj_model``
+        keeps them for rendering."""
         if servo not in ("chord", "mjx"):
             raise ValueError(f"servo = {servo!r}: must be 'chord' or 'mjx'")
         self.desc = desc
         self.fidelity = fidelity
         self.servo = servo
-        self.mj_model, self.index = mjcf.build_model(desc, fidelity)
-        self.mjx_model = mjx.put_model(self.mj_model, impl="jax")
+        self.mj_model, _ = mjcf.build_model(desc, fidelity)
+        self.sim_model, self.index = mjcf.build_model(desc, fidelity, visual=not strip_visual)
+        self.mjx_model = mjx.put_model(self.sim_model, impl="jax")
         self.geometry: WheelGeometry = desc.build_geometry(warn_singular=False)
         self.n_wheels = self.geometry.n_wheels
         self.dt = float(self.mj_model.opt.timestep)
@@ -159,7 +164,7 @@ class Robot:
         self._carrier_qpos = jnp.asarray(idx.carrier_qpos)
         self._acts = jnp.asarray(idx.actuators)
         self._wheel_geoms = jnp.asarray(idx.wheel_geoms)
-        m = self.mj_model
+        m = self.sim_model
         self._base_mass = float(m.body_mass[idx.chassis_body])
         self._base_ipos = jnp.asarray(m.body_ipos[idx.chassis_body])
         self._base_inertia = jnp.asarray(m.body_inertia[idx.chassis_body])

@@ -35,7 +35,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from mecanum_jax import kinematics, odometry, physics
-from mecanum_jax.description import RobotDescription, builtin_description
+from mecanum_jax.config import ConfigError
+from mecanum_jax.description import SOLVERS, RobotDescription, builtin_description, check_physics
 from mecanum_jax.geometry import SingularLayoutWarning
 from mecanum_jax.mjcf import Fidelity
 from mecanum_jax.modes import SIX_MODES
@@ -177,19 +178,29 @@ def odometry_drift(robot: physics.Robot, out: dict[str, np.ndarray], i: int) -> 
     return float(np.linalg.norm(est[-1, :2] - truth[-1, :2])), dist
 
 
-def run(quick: bool = False, robot_name: str = "o_rectangle") -> dict[str, Any]:
-    """Run every validation case for both fidelities; returns the results as plain data."""
-    desc = builtin_description(robot_name)
+def run(
+    quick: bool = False,
+    robot_name: str = "o_rectangle",
+    fidelities: tuple[Fidelity, ...] = ("fast", "reference"),
+    **sim: Any,
+) -> dict[str, Any]:
+    """Run every validation case for ``fidelities``; returns the results as plain data.
+
+    ``sim`` overrides fields of the robots' ``[sim]`` table (e.g. ``solver="cg"``) for
+    comparing solver settings against the same cases.
+    """
+    desc = _with_sim(builtin_description(robot_name), sim)
     n_random = 4 if quick else 20
     results: dict[str, Any] = {"robot": robot_name, "quick": quick}
     track = tracking_cases(desc, n_random)
     slips = slip_cases(desc)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SingularLayoutWarning)
-        xsq = builtin_description("x_square")
-        osq = builtin_description("o_square")
+        xsq = _with_sim(builtin_description("x_square"), sim)
+        osq = _with_sim(builtin_description("o_square"), sim)
     spin_pattern = (-10.0, -10.0, 10.0, 10.0)
-    fidelities: tuple[Fidelity, ...] = ("fast", "reference")
+    if sim:
+        results["sim_overrides"] = sim
     for fidelity in fidelities:
         t0 = time.perf_counter()
         robot = physics.Robot(desc, fidelity)
@@ -234,6 +245,20 @@ def _f(v: Sequence[float]) -> str:
     return "(" + ", ".join(f"{x:+.3f}" for x in v) + ")"
 
 
+def summary(name: str, r: dict[str, Any]) -> str:
+    """One fidelity's tracking verdict in a line."""
+    rel = [
+        np.linalg.norm(np.subtract(t["achieved"], t["command"])) / np.linalg.norm(t["command"])
+        for t in r["tracking"]
+    ]
+    passed = sum(t["pass"] for t in r["tracking"])
+    return (
+        f"**{name}**: {passed}/{len(r['tracking'])} pass; relative twist error median "
+        f"{100 * np.median(rel):.2f}%, max {100 * np.max(rel):.2f}%; non-finite resets: "
+        f"{r['unstable']}; wall time {r['seconds']:.0f} s (CPU, with compilation)."
+    )
+
+
 def to_markdown(res: dict[str, Any]) -> str:
     fast, ref = res["fast"], res["reference"]
     lines = [
@@ -259,20 +284,7 @@ def to_markdown(res: dict[str, Any]) -> str:
             f"{'✓' if b['pass'] else '✗'} |"
         )
     for name, r in (("fast", fast), ("reference", ref)):
-        rel = [
-            (
-                np.linalg.norm(np.subtract(t["achieved"], t["command"]))
-                / np.linalg.norm(t["command"])
-            )
-            for t in r["tracking"]
-        ]
-        passed = sum(t["pass"] for t in r["tracking"])
-        lines.append("")
-        lines.append(
-            f"**{name}**: {passed}/{len(r['tracking'])} pass; relative twist error median "
-            f"{100 * np.median(rel):.2f}%, max {100 * np.max(rel):.2f}%; non-finite resets: "
-            f"{r['unstable']}; wall time {r['seconds']:.0f} s (CPU, with compilation)."
-        )
+        lines += ["", summary(name, r)]
     lines += [
         "",
         "The reference model's larger error comes from its polygonal rolling radius: each "
@@ -318,24 +330,52 @@ def to_markdown(res: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _with_sim(desc: RobotDescription, sim: dict[str, Any]) -> RobotDescription:
+    if not sim:
+        return desc
+    out = dataclasses.replace(desc, sim=dataclasses.replace(desc.sim, **sim))
+    check_physics(out, "validation")
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="4 random twists instead of 20")
     parser.add_argument("--out", type=Path, default=Path("docs/physics_validation.md"))
+    parser.add_argument(
+        "--fidelities", nargs="+", choices=["fast", "reference"], default=["fast", "reference"]
+    )
+    parser.add_argument("--solver", choices=list(SOLVERS), help="override sim.solver")
+    parser.add_argument("--iterations", type=int, help="override sim.iterations")
     args = parser.parse_args(argv)
-    res = run(quick=args.quick)
+    sim = {k: v for k, v in (("solver", args.solver), ("iterations", args.iterations)) if v}
+    try:
+        res = run(quick=args.quick, fidelities=tuple(args.fidelities), **sim)
+    except ConfigError as err:
+        parser.error(str(err))
     dev = jax.devices()[0]
     res["device"] = f"{dev.platform}: {dev.device_kind}"
     res["date"] = time.strftime("%Y-%m-%d")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    for path, text in (
-        (args.out, to_markdown(res)),
-        (args.out.with_suffix(".json"), json.dumps(res, indent=1)),
-    ):
+    both = "fast" in res and "reference" in res
+    outputs = [(args.out.with_suffix(".json"), json.dumps(res, indent=1))]
+    if both:  # the report compares the two; a partial run writes its JSON only
+        outputs.append((args.out, to_markdown(res)))
+    for path, text in outputs:
         tmp = path.with_suffix(path.suffix + ".tmp")
         tmp.write_text(text)
         tmp.replace(path)
-    print(to_markdown(res))
+    if both:
+        print(to_markdown(res))
+    else:
+        for name in args.fidelities:
+            print(summary(name, res[name]))
+            for row in res[name]["slip"]:
+                print(
+                    f"  {row['case']}: mean twist 0-0.5 s {_f(row['mean_twist_first_0.5s'])}, "
+                    f"final pose {_f(row['final_pose'])}, resets {row.get('resets', 0)}"
+                )
+        print(f"wrote {outputs[0][0]}")
 
 
 if __name__ == "__main__":

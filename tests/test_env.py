@@ -9,12 +9,14 @@ import pytest
 
 from mecanum_jax import kinematics, limits
 from mecanum_jax.config import ConfigError, from_mapping
-from mecanum_jax.env import EnvConfig, MecanumEnv, TrainingEnv, baseline_policy
+from mecanum_jax.env import EnvConfig, MecanumEnv, RewardConfig, TrainingEnv, baseline_policy
 
 
 @pytest.fixture(scope="session")
 def env():
-    return MecanumEnv(EnvConfig(episode_length=6))
+    # non-zero quadratic error weights, so the reward test checks those terms too
+    reward = RewardConfig(error_lin=0.5, error_ang=0.05)
+    return MecanumEnv(EnvConfig(episode_length=6, reward=reward))
 
 
 @pytest.fixture(scope="session")
@@ -108,6 +110,8 @@ def test_rewards_and_metrics_are_consistent(env, rollout):
     expected = (
         r.tracking_lin * m["reward/tracking_lin"]
         + r.tracking_ang * m["reward/tracking_ang"]
+        + r.error_lin * m["reward/error_lin"]
+        + r.error_ang * m["reward/error_ang"]
         + r.action_rate * m["reward/action_rate"]
         + r.energy * m["reward/energy"]
     )
@@ -117,6 +121,8 @@ def test_rewards_and_metrics_are_consistent(env, rollout):
         np.exp(-(m["error/vx2"] + m["error/vy2"]) / r.sigma_lin),
         rtol=1e-5,
     )
+    np.testing.assert_allclose(-m["reward/error_lin"], m["error/vx2"] + m["error/vy2"], rtol=1e-6)
+    np.testing.assert_allclose(-m["reward/error_ang"], m["error/wz2"], rtol=1e-6)
     assert np.all(m["energy_j"] >= 0)
     assert np.all((m["saturated"] >= 0) & (m["saturated"] <= 1))
     assert np.all(np.isfinite(np.asarray(states.obs["state"])))
@@ -166,3 +172,36 @@ def test_nominal_scenario_is_deterministic_and_unrandomized():
 def test_bad_env_config_names_field(table, message):
     with pytest.raises(ConfigError, match=message.replace(".", r"\.").replace("[", r"\[")):
         from_mapping(EnvConfig, table, "env").validate()
+
+
+def test_twist_residual_acts_only_through_the_inverse_model():
+    """residual_space = "twist": three actions, the zero action is the baseline, and a
+    correction changes the setpoints by exactly the inverse model's image of the twist
+    correction, so it has no component in the wheels' null space (wheels fighting)."""
+    env = MecanumEnv(EnvConfig(residual_space="twist"))
+    assert env.action_size == 3
+    assert dict(env.layout)["last_action"] == 3
+    cmd = jnp.array([0.3, -0.2, 0.5])  # well within reach: nothing clips
+    base = env.baseline_rates(cmd)
+    np.testing.assert_allclose(env.wheel_setpoints(cmd, jnp.zeros(3)), base, rtol=1e-6)
+    a = jnp.array([0.5, -1.0, 0.25])
+    delta = env.wheel_setpoints(cmd, a) - base
+    expected = a * env.config.residual_scale * env.command_scale
+    np.testing.assert_allclose(
+        kinematics.forward(env.geometry, delta), expected, rtol=1e-4, atol=1e-6
+    )
+    np.testing.assert_allclose(delta, kinematics.inverse(env.geometry, expected), rtol=1e-4)
+    state = env.step(env.reset(jax.random.PRNGKey(0)), a)
+    assert state.obs["state"].shape == env.observation_size["state"]
+    np.testing.assert_array_equal(state.info["last_action"], a)
+    policy = baseline_policy(env)
+    action, _ = policy(state.obs, None)
+    assert action.shape == (3,)
+    assert not np.any(np.asarray(action))
+
+
+def test_twist_residual_needs_residual_actions():
+    with pytest.raises(ConfigError, match=r"env\.residual_space"):
+        EnvConfig(residual=False, residual_space="twist").validate()
+    with pytest.raises(ConfigError, match=r"env\.residual_space = 'joint'"):
+        EnvConfig(residual_space="joint").validate()

@@ -356,7 +356,7 @@ def test_exported_control_loop_matches_the_environment(full_run, tmp_path, learn
     rng = np.random.default_rng(5)
     for _ in range(20):
         command = rng.normal(size=3).astype(np.float32) * np.asarray(env.command_scale)
-        action = rng.uniform(-1, 1, env.n_wheels).astype(np.float32)
+        action = rng.uniform(-1, 1, env.action_size).astype(np.float32)
         np.testing.assert_allclose(
             policy.wheel_setpoints(command, action),
             np.asarray(env.wheel_setpoints(jnp.asarray(command), jnp.asarray(action))),
@@ -476,3 +476,32 @@ def test_eval_cli_rejects_bad_arguments(extra, message, tmp_path, capsys):
     assert _run_cli(["baseline", "--episodes", 2, "--out", out, *extra]) == 2
     assert message in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_exported_twist_residual_setpoints_match_the_environment():
+    """The NumPy control loop applies a twist-space residual as the environment does."""
+    from mecanum_jax import kinematics
+
+    env = MecanumEnv(EnvConfig(residual_space="twist"))
+    meta = {
+        "activation": "tanh",
+        "action_size": env.action_size,
+        "residual": True,
+        "residual_scale": env.config.residual_scale,
+        "residual_space": "twist",
+        "max_rates": np.asarray(env.max_rates).tolist(),
+        "command_scale": np.asarray(env.command_scale).tolist(),
+        "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),
+        "forward_matrix": np.asarray(kinematics.forward_matrix(env.geometry)).tolist(),
+    }
+    policy = deploy.NumpyPolicy([], np.zeros(1), np.ones(1), meta)
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        command = rng.normal(size=3).astype(np.float32) * np.asarray(env.command_scale)
+        action = rng.uniform(-1, 1, 3).astype(np.float32)
+        np.testing.assert_allclose(
+            policy.wheel_setpoints(command, action),
+            np.asarray(env.wheel_setpoints(jnp.asarray(command), jnp.asarray(action))),
+            rtol=1e-5,
+            atol=1e-4,
+        )

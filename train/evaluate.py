@@ -321,6 +321,7 @@ def export_policy(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
         "observation_layout": [list(x) for x in env.layout],
         "residual": cfg.env.residual,
         "residual_scale": cfg.env.residual_scale,
+        "residual_space": cfg.env.residual_space,
         "max_rates": np.asarray(env.max_rates).tolist(),
         "command_scale": np.asarray(env.command_scale).tolist(),
         "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),
