@@ -348,7 +348,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--solver", choices=list(SOLVERS), help="override sim.solver")
     parser.add_argument("--iterations", type=int, help="override sim.iterations")
     args = parser.parse_args(argv)
-    sim = {k: v for k, v in (("solver", args.solver), ("iterations", args.iterations)) if v}
+    sim = {
+        k: v for k, v in (("solver", args.solver), ("iterations", args.iterations)) if v is not None
+    }
     try:
         res = run(quick=args.quick, fidelities=tuple(args.fidelities), **sim)
     except ConfigError as err:

@@ -70,6 +70,7 @@ def test_every_layout_builds(name, fidelity):
         ({"actuators": {"kp": 0.0, "ki": 0.0}}, r"servo needs a gain"),
         ({"sim": {"contact_timeconst": 0.001}}, r"sim\.contact_timeconst = 0\.001"),
         ({"body": {"colour": "red"}}, r"body\.colour = 'red': unknown key"),
+        ({"sim": {"solver": "pgs"}}, r"sim\.solver = 'pgs': expected one of \['newton', 'cg'\]"),
     ],
 )
 def test_unbuildable_descriptions(edit, match):
@@ -156,6 +157,36 @@ def test_batched_api_per_robot_params_and_nan_isolation(fast_robot):
     assert [r["robot"] for r in report] == [1]
     assert report[0]["params"]["payload_mass"] == 2.0
     assert float(sensors(state).twist[0, 0]) > 0.1
+
+
+@pytest.mark.parametrize("fidelity", mjcf.FIDELITIES)
+def test_simulated_model_drops_only_draw_geoms(fidelity):
+    """The model MJX steps has no draw-only geoms but the same bodies, joints, masses and
+    contact geoms (by name) as the full model that renders."""
+    desc = builtin_description("o_rectangle")
+    full, _ = mjcf.build_model(desc, fidelity)
+    sim, index = mjcf.build_model(desc, fidelity, visual=False)
+    drawn = (full.geom_contype == 0) & (full.geom_conaffinity == 0)
+    assert drawn.sum() > 0
+    assert sim.ngeom == full.ngeom - drawn.sum()
+    assert np.all((sim.geom_contype != 0) | (sim.geom_conaffinity != 0))
+    for attr in ("nq", "nv", "nu", "nbody"):
+        assert getattr(sim, attr) == getattr(full, attr)
+    for attr in ("body_mass", "body_inertia", "body_ipos", "dof_armature", "qpos0"):
+        np.testing.assert_array_equal(getattr(sim, attr), getattr(full, attr))
+    names = lambda m, ids: [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, int(i)) for i in ids]  # noqa: E731
+    _, full_index = mjcf.build_model(desc, fidelity)
+    assert names(sim, index.wheel_geoms.ravel()) == names(full, full_index.wheel_geoms.ravel())
+    # and the same motion: 200 C MuJoCo steps of a spin-and-drive command
+    states = []
+    for m in (full, sim):
+        d = mujoco.MjData(m)
+        d.ctrl[:] = [8.0, -4.0, 6.0, -2.0]
+        for _ in range(200):
+            mujoco.mj_step(m, d)
+        states.append(d.qpos.copy())
+    assert np.abs(states[0][:2]).max() > 1e-3  # it moved
+    np.testing.assert_allclose(states[1], states[0], rtol=1e-6, atol=1e-9)
 
 
 def test_nominal_params_reject_unknown_fields(fast_robot):
@@ -266,3 +297,13 @@ def test_slippery_floor_with_aggressive_commands_stays_stable():
             worst = max(worst, float(jnp.abs(sensors(state).twist[:, 2]).max()))
     assert int(np.asarray(state.unstable).sum()) == 0
     assert worst < 12.0  # the wheels at their speed limit imply at most ~11 rad/s
+
+
+def test_validation_cli_rejects_bad_solver_overrides(capsys, tmp_path):
+    out = tmp_path / "v.md"
+    with pytest.raises(SystemExit) as exc:
+        validation.main(["--fidelities", "fast", "--iterations", "0", "--out", str(out)])
+    assert exc.value.code == 2
+    assert "sim.iterations = 0" in capsys.readouterr().err
+    assert not out.exists()
+    assert not out.with_suffix(".json").exists()
