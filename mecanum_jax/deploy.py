@@ -41,7 +41,8 @@ class ExportError(ValueError):
 
 
 class NumpyPolicy:
-    """A deterministic policy: ``action = tanh(MLP((obs - mean) / std)[:n])``."""
+    """A deterministic policy: ``action = tanh(MLP(clip((obs - mean) / std))[:n])``
+    (clipped to ``± meta["clip_observations"]`` when that is > 0)."""
 
     def __init__(
         self,
@@ -75,14 +76,38 @@ class NumpyPolicy:
                 f"(layout {self.meta['observation_layout']})"
             )
         x = (x - self.mean) / self.std
+        clip = float(self.meta.get("clip_observations") or 0.0)
+        if clip > 0:
+            x = np.clip(x, -clip, clip)
         for i, (w, b) in enumerate(self.layers):
             x = x @ w + b
             if i < len(self.layers) - 1:
                 x = self.activation(x)
         return np.tanh(x[..., : self.action_size])
 
+    @property
+    def yaw_integral_tau(self) -> float:
+        """The yaw-error integral's time constant, s (0: the policy does not observe it)."""
+        return float(self.meta.get("yaw_integral_tau") or 0.0)
+
+    def yaw_integral_step(self, integral: float, command: Any, gyro_z: float) -> float:
+        """One control step of the leaky yaw-rate error integral the policy observes:
+        ``e^(−dt/τ)·I + (ω_cmd − gyro)·dt``, with ``command`` the twist tracked during the
+        step and ``gyro_z`` the yaw rate as measured at its end (rad/s)."""
+        tau, dt = self.yaw_integral_tau, float(self.meta["control_dt"])
+        if tau <= 0:
+            raise ValueError("yaw_integral_step: this policy does not use a yaw-error integral")
+        err = float(np.asarray(command, np.float32)[2]) - float(gyro_z)
+        return float(np.exp(-dt / tau)) * float(integral) + err * dt
+
     def observation(
-        self, command: Any, wheel_rate: Any, gyro_z: Any, accel: Any, last_action: Any
+        self,
+        command: Any,
+        wheel_rate: Any,
+        gyro_z: Any,
+        accel: Any,
+        last_action: Any,
+        yaw_integral: float | None = None,
     ) -> np.ndarray:
         """The policy observation from raw measurements (what the environment builds).
 
@@ -92,7 +117,15 @@ class NumpyPolicy:
           gyro_z: yaw rate, rad/s.
           accel: (3,) accelerometer, specific force in the body frame, m/s² (+9.81 z at rest).
           last_action: (action_size,) the previous action returned by :meth:`action`.
+          yaw_integral: the state of :meth:`yaw_integral_step`, required when the policy
+            observes it (``yaw_integral_tau > 0``), rad.
         """
+        tau = self.yaw_integral_tau
+        if tau > 0 and yaw_integral is None:
+            raise ValueError(
+                f"yaw_integral = None: this policy observes the yaw-error integral "
+                f"(tau = {tau} s); keep it with yaw_integral_step()"
+            )
         rate = np.asarray(wheel_rate, np.float32)
         odometry = self.forward @ rate
         return np.concatenate(
@@ -103,6 +136,11 @@ class NumpyPolicy:
                 np.asarray(accel, np.float32) / np.float32(self.meta["gravity"]),
                 odometry / self.command_scale,
                 np.asarray(last_action, np.float32),
+                *(
+                    [np.asarray([yaw_integral], np.float32) / (tau * self.command_scale[2])]
+                    if tau > 0
+                    else []
+                ),
             ]
         ).astype(np.float32)
 

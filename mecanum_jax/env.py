@@ -153,6 +153,12 @@ class EnvConfig:
     (``± residual_scale`` of the largest feasible vx, vy, ωz) mapped through the nominal
     inverse model, so the policy cannot drive the wheels against each other (the
     inverse model's null space, which squeezes the rollers and only costs energy).
+
+    ``yaw_integral_tau`` > 0 adds an observation a real controller can compute: the leaky
+    integral of the yaw-rate error the robot *measures*, ``I ← e^(−dt/τ)·I + (ω_cmd −
+    gyro)·dt`` (gyro as observed: noisy, delayed), in units of ``τ`` times the largest
+    feasible ωz. It gives a feedforward policy the memory an integral controller needs
+    (scripts/feedback_headroom.py); ``0`` leaves it out.
     """
 
     robot: str = "o_rectangle"
@@ -163,6 +169,7 @@ class EnvConfig:
     residual: bool = True
     residual_scale: float = 0.1
     residual_space: str = "wheel"
+    yaw_integral_tau: float = 0.0
     commands: CommandConfig = CommandConfig()
     randomization: RandomizationConfig = RandomizationConfig()
     noise: NoiseConfig = NoiseConfig()
@@ -185,6 +192,7 @@ class EnvConfig:
                 f"must be a whole multiple of physics_timestep = {self.physics_timestep}",
             )
         require(self, where, ("episode_length",), lambda v: v >= 1, "must be >= 1")
+        require(self, where, ("yaw_integral_tau",), lambda v: v >= 0, "must be >= 0 (0: off)")
         if self.residual_space not in RESIDUAL_SPACES:
             raise invalid(
                 f"{where}.residual_space", self.residual_space, f"expected one of {RESIDUAL_SPACES}"
@@ -330,6 +338,10 @@ class MecanumEnv(Env):
             ("odometry_twist", 3),
             ("last_action", self._action_size),
         )
+        tau = config.yaw_integral_tau
+        self._yaw_decay = float(np.exp(-config.control_dt / tau)) if tau > 0 else 0.0
+        if tau > 0:
+            self.layout += (("yaw_error_integral", 1),)
         self.privileged_layout: tuple[tuple[str, int], ...] = (
             *self.layout,
             ("true_twist", 3),
@@ -391,6 +403,7 @@ class MecanumEnv(Env):
             "step": jnp.asarray(0, jnp.int32),
             "last_action": zeros,
             "history": history,
+            "yaw_integral": jnp.asarray(0.0),
             "truncation": jnp.asarray(0.0),
         }
         obs = self._observe(sens, info)
@@ -469,6 +482,12 @@ class MecanumEnv(Env):
         info["last_action"] = action
         sensors = self._sensor_vector(sens, k_noise, info["noise_std"])
         info["history"] = jnp.concatenate([sensors[None], info["history"][:-1]], axis=0)
+        if self.config.yaw_integral_tau > 0:  # against the command tracked in this step
+            gyro = jnp.take(info["history"], info["latency"], axis=0)[self.n_wheels]
+            err = command[2] - gyro * self.command_scale[2]
+            info["yaw_integral"] = (
+                self._yaw_decay * info["yaw_integral"] + err * self.config.control_dt
+            )
         obs = self._observe(sens, info)
         return state.replace(pipeline_state=sim, obs=obs, reward=reward, metrics=metrics, info=info)
 
@@ -618,9 +637,11 @@ class MecanumEnv(Env):
 
     def _observe(self, sens: Sensors, info: dict[str, Any]) -> dict[str, jax.Array]:
         delayed = jnp.take(info["history"], info["latency"], axis=0)
-        state = jnp.concatenate(
-            [info["command"] / self.command_scale, delayed, info["last_action"]]
-        )
+        parts = [info["command"] / self.command_scale, delayed, info["last_action"]]
+        tau = self.config.yaw_integral_tau
+        if tau > 0:
+            parts.append((info["yaw_integral"] / (tau * self.command_scale[2]))[None])
+        state = jnp.concatenate(parts)
         p: RobotParams = info["params"]
         nom = self._nominal
         truth = sens.twist / self.command_scale

@@ -480,21 +480,8 @@ def test_eval_cli_rejects_bad_arguments(extra, message, tmp_path, capsys):
 
 def test_exported_twist_residual_setpoints_match_the_environment():
     """The NumPy control loop applies a twist-space residual as the environment does."""
-    from mecanum_jax import kinematics
-
     env = MecanumEnv(EnvConfig(residual_space="twist"))
-    meta = {
-        "activation": "tanh",
-        "action_size": env.action_size,
-        "residual": True,
-        "residual_scale": env.config.residual_scale,
-        "residual_space": "twist",
-        "max_rates": np.asarray(env.max_rates).tolist(),
-        "command_scale": np.asarray(env.command_scale).tolist(),
-        "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),
-        "forward_matrix": np.asarray(kinematics.forward_matrix(env.geometry)).tolist(),
-    }
-    policy = deploy.NumpyPolicy([], np.zeros(1), np.ones(1), meta)
+    policy = _control_loop_only(env)
     rng = np.random.default_rng(3)
     for _ in range(20):
         command = rng.normal(size=3).astype(np.float32) * np.asarray(env.command_scale)
@@ -505,3 +492,53 @@ def test_exported_twist_residual_setpoints_match_the_environment():
             rtol=1e-5,
             atol=1e-4,
         )
+
+
+def _control_loop_only(env: MecanumEnv) -> deploy.NumpyPolicy:
+    """An exported policy's control-loop half (no network) for ``env``'s task."""
+    from mecanum_jax import kinematics
+    from mecanum_jax.physics import GRAVITY
+
+    cfg = env.config
+    meta = {
+        "activation": "tanh",
+        "action_size": env.action_size,
+        "residual": cfg.residual,
+        "residual_scale": cfg.residual_scale,
+        "residual_space": cfg.residual_space,
+        "yaw_integral_tau": cfg.yaw_integral_tau,
+        "control_dt": cfg.control_dt,
+        "gravity": GRAVITY,
+        "max_rates": np.asarray(env.max_rates).tolist(),
+        "command_scale": np.asarray(env.command_scale).tolist(),
+        "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),
+        "forward_matrix": np.asarray(kinematics.forward_matrix(env.geometry)).tolist(),
+    }
+    size = env.observation_size["state"][0]
+    return deploy.NumpyPolicy([], np.zeros(size), np.ones(size), meta)
+
+
+def test_yaw_error_integral_observation_matches_the_control_loop():
+    """yaw_integral_tau > 0: the environment integrates the measured yaw-rate error as a
+    robot-side loop would (deploy.yaw_integral_step), and observes it last."""
+    env = MecanumEnv(EnvConfig(yaw_integral_tau=0.5).nominal())
+    assert env.layout[-1] == ("yaw_error_integral", 1)
+    policy = _control_loop_only(env)
+    state = env.reset(jax.random.PRNGKey(2))
+    state = env.set_command(state, jnp.array([0.2, 0.0, 1.5]))
+    integral = 0.0
+    step = jax.jit(env.step)
+    for k in range(6):
+        tracked = np.asarray(state.info["command"])
+        action = jnp.full(env.action_size, 0.01 * (-1) ** k)
+        state = step(state, action)
+        sens = env.robot.sensors(state.pipeline_state)
+        integral = policy.yaw_integral_step(integral, tracked, float(sens.gyro_z))
+        assert float(state.info["yaw_integral"]) == pytest.approx(integral, rel=1e-4, abs=1e-6)
+        obs = policy.observation(
+            tracked, sens.wheel_rate, sens.gyro_z, sens.accel, np.asarray(action), integral
+        )
+        np.testing.assert_allclose(obs, np.asarray(state.obs["state"]), rtol=1e-5, atol=1e-5)
+    assert abs(integral) > 1e-4  # the spin-up from rest left a measurable yaw error
+    with pytest.raises(ValueError, match="yaw_integral = None"):
+        policy.observation(tracked, sens.wheel_rate, sens.gyro_z, sens.accel, np.asarray(action))

@@ -322,6 +322,8 @@ def export_policy(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
         "residual": cfg.env.residual,
         "residual_scale": cfg.env.residual_scale,
         "residual_space": cfg.env.residual_space,
+        "yaw_integral_tau": cfg.env.yaw_integral_tau,
+        "clip_observations": cfg.ppo.clip_observations,
         "max_rates": np.asarray(env.max_rates).tolist(),
         "command_scale": np.asarray(env.command_scale).tolist(),
         "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),

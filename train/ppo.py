@@ -74,7 +74,9 @@ class TrainingState:
 def make_networks(env: MecanumEnv, cfg: TrainConfig) -> ppo_networks.PPONetworks:
     """Brax PPO networks for this task (the critic sees privileged state if configured)."""
     normalize: Any = (
-        running_statistics.normalize
+        functools.partial(
+            running_statistics.normalize, max_abs_value=cfg.ppo.clip_observations or None
+        )
         if cfg.ppo.normalize_observations
         else types.identity_observation_preprocessor
     )
