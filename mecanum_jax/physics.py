@@ -152,8 +152,10 @@ class Robot:
         self.desc = desc
         self.fidelity = fidelity
         self.servo = servo
-        self.mj_model, _ = mjcf.build_model(desc, fidelity)
-        self.sim_model, self.index = mjcf.build_model(desc, fidelity, visual=not strip_visual)
+        self.mj_model, self.index = mjcf.build_model(desc, fidelity)
+        self.sim_model = self.mj_model
+        if strip_visual:  # geom indices change: the index must be the simulated model's
+            self.sim_model, self.index = mjcf.build_model(desc, fidelity, visual=False)
         self.mjx_model = mjx.put_model(self.sim_model, impl="jax")
         self.geometry: WheelGeometry = desc.build_geometry(warn_singular=False)
         self.n_wheels = self.geometry.n_wheels
