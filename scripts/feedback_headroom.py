@@ -4,7 +4,8 @@ Runs hand-written gyro-feedback controllers, built on the same residual action i
 and the same noisy, delayed observations a learned policy sees, against the open-loop
 analytic baseline on identical episodes (same robots, commands and noise draws), and
 prints the tracking RMSE and the mean tracking reward ``R[w_lin,σ_lin;w_ang,σ_ang]``
-under several kernels (does the reward rank them as the RMSE does?). If a two-line
+under several kernels and the task's own reward (``env reward``, with its quadratic terms
+and their cap): does the reward rank them as the RMSE does? If a two-line
 controller beats the baseline, the headroom is there, and a learned policy that does not
 find it has a learning problem, not a physics one.
 
@@ -14,7 +15,7 @@ find it has a learning problem, not a physics one.
   policy has).
 
     .venv/bin/python scripts/feedback_headroom.py [--robots 64] [--steps 250] [--gains 0.5 1 2]
-        [--igains 2 5 10] [--residual-scale 0.1]
+        [--igains 2 5 10] [--residual-scale 0.1] [--error-cap 2]
 """
 
 import argparse
@@ -23,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mecanum_jax.env import EnvConfig, MecanumEnv, TrainingEnv
+from mecanum_jax.env import EnvConfig, MecanumEnv, RewardConfig, TrainingEnv
 
 # tracking terms (w_lin, σ_lin; w_ang, σ_ang) to score: the default and wider kernels
 REWARDS = ((1.0, 0.25, 0.5, 1.0), (1.0, 0.25, 1.0, 4.0), (1.0, 1.0, 1.0, 4.0))
@@ -59,11 +60,14 @@ def main() -> None:
     ap.add_argument("--gains", type=float, nargs="+", default=[0.5, 1.0, 2.0])
     ap.add_argument("--igains", type=float, nargs="+", default=[2.0, 5.0, 10.0])
     ap.add_argument("--residual-scale", type=float, default=EnvConfig.residual_scale)
+    ap.add_argument("--error-cap", type=float, default=RewardConfig.error_cap)
     args = ap.parse_args()
     variants = [("baseline", 0.0)]
     variants += [("p", g) for g in args.gains] + [("i", g) for g in args.igains]
     for scenario in ("randomized", "nominal"):
-        cfg = EnvConfig(residual_scale=args.residual_scale)
+        cfg = EnvConfig(
+            residual_scale=args.residual_scale, reward=RewardConfig(error_cap=args.error_cap)
+        )
         cfg = cfg if scenario == "randomized" else cfg.nominal()
         env = MecanumEnv(cfg)
         tenv = TrainingEnv(env, args.steps)
@@ -78,13 +82,13 @@ def main() -> None:
                 def f(s, _):
                     ns = tenv.step(s, policy(s.obs))
                     twist = jax.vmap(env.robot.sensors)(ns.pipeline_state).twist
-                    return ns, (s.info["command"], twist)
+                    return ns, (s.info["command"], twist, ns.reward)
 
                 return jax.lax.scan(f, s, None, length=args.steps)[1]
 
             with jax.numpy_rank_promotion("allow"):
                 keys = jax.random.split(jax.random.PRNGKey(7), args.robots)
-                cmd, twist = map(np.asarray, roll(keys))
+                cmd, twist, env_reward = map(np.asarray, roll(keys))
             err = twist - cmd
             v = np.sqrt((err[..., 0] ** 2 + err[..., 1] ** 2).mean())
             w = np.sqrt((err[..., 2] ** 2).mean())
@@ -94,7 +98,10 @@ def main() -> None:
                 f"{(lin * np.exp(-ev2 / sl) + ang * np.exp(-(err[..., 2] ** 2) / sa)).mean():.4f}"
                 for lin, sl, ang, sa in REWARDS
             )
-            print(f"  {kind:8s} gain {gain:5.2f}: v {v:.3f}  ω {w:.3f}  {rewards}")
+            print(
+                f"  {kind:8s} gain {gain:5.2f}: v {v:.3f}  ω {w:.3f}  {rewards}"
+                f"  env reward {env_reward.mean():.4f}"
+            )
 
 
 if __name__ == "__main__":

@@ -14,8 +14,8 @@ from mecanum_jax.env import EnvConfig, MecanumEnv, RewardConfig, TrainingEnv, ba
 
 @pytest.fixture(scope="session")
 def env():
-    # non-zero quadratic error weights, so the reward test checks those terms too
-    reward = RewardConfig(error_lin=0.5, error_ang=0.05)
+    # non-zero quadratic error weights and a cap, so the reward test checks those terms too
+    reward = RewardConfig(error_lin=0.5, error_ang=0.05, error_cap=0.5)
     return MecanumEnv(EnvConfig(episode_length=6, reward=reward))
 
 
@@ -110,8 +110,7 @@ def test_rewards_and_metrics_are_consistent(env, rollout):
     expected = (
         r.tracking_lin * m["reward/tracking_lin"]
         + r.tracking_ang * m["reward/tracking_ang"]
-        + r.error_lin * m["reward/error_lin"]
-        + r.error_ang * m["reward/error_ang"]
+        + m["reward/error_penalty"]
         + r.action_rate * m["reward/action_rate"]
         + r.energy * m["reward/energy"]
     )
@@ -123,6 +122,14 @@ def test_rewards_and_metrics_are_consistent(env, rollout):
     )
     np.testing.assert_allclose(-m["reward/error_lin"], m["error/vx2"] + m["error/vy2"], rtol=1e-6)
     np.testing.assert_allclose(-m["reward/error_ang"], m["error/wz2"], rtol=1e-6)
+    # the quadratic penalty, softly capped: cap·tanh(q / cap), never below -cap
+    q = -(r.error_lin * m["reward/error_lin"] + r.error_ang * m["reward/error_ang"])
+    assert r.error_cap > 0
+    assert q.max() > r.error_cap  # the episodes' starts reach the capped regime
+    np.testing.assert_allclose(
+        -m["reward/error_penalty"], r.error_cap * np.tanh(q / r.error_cap), rtol=1e-5, atol=1e-7
+    )
+    assert np.all(m["reward/error_penalty"] >= -r.error_cap)
     assert np.all(m["energy_j"] >= 0)
     assert np.all((m["saturated"] >= 0) & (m["saturated"] <= 1))
     assert np.all(np.isfinite(np.asarray(states.obs["state"])))
@@ -164,6 +171,7 @@ def test_nominal_scenario_is_deterministic_and_unrandomized():
         ({"randomization": {"friction": [0.0, 0.5]}}, "must be > 0"),
         ({"commands": {"p_zero": -1}}, "env.commands.p_zero = -1"),
         ({"reward": {"sigma_lin": 0}}, "env.reward.sigma_lin = 0"),
+        ({"reward": {"error_cap": -1}}, "env.reward.error_cap = -1"),
         ({"robot": "no_such_robot"}, "env.robot = 'no_such_robot'"),
         ({"noise": {"gyro": "big"}}, "env.noise.gyro = 'big'"),
         ({"colour": "red"}, "env.colour = 'red': unknown key"),

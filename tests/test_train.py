@@ -9,10 +9,12 @@ import json
 import jax
 import numpy as np
 import pytest
+from brax.training.agents.ppo.losses import PPONetworkParams
 
 from mecanum_jax.config import ConfigError
 from train import checkpoint, cli
-from train.config import TrainConfig, load_train_config, parse_train_config
+from train.config import PPOConfig, TrainConfig, load_train_config, parse_train_config
+from train.ppo import gradient_clip
 from train.run import Run, RunDirError, TrainingDiverged, beats
 
 
@@ -237,3 +239,41 @@ def test_untrained_policy_is_the_baseline(learner):
         action = np.asarray(policy(obs, jax.random.PRNGKey(0))[0])
     np.testing.assert_array_equal(action, np.zeros((7, learner.env.action_size)))
     assert learner.cfg.env.residual
+
+
+def test_untrained_policy_explores_with_the_configured_noise(learner):
+    """network.init_noise_std sets the initial exploration std, the same in every state
+    (Brax's tanh-normal policy alone ignores it and starts at softplus of random outputs)."""
+    ts, _ = learner.init_training()
+    one = jax.tree.map(lambda x: x[0, 0], ts)
+    obs = _random_obs(learner, 16, seed=2)
+    with jax.numpy_rank_promotion("allow"):
+        logits = learner.networks.policy_network.apply(
+            one.normalizer_params, one.params.policy, obs
+        )
+        dist = learner.networks.parametric_action_distribution.create_dist(logits)
+    std = np.asarray(dist.scale)
+    assert std.shape == (16, learner.env.action_size)
+    np.testing.assert_allclose(std, learner.cfg.network.init_noise_std, rtol=1e-5)
+
+
+@pytest.mark.parametrize("per_network", [True, False])
+def test_gradient_clipping_per_network(per_network):
+    """With ppo.clip_per_network a huge value gradient no longer shrinks the policy's step."""
+    cfg = TrainConfig(ppo=PPOConfig(max_grad_norm=1.0, clip_per_network=per_network))
+    clip = gradient_clip(cfg)
+    zeros = {"w": np.zeros(2, np.float32)}
+    grads = PPONetworkParams(
+        policy={"w": np.array([0.3, 0.4], np.float32)},  # norm 0.5: under the limit
+        value={"w": np.array([60.0, 80.0], np.float32)},  # norm 100
+    )
+    params = PPONetworkParams(policy=zeros, value=zeros)
+    out, _ = clip.update(grads, clip.init(params), params)
+    policy, value = np.asarray(out.policy["w"]), np.asarray(out.value["w"])
+    if per_network:
+        np.testing.assert_allclose(policy, [0.3, 0.4], rtol=1e-6)
+        np.testing.assert_allclose(np.linalg.norm(value), 1.0, rtol=1e-5)
+    else:  # one global norm, about 100: both scaled by the same factor
+        scale = 1.0 / np.linalg.norm([0.3, 0.4, 60.0, 80.0])
+        np.testing.assert_allclose(policy, np.array([0.3, 0.4]) * scale, rtol=1e-5)
+        np.testing.assert_allclose(value, np.array([60.0, 80.0]) * scale, rtol=1e-5)

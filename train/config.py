@@ -50,6 +50,9 @@ class PPOConfig:
     over wheel hops, reaches 40σ under exploration (scripts/observation_outliers.py);
     unclipped, such samples drove the policy's pre-tanh means to ±28 and PPO's mean KL
     per update to 100s; clipped at 5σ both stay tame (H100, docs/training.md).
+
+    ``clip_per_network``: clip the policy's and the value function's gradients at
+    ``max_grad_norm`` each, not together (:func:`train.ppo.make_optimizer`).
     """
 
     num_timesteps: int = 400_000
@@ -67,6 +70,7 @@ class PPOConfig:
     reward_scaling: float = 1.0
     normalize_observations: bool = True
     clip_observations: float = 5.0
+    clip_per_network: bool = True
 
 
 @dataclasses.dataclass(frozen=True)

@@ -94,10 +94,31 @@ def make_networks(env: MecanumEnv, cfg: TrainConfig) -> ppo_networks.PPONetworks
     )
 
 
+def gradient_clip(cfg: TrainConfig) -> optax.GradientTransformation:
+    """Gradient-norm clipping at ``ppo.max_grad_norm``.
+
+    ``ppo.clip_per_network``: the policy's and the value function's gradients are clipped
+    each by its own norm (PPO's loss is a sum, so each network's gradient comes from its
+    own term). One global norm over both lets a large value error (the returns' tails)
+    shrink the policy's step in that minibatch by the same factor.
+    """
+    p = cfg.ppo
+    clip = optax.clip_by_global_norm(p.max_grad_norm)
+    if not p.clip_per_network:
+        return clip
+
+    def labels(params: ppo_losses.PPONetworkParams) -> ppo_losses.PPONetworkParams:
+        return ppo_losses.PPONetworkParams(
+            policy=jax.tree.map(lambda _: "policy", params.policy),
+            value=jax.tree.map(lambda _: "value", params.value),
+        )
+
+    return optax.multi_transform({"policy": clip, "value": clip}, labels)
+
+
 def make_optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
-    return optax.chain(
-        optax.clip_by_global_norm(cfg.ppo.max_grad_norm), optax.adam(cfg.ppo.learning_rate)
-    )
+    """Adam after :func:`gradient_clip`."""
+    return optax.chain(gradient_clip(cfg), optax.adam(cfg.ppo.learning_rate))
 
 
 def all_finite(tree: Any) -> jax.Array:
@@ -198,15 +219,29 @@ class Learner:
         return per_device, np.stack(env_keys, axis=1)
 
     def _initial_policy(self, key: jax.Array) -> Any:
+        """Brax's policy initialisation, with the exploration noise ``init_noise_std``.
+
+        Brax's tanh-normal policy MLP outputs the action means ``[0, a)`` and the scales
+        ``[a, 2a)``, ``std = softplus(out) + 0.001``, and ignores ``init_noise_std``: its
+        random output layer starts the std anywhere in 0.25–2 (mean ≈ 0.7) per state. Here
+        the scale outputs start state-independent at ``init_noise_std`` (zero kernel, bias
+        ``softplus⁻¹(init_noise_std − 0.001)``); they stay learnable and state-dependent.
+        ``zero_init_mean`` also zeroes the mean outputs (the untrained policy is then the
+        baseline, with residual actions).
+        """
         params = self.networks.policy_network.init(key)
-        if not self.cfg.network.zero_init_mean:
-            return params
         layers = params["params"]
         last = max(layers, key=lambda name: int(name.rsplit("_", 1)[-1]))
-        a = self.env.action_size  # outputs [0, a) are the mean, [a, 2a) the scale
+        a = self.env.action_size
         out = dict(layers[last])
-        out["kernel"] = out["kernel"].at[:, :a].set(0.0)
-        out["bias"] = out["bias"].at[:a].set(0.0)
+        kernel, bias = out["kernel"], out["bias"]
+        std = max(self.cfg.network.init_noise_std - 0.001, 1e-6)
+        kernel = kernel.at[:, a:].set(0.0)
+        bias = bias.at[a:].set(math.log(math.expm1(std)))  # softplus⁻¹
+        if self.cfg.network.zero_init_mean:
+            kernel = kernel.at[:, :a].set(0.0)
+            bias = bias.at[:a].set(0.0)
+        out["kernel"], out["bias"] = kernel, bias
         return {**params, "params": {**layers, last: out}}
 
     # --- training ---------------------------------------------------------------------------
@@ -427,4 +462,12 @@ def to_host(tree: Any) -> Any:
     return jax.tree.map(np.asarray, tree)
 
 
-__all__ = ["Learner", "TrainingState", "all_finite", "first_device", "make_networks"]
+__all__ = [
+    "Learner",
+    "TrainingState",
+    "all_finite",
+    "first_device",
+    "gradient_clip",
+    "make_networks",
+    "make_optimizer",
+]
