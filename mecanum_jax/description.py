@@ -141,11 +141,23 @@ class SimSpec:
         (μ = 0.1, lateral 1 m/s: 333 resets in 2 s); 1 ms is stable.
       solver: the constraint solver, ``"newton"`` or ``"cg"`` (conjugate gradient: cheaper
         iterations, no factorisation; docs/physics_model.md compares them).
-      iterations: constraint solver iterations.
+      iterations: constraint solver iterations. 8: with 4, the solve is not converged
+        while wheels slip fast on a slippery floor, and the error feeds energy into the
+        chassis: in 512 randomized episodes under the baseline, 67 robots tipped over and
+        some flew metres high (scripts/runaway_episodes.py); with 6, one did; with 8 none,
+        and the tracking statistics equal those at 12 and 20 (docs/physics_model.md).
       ls_iterations: line-search iterations.
       floor_friction: sliding friction coefficient of floor and wheels.
       rollers: passive rollers per wheel in the reference fidelity.
-      roller_radius_ratio: roller radius as a fraction of the wheel radius.
+      roller_radius_ratio: roller radius (at its middle) as a fraction of the wheel radius.
+      roller_spheres: spheres per roller in the reference fidelity, ≥ 2: each roller is a
+        chain of spheres along its axis whose radii follow the barrel profile of a real
+        mecanum roller, so every sphere reaches exactly the wheel radius below the axle and
+        the rolling radius is constant (between spheres it dips by about
+        ``(1 − cos(π / (rollers·(roller_spheres − 1))))·(1 − roller_radius_ratio)`` of
+        the radius: 0.2% with 10 rollers of 5 spheres). ``0``: straight capsule rollers,
+        whose ends reach up to 3.4% beyond the radius (a polygonal wheel; up to 6.9% twist
+        error, docs/physics_model.md).
       contact_timeconst: contact stiffness as MuJoCo's solref time constant, s (≥ 2 steps);
         stiffer than MuJoCo's 0.02 s default, whose soft contacts let the wheels creep
         sideways under centripetal load (≈3% twist error at 2 rad/s with 0.02 s).
@@ -154,11 +166,12 @@ class SimSpec:
     timestep: float = 0.002
     reference_timestep: float = 0.001
     solver: str = "newton"
-    iterations: int = 4
+    iterations: int = 8
     ls_iterations: int = 4
     floor_friction: float = 1.0
     rollers: int = 10
     roller_radius_ratio: float = 0.3
+    roller_spheres: int = 5
     contact_timeconst: float = 0.005
 
 
@@ -326,6 +339,11 @@ def check_physics(desc: RobotDescription, source: str) -> None:
     if desc.sim.rollers < 3:
         raise ConfigError(
             f"{source}: sim.rollers = {desc.sim.rollers}: a wheel needs at least 3 rollers"
+        )
+    if desc.sim.roller_spheres == 1 or not 0 <= desc.sim.roller_spheres <= 16:
+        raise ConfigError(
+            f"{source}: sim.roller_spheres = {desc.sim.roller_spheres}: expected 2 to 16 "
+            "spheres per roller, or 0 for capsule rollers"
         )
     if desc.sim.solver not in SOLVERS:
         raise ConfigError(

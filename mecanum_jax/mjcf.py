@@ -57,8 +57,8 @@ class ModelIndex:
         proportional gain, handled implicitly by the integrator so stiff gains stay stable;
         ``forcerange`` = the torque limit).
       floor_geom: the floor's geom id.
-      wheel_geoms: (n, k) the geoms that touch the floor for each wheel (k = 1 tyre, or the
-        rollers).
+      wheel_geoms: (n, k) the geoms that touch the floor for each wheel (k = 1 tyre, or
+        every roller geom: ``rollers × roller_spheres`` spheres, or ``rollers`` capsules).
       roller_bodies: (n, k) roller body ids (reference model; empty for the fast one).
     """
 
@@ -204,6 +204,7 @@ def _wheel_reference(desc: RobotDescription, geom: WheelGeometry, i: int) -> str
     r = float(geom.radii[i])
     gamma = float(geom.roller_angles[i])
     n_rollers = desc.sim.rollers
+    n_spheres = desc.sim.roller_spheres
     rho = desc.sim.roller_radius_ratio * r
     rc = r - rho
     half = math.pi * rc / (n_rollers * math.cos(gamma))  # rollers tile the rim along the drive
@@ -219,14 +220,26 @@ def _wheel_reference(desc: RobotDescription, geom: WheelGeometry, i: int) -> str
         axis = _rot_y(alpha, u_local)
         p1, p2 = -half * axis, half * axis
         roller_i = (m_roller * rho * rho) / 2
+        contact = (
+            f'contype="2" conaffinity="1" condim="3" friction="{_fmt(mu, 0.0, 0.0)}" mass="0" '
+            f'solref="{desc.sim.contact_timeconst:.6g} 1" rgba="{_ROLLER_RGBA}" group="1"'
+        )
+        if n_spheres:  # barrel profile: every sphere reaches exactly r below the axle
+            offsets = np.linspace(-half, half, n_spheres)
+            geoms = "".join(
+                f"""
+          <geom name="{name}_roller{k}_{j}" type="sphere" pos="{_fmt(*(s * axis))}"
+                size="{r - math.hypot(rc, s * math.cos(gamma)):.6g}" {contact}/>"""
+                for j, s in enumerate(offsets)
+            )
+        else:
+            geoms = f"""
+          <geom name="{name}_roller{k}" type="capsule" fromto="{_fmt(*p1, *p2)}"
+                size="{rho:.6g}" {contact}/>"""
         rollers.append(f"""
         <body name="{name}_roller{k}" pos="{_fmt(*centre)}">
           <joint name="{name}_roller{k}" type="hinge" axis="{_fmt(*axis)}"/>
-          <inertial pos="0 0 0" mass="{m_roller:.6g}" diaginertia="{_fmt(roller_i, roller_i, roller_i)}"/>
-          <geom name="{name}_roller{k}" type="capsule" fromto="{_fmt(*p1, *p2)}" size="{rho:.6g}"
-                contype="2" conaffinity="1" condim="3" friction="{_fmt(mu, 0.0, 0.0)}" mass="0"
-                solref="{desc.sim.contact_timeconst:.6g} 1"
-                rgba="{_ROLLER_RGBA}" group="1"/>
+          <inertial pos="0 0 0" mass="{m_roller:.6g}" diaginertia="{_fmt(roller_i, roller_i, roller_i)}"/>{geoms}
         </body>""")
     return f"""
     <body name="{name}_hub" pos="{_fmt(x, y, 0.0)}" quat="{_quat_z(float(geom.drive_angles[i]))}">
@@ -332,8 +345,9 @@ def build_model(
         roller_bodies = np.zeros((len(names), 0), dtype=int)
     else:
         carrier = np.zeros((0,), dtype=int)
-        k = desc.sim.rollers
-        wheel_geoms = np.array([[gid(f"{n}_roller{j}") for j in range(k)] for n in names])
+        k, spheres = desc.sim.rollers, desc.sim.roller_spheres
+        geoms = [f"{j}_{i}" for j in range(k) for i in range(spheres)] if spheres else range(k)
+        wheel_geoms = np.array([[gid(f"{n}_roller{g}") for g in geoms] for n in names])
         roller_bodies = np.array([[bid(f"{n}_roller{j}") for j in range(k)] for n in names])
     index = ModelIndex(
         wheel_names=names,

@@ -171,6 +171,7 @@ class Robot:
         self._base_ipos = jnp.asarray(m.body_ipos[idx.chassis_body])
         self._base_inertia = jnp.asarray(m.body_inertia[idx.chassis_body])
         self._geom_size = jnp.asarray(m.geom_size)
+        self._geom_pos = jnp.asarray(m.geom_pos)
         self._roller_bodies = jnp.asarray(idx.roller_bodies)
         self._body_pos = jnp.asarray(m.body_pos)
         self._qpos0 = jnp.asarray(m.qpos0)
@@ -223,21 +224,23 @@ class Robot:
         frange = m.actuator_forcerange.at[self._acts].set(
             jnp.stack([-params.torque_limit, params.torque_limit], -1)
         )
-        size, body_pos = self._geom_size, self._body_pos
+        size, geom_pos, body_pos = self._geom_size, self._geom_pos, self._body_pos
         scale = params.radius_scale[:, None]
         if self.fidelity == "fast":
             size = size.at[self._wheel_geoms[:, 0], 0].multiply(params.radius_scale)
-        else:
+        else:  # the whole roller ring scales about the axle: rollers, spheres, capsules
             size = (
                 size.at[self._wheel_geoms, 0]
                 .multiply(scale)
                 .at[self._wheel_geoms, 1]
                 .multiply(scale)
             )
+            geom_pos = geom_pos.at[self._wheel_geoms].multiply(scale[..., None])
             body_pos = body_pos.at[self._roller_bodies].multiply(scale[..., None])
         return m.replace(
             geom_friction=friction,
             geom_size=size,
+            geom_pos=geom_pos,
             body_pos=body_pos,
             body_mass=m.body_mass.at[c].set(total),
             body_ipos=m.body_ipos.at[c].set(com),
