@@ -141,11 +141,11 @@ class SimSpec:
         (μ = 0.1, lateral 1 m/s: 333 resets in 2 s); 1 ms is stable.
       solver: the constraint solver, ``"newton"`` or ``"cg"`` (conjugate gradient: cheaper
         iterations, no factorisation; docs/physics_model.md compares them).
-      iterations: constraint solver iterations. 8: with 4, the solve is not converged
-        while wheels slip fast on a slippery floor, and the error feeds energy into the
-        chassis: in 512 randomized episodes under the baseline, 67 robots tipped over and
-        some flew metres high (scripts/runaway_episodes.py); with 6, one did; with 8 none,
-        and the tracking statistics equal those at 12 and 20 (docs/physics_model.md).
+      iterations: constraint solver (Newton) iterations. 12: with fewer, the solve is not
+        converged while wheels slip fast on a slippery floor, and the error feeds energy
+        into the chassis. Robots tipped over in 4096 randomized baseline episodes × 10 s
+        (scripts/runaway_episodes.py, H100): 509 with 4 iterations (some flew metres
+        high), 25 with 8, none with 12 or 16 (whose statistics equal 12's).
       ls_iterations: line-search iterations.
       floor_friction: sliding friction coefficient of floor and wheels.
       rollers: passive rollers per wheel in the reference fidelity.
@@ -166,7 +166,7 @@ class SimSpec:
     timestep: float = 0.002
     reference_timestep: float = 0.001
     solver: str = "newton"
-    iterations: int = 8
+    iterations: int = 12
     ls_iterations: int = 4
     floor_friction: float = 1.0
     rollers: int = 10

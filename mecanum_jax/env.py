@@ -163,6 +163,9 @@ class EnvConfig:
     inverse model, so the policy cannot drive the wheels against each other (the
     inverse model's null space, which squeezes the rollers and only costs energy).
 
+    ``solver_iterations`` > 0 overrides the description's Newton iterations (``0``: keep
+    them); fewer than 12 let robots on slippery floors tip over (SimSpec.iterations).
+
     ``yaw_integral_tau`` > 0 adds an observation a real controller can compute: the leaky
     integral of the yaw-rate error the robot *measures*, ``I ← e^(−dt/τ)·I + (ω_cmd −
     gyro)·dt`` (gyro as observed: noisy, delayed), in units of ``τ`` times the largest
@@ -174,6 +177,7 @@ class EnvConfig:
     control_dt: float = 0.02
     physics_timestep: float = 0.004
     contact_timeconst: float = 0.008
+    solver_iterations: int = 0
     episode_length: int = 500
     residual: bool = True
     residual_scale: float = 0.1
@@ -201,6 +205,13 @@ class EnvConfig:
                 f"must be a whole multiple of physics_timestep = {self.physics_timestep}",
             )
         require(self, where, ("episode_length",), lambda v: v >= 1, "must be >= 1")
+        require(
+            self,
+            where,
+            ("solver_iterations",),
+            lambda v: v >= 0,
+            "must be >= 0 (0: the robot description's sim.iterations)",
+        )
         require(self, where, ("yaw_integral_tau",), lambda v: v >= 0, "must be >= 0 (0: off)")
         if self.residual_space not in RESIDUAL_SPACES:
             raise invalid(
@@ -299,7 +310,10 @@ class EnvConfig:
             except ConfigError as err:
                 raise ConfigError(f"{where}.{err}") from None
         sim = dataclasses.replace(
-            desc.sim, timestep=self.physics_timestep, contact_timeconst=self.contact_timeconst
+            desc.sim,
+            timestep=self.physics_timestep,
+            contact_timeconst=self.contact_timeconst,
+            iterations=self.solver_iterations or desc.sim.iterations,
         )
         return dataclasses.replace(desc, sim=sim)
 

@@ -10,7 +10,8 @@ non-finite during the timed calls (a variant that is fast but unstable is no opt
         [--json-out FILE]
 
 Variants (``strip`` = the draw-only geoms removed, ``Robot(strip_visual=True)``):
-``default`` (all geoms simulated), ``strip``, ``newton3`` (3 Newton iterations),
+``default`` (all geoms simulated), ``strip``, ``newton3``/``newton4``/``newton6``/``newton8``
+(3, 4, 6, 8 Newton iterations instead of the description's 12),
 ``cg6``/``cg10`` (conjugate gradient, 6/10 iterations), ``elliptic`` (elliptic friction
 cone), ``sparse`` (sparse constraint Jacobian), ``ls1`` (1 line-search iteration), and
 ``nocontact``/``noconstraint`` (contacts or the whole constraint solver off: upper bounds
@@ -37,6 +38,9 @@ VARIANTS: dict[str, tuple[bool, dict[str, Any]]] = {
     "default": (False, {}),
     "strip": (True, {}),
     "newton3": (True, {"iterations": 3}),
+    "newton4": (True, {"iterations": 4}),
+    "newton6": (True, {"iterations": 6}),
+    "newton8": (True, {"iterations": 8}),
     "cg6": (True, {"solver": int(mujoco.mjtSolver.mjSOL_CG), "iterations": 6}),
     "cg10": (True, {"solver": int(mujoco.mjtSolver.mjSOL_CG), "iterations": 10}),
     "elliptic": (True, {"cone": int(mujoco.mjtCone.mjCONE_ELLIPTIC)}),

@@ -48,9 +48,7 @@ def main() -> None:
         if getattr(args, name) < 1:
             ap.error(f"--{name} {getattr(args, name)}: must be >= 1")
     env = MecanumEnv(
-        EnvConfig(
-            physics_timestep=args.physics_timestep, contact_timeconst=args.contact_timeconst
-        )
+        EnvConfig(physics_timestep=args.physics_timestep, contact_timeconst=args.contact_timeconst)
     )
     for item in args.opt:
         name, _, value = item.partition("=")
