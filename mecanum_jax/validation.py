@@ -287,11 +287,12 @@ def to_markdown(res: dict[str, Any]) -> str:
         lines += ["", summary(name, r)]
     lines += [
         "",
-        "The reference model's larger error comes from its polygonal rolling radius: each "
-        "capsule roller is straight, so where its ends touch the floor the contact is farther "
-        "from the axle than the nominal radius (by up to ≈3% of r for 10 rollers at 45°), the "
-        "effective rolling radius is larger, and translations come out slightly fast while "
-        "the lateral direction, carried by the rollers' ends, is slightly slow.",
+        "The reference model's larger error comes from its discrete rollers: each is a chain "
+        "of spheres sized to a barrel profile, so the wheel's envelope dips slightly between "
+        "spheres and the contact jumps from roller to roller, and at speed the chassis "
+        "vibrates on it. Straight capsule rollers (`sim.roller_spheres = 0`) made the rolling "
+        "radius polygonal instead (their ends stand ≈3.4% of r beyond the radius for 10 "
+        "rollers at 45°) and failed 2 of these 26 twists, up to 6.9% (docs/physics_model.md).",
         "",
         "## X-square cannot spin in place",
         "",

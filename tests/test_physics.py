@@ -12,7 +12,12 @@ import pytest
 
 from mecanum_jax import ConfigError, kinematics, mjcf, physics, validation
 from mecanum_jax.config import load_toml
-from mecanum_jax.description import CONFIG_DIR, builtin_description, parse_description
+from mecanum_jax.description import (
+    CONFIG_DIR,
+    builtin_description,
+    check_physics,
+    parse_description,
+)
 from mecanum_jax.geometry import SingularLayoutWarning
 
 ROBOTS = sorted(p.stem for p in (CONFIG_DIR / "robots").glob("*.toml"))
@@ -307,3 +312,53 @@ def test_validation_cli_rejects_bad_solver_overrides(capsys, tmp_path):
     assert "sim.iterations = 0" in capsys.readouterr().err
     assert not out.exists()
     assert not out.with_suffix(".json").exists()
+
+
+def _roller_reach(robot, model):
+    """Per wheel, each roller geom's farthest reach from the axle (hub frame: axle = y)."""
+    idx = robot.index
+    body_pos = np.asarray(model.body_pos)
+    geom_pos = np.asarray(model.geom_pos)
+    size = np.asarray(model.geom_size)
+    body = np.asarray(robot.sim_model.geom_bodyid)
+    centres = body_pos[body[idx.wheel_geoms]] + geom_pos[idx.wheel_geoms]  # (n, k, 3)
+    return np.hypot(centres[..., 0], centres[..., 2]) + size[idx.wheel_geoms, 0]
+
+
+def test_reference_barrel_rollers_reach_exactly_the_wheel_radius():
+    """Every sphere of every barrel roller reaches r below the axle (a round wheel, not a
+    polygon), also under a per-wheel radius error; straight capsules overshoot by ~3%."""
+    desc = builtin_description("o_rectangle")
+    robot = physics.Robot(desc, "reference")
+    r = np.asarray(robot.geometry.radii)[:, None]
+    k = desc.sim.rollers * desc.sim.roller_spheres
+    assert robot.index.wheel_geoms.shape == (robot.n_wheels, k)
+    assert {
+        int(t) for t in np.asarray(robot.sim_model.geom_type)[robot.index.wheel_geoms].ravel()
+    } == {int(mujoco.mjtGeom.mjGEOM_SPHERE)}
+    np.testing.assert_allclose(
+        _roller_reach(robot, robot.sim_model), np.broadcast_to(r, (4, k)), rtol=1e-5
+    )
+    scale = np.array([0.95, 1.0, 1.02, 1.05], np.float32)
+    model = robot.model_for(robot.nominal_params(radius_scale=scale))
+    np.testing.assert_allclose(
+        _roller_reach(robot, model), np.broadcast_to(r * scale[:, None], (4, k)), rtol=1e-5
+    )
+    # the old straight capsules: the contact at a roller's end stands beyond the radius
+    capsules = dataclasses.replace(desc, sim=dataclasses.replace(desc.sim, roller_spheres=0))
+    cap = physics.Robot(capsules, "reference").sim_model
+    g = mujoco.mj_name2id(cap, mujoco.mjtObj.mjOBJ_GEOM, f"{robot.index.wheel_names[0]}_roller0")
+    half = float(cap.geom_size[g, 1])
+    axis = np.zeros(3)
+    mujoco.mju_rotVecQuat(axis, np.array([0.0, 0.0, 1.0]), cap.geom_quat[g])
+    centre = cap.body_pos[cap.geom_bodyid[g]] + cap.geom_pos[g]
+    end = centre + half * axis
+    reach_end = np.hypot(end[0], end[2]) + cap.geom_size[g, 0]
+    assert reach_end > 1.03 * float(r[0, 0])
+
+
+def test_roller_spheres_validated():
+    desc = builtin_description("o_rectangle")
+    bad = dataclasses.replace(desc, sim=dataclasses.replace(desc.sim, roller_spheres=1))
+    with pytest.raises(ConfigError, match=r"sim\.roller_spheres = 1"):
+        check_physics(bad, "robot")
