@@ -1,7 +1,8 @@
 """MJCF generation: one robot description → a MuJoCo model, in two fidelities.
 
 - ``"reference"``: each wheel is a hub on an actuated hinge carrying N passive rollers
-  (capsules) on hinges along their own axes, tilted at the roller angle. Rollers touch the
+  (barrel-shaped chains of spheres, ``sim.roller_spheres``; or straight capsules) on
+  hinges along their own axes, tilted at the roller angle. Rollers touch the
   floor only. Realistic and slow; it validates the fast model and shows real slip.
 - ``"fast"``: each wheel is one sphere on two hinges (shared/design/mjx-model.md §2):
   chassis → *carrier* on a passive hinge about the floor roller's axis u_i (fixed in the
