@@ -137,8 +137,8 @@ class SimSpec:
     Attributes:
       timestep: physics step, s (the fast fidelity's; the environment sets its own).
       reference_timestep: the reference fidelity's physics step, s. Its 10 rollers per
-        wheel (capsules, when measured) go unstable at 2 ms once a wheel spins up freely on a slippery floor
-        (μ = 0.1, lateral 1 m/s: 333 resets in 2 s); 1 ms is stable.
+        wheel (capsules, when measured) go unstable at 2 ms once a wheel spins up freely
+        on a slippery floor (μ = 0.1, lateral 1 m/s: 333 resets in 2 s); 1 ms is stable.
       solver: the constraint solver, ``"newton"`` or ``"cg"`` (conjugate gradient: cheaper
         iterations, no factorisation; docs/physics_model.md compares them).
       iterations: constraint solver (Newton) iterations. 12: with fewer, the solve is not
