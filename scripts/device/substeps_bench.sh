@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# What the physics step costs in PPO training throughput (device machine, carry .whl):
+# the gpu config at 5 ms (4 substeps per 20 ms control step) and 10 ms (2 substeps) against
+# the default 4 ms (5 substeps), all with 12 Newton iterations. One train.bench process per
+# variant, so that a run cut short still leaves the variants it finished in $OUT.
+# scripts/physics_step_candidates.py measures what each step does to tracking and stability.
+#   bash scripts/device/substeps_bench.sh [EPOCHS]
+set -euo pipefail
+python3 -m pip install -q --no-index --no-deps --no-compile --upgrade --target /tmp/site .whl/*.whl 2>&1 | grep -v "already exists" || true
+export PYTHONPATH=/tmp/site:$PWD XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUFFERED=1; unset MUJOCO_GL
+O="${OUT:-/tmp}"; EPOCHS="${1:-1}"
+{
+nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
+date -u
+for v in "ts5=env.physics_timestep=0.005,env.contact_timeconst=0.01" "ts4=" \
+         "ts10=env.physics_timestep=0.01,env.contact_timeconst=0.02"; do
+  python3 -m train.bench --config gpu --epochs "$EPOCHS" --variant "$v" \
+    --json-out "$O/substeps_${v%%=*}.json" 2>&1 | grep -v -i warp | grep -E '│ ts'
+done
+} 2>&1 | tee "$O/log.txt"
