@@ -6,8 +6,10 @@ robot; :class:`TrainingEnv` batches it with automatic resets), so Brax's PPO com
 drive it unchanged.
 
 - **Control:** 50 Hz (``control_dt``) with ``control_dt / physics_timestep`` physics
-  substeps. The default 4 ms physics step (contact time constant 8 ms) tracks steady
-  twists within 0.3% like the 2 ms step, at 5 instead of 10 substeps (docs/training.md).
+  substeps. The default 5 ms physics step (contact time constant 10 ms) tracks steady
+  twists within 0.5% like the 2 ms step, at 4 instead of 10 substeps; with the 12 Newton
+  iterations no robot tips over, under the baseline or random actions (docs/training.md,
+  scripts/physics_step_candidates.py).
 - **Actions** in [-1, 1] per wheel. ``residual = true``: wheel-rate setpoints are the
   analytic baseline's plus ``action · residual_scale · max_rate``, so the zero action *is*
   the baseline. ``residual = false``: setpoints are ``action · max_rate``.
@@ -175,8 +177,8 @@ class EnvConfig:
 
     robot: str = "o_rectangle"
     control_dt: float = 0.02
-    physics_timestep: float = 0.004
-    contact_timeconst: float = 0.008
+    physics_timestep: float = 0.005
+    contact_timeconst: float = 0.01
     solver_iterations: int = 0
     episode_length: int = 500
     residual: bool = True
@@ -517,7 +519,7 @@ class MecanumEnv(Env):
         sensors = self._sensor_vector(sens, k_noise, info["noise_std"])
         info["history"] = jnp.concatenate([sensors[None], info["history"][:-1]], axis=0)
         if self.config.yaw_integral_tau > 0:  # against the command tracked in this step
-            gyro = jnp.take(info["history"], info["latency"], axis=0)[self.n_wheels]
+            gyro = self._delayed(info)[self.n_wheels]
             err = command[2] - gyro * self.command_scale[2]
             info["yaw_integral"] = (
                 self._yaw_decay * info["yaw_integral"] + err * self.config.control_dt
@@ -670,8 +672,13 @@ class MecanumEnv(Env):
             ]
         )
 
+    @staticmethod
+    def _delayed(info: dict[str, Any]) -> jax.Array:
+        """The sensor vector as the robot observes it now: ``latency`` steps old."""
+        return jnp.take(info["history"], info["latency"], axis=0)
+
     def _observe(self, sens: Sensors, info: dict[str, Any]) -> dict[str, jax.Array]:
-        delayed = jnp.take(info["history"], info["latency"], axis=0)
+        delayed = self._delayed(info)
         parts = [info["command"] / self.command_scale, delayed, info["last_action"]]
         tau = self.config.yaw_integral_tau
         if tau > 0:

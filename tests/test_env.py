@@ -9,6 +9,7 @@ import pytest
 
 from mecanum_jax import kinematics, limits
 from mecanum_jax.config import ConfigError, from_mapping
+from mecanum_jax.description import builtin_description
 from mecanum_jax.env import EnvConfig, MecanumEnv, RewardConfig, TrainingEnv, baseline_policy
 
 
@@ -43,7 +44,28 @@ def test_spaces(env):
     n = env.n_wheels
     assert env.action_size == n
     assert env.observation_size["state"] == (3 + n + 1 + 3 + 3 + n,)
-    assert env.substeps == 5  # 20 ms control / 4 ms physics
+    assert env.substeps == 4  # 20 ms control / 5 ms physics
+
+
+def test_default_physics_step_tracks_like_the_fine_step(env):
+    """The environment's coarse physics step (5 ms, 4 substeps, for throughput) drives the
+    nominal robot at a combined twist as the description's 2 ms step does."""
+    from mecanum_jax import physics
+
+    fine = physics.Robot(builtin_description(env.config.robot), "fast")
+    assert env.robot.dt > 2 * fine.dt
+    # 5 ms: within 0.5%; a 10 ms step misses 1 m/s forward by 1.5% and fails here
+    twists = jnp.array([[1.0, 0.0, 0.0], [0.0, 0.8, 0.0], [0.0, 0.0, 3.0], [0.6, 0.4, 1.5]])
+    rates = jax.vmap(lambda t: kinematics.inverse(env.robot.geometry, t))(twists)
+
+    def run(robot):
+        f = jax.vmap(lambda c: physics.steady_twist(robot, robot.nominal_params(), c, 2.0, 0.5))
+        return np.asarray(jax.jit(f)(rates))
+
+    coarse, fine_twists = run(env.robot), run(fine)
+    scale = np.linalg.norm(np.asarray(twists), axis=1)
+    assert np.all(np.linalg.norm(coarse - np.asarray(twists), axis=1) < 0.01 * scale)
+    assert np.all(np.linalg.norm(coarse - fine_twists, axis=1) < 0.01 * scale)
 
 
 def test_commands_cover_kinds_and_respect_reach(env):
