@@ -302,7 +302,8 @@ def parse_description(data: dict, source: str = "robot description") -> RobotDes
     return desc
 
 
-SOLVERS = ("newton", "cg")
+# sim.solver values and their MJCF spellings
+SOLVERS = {"newton": "Newton", "cg": "CG"}
 
 
 def check_physics(desc: RobotDescription, source: str) -> None:

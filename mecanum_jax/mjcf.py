@@ -31,7 +31,7 @@ import mujoco
 import numpy as np
 
 from mecanum_jax.config import ConfigError
-from mecanum_jax.description import RobotDescription
+from mecanum_jax.description import SOLVERS, RobotDescription
 from mecanum_jax.geometry import SingularLayoutWarning, WheelGeometry
 from mecanum_jax.kinematics import jacobian_rank
 
@@ -75,9 +75,6 @@ class ModelIndex:
     floor_geom: int
     wheel_geoms: np.ndarray
     roller_bodies: np.ndarray
-
-
-_SOLVER_NAMES = {"newton": "Newton", "cg": "CG"}
 
 
 def _fmt(*values: float) -> str:
@@ -277,7 +274,7 @@ def build_mjcf(desc: RobotDescription, fidelity: Fidelity = "fast") -> str:
     step = sim.timestep if fidelity == "fast" else sim.reference_timestep
     return f"""<mujoco model="{desc.robot.name}_{fidelity}">
   <compiler angle="radian" autolimits="true"/>
-  <option timestep="{step:.6g}" integrator="implicitfast" solver="{_SOLVER_NAMES[sim.solver]}"
+  <option timestep="{step:.6g}" integrator="implicitfast" solver="{SOLVERS[sim.solver]}"
           iterations="{sim.iterations}" ls_iterations="{sim.ls_iterations}" cone="pyramidal">
     <flag eulerdamp="disable"/>
   </option>

@@ -109,7 +109,9 @@ def restore(
     except Exception as err:  # orbax raises many types for unreadable/mismatched files
         raise CheckpointError(
             f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r} cannot be restored "
-            f"into this run's state: {type(err).__name__}: {err}"
+            f"into this run's state: {type(err).__name__}: {err}. A checkpoint written by "
+            "an older version of mecanum_jax, whose training state had another shape, can "
+            "still be evaluated (mecanum-eval) but not resumed"
         ) from err
     train = unpack(train_like, out["train"])
     env = unpack(env_like, out["env"])
