@@ -15,6 +15,7 @@ path (:func:`clip_wheel_rates` is provided to show it).
 from __future__ import annotations
 
 import itertools
+import math
 
 import jax
 import jax.numpy as jnp
@@ -79,6 +80,63 @@ def desaturate(
     sat = saturation(geometry, t, max_rates)
     scale = 1.0 / jnp.maximum(sat, 1.0)
     return t * scale[..., None], scale
+
+
+def nearest_feasible(
+    geometry: WheelGeometry,
+    twist: jax.typing.ArrayLike,
+    max_rates: jax.typing.ArrayLike,
+    omega_weight: float = 1.0,
+) -> jax.Array:
+    """The feasible twist nearest each twist (..., 3): argmin over ``|J t| <= m`` of
+    ``(vx - cx)² + (vy - cy)² + omega_weight · (ωz - cz)²``.
+
+    Unlike :func:`desaturate` it does not keep the direction: for an out-of-reach command
+    it gives the feasible twist with the smallest tracking error in that metric, which is
+    what an RMSE of vx, vy and ωz against the command rewards. ``omega_weight`` (> 0, in
+    (m/s)² per (rad/s)²) trades linear against angular error; docs/training.md measures
+    the trade on the training task's commands (scripts/desaturation_headroom.py).
+
+    Exact: the nearest point of the polytope lies on a facet, an edge or a vertex, so every
+    set of 1-3 active half-spaces is tried (an orthogonal projection onto their
+    intersection) and the nearest feasible candidate kept. Jit- and vmap-friendly;
+    ``C(2n, 1) + C(2n, 2) + C(2n, 3)`` candidates per twist (92 for 4 wheels).
+    Feasible twists pass unchanged.
+    """
+    if not (isinstance(omega_weight, (int, float)) and math.isfinite(omega_weight)) or not (
+        omega_weight > 0
+    ):
+        raise InputError(f"omega_weight = {omega_weight!r}: must be a finite number > 0")
+    t = checked_twist(twist)
+    with jax.numpy_rank_promotion("allow"):  # batch dims broadcast against per-facet ones
+        return _nearest(t, *feasible_facets(geometry, max_rates), omega_weight)
+
+
+def _nearest(t: jax.Array, A: jax.Array, b: jax.Array, omega_weight: float) -> jax.Array:
+    A, b = A.astype(t.dtype), b.astype(t.dtype)
+    d = jnp.asarray([1.0, 1.0, math.sqrt(omega_weight)], t.dtype)
+    Au = A / d  # the half-spaces in the weighted coordinates u = d · t
+    c = t * d
+    tol = 1e-5 * jnp.max(b)
+    candidates = []
+    for k in (1, 2, 3):
+        idx = np.asarray(list(itertools.combinations(range(A.shape[0]), k)))
+        As, bs = Au[idx], b[idx]  # (C, k, 3), (C, k)
+        G = jnp.einsum("cij,clj->cil", As, As)
+        det = jnp.linalg.det(G)
+        scale = jnp.prod(jnp.einsum("cij,cij->ci", As, As), axis=-1)
+        ok = jnp.abs(det) > 1e-8 * scale  # rows independent: a real edge or vertex
+        Ginv = jnp.linalg.inv(jnp.where(ok[:, None, None], G, jnp.eye(k, dtype=G.dtype)))
+        r = jnp.einsum("cij,...j->...ci", As, c) - bs  # (..., C, k)
+        u = c[..., None, :] - jnp.einsum("cji,cjl,...cl->...ci", As, Ginv, r)
+        u = jnp.where(ok[:, None], u, jnp.inf)
+        candidates.append(u)
+    u = jnp.concatenate(candidates, axis=-2)  # (..., K, 3)
+    feasible = jnp.all(jnp.einsum("ij,...kj->...ki", Au, u) <= b + tol, axis=-1)
+    dist = jnp.where(feasible, jnp.sum((u - c[..., None, :]) ** 2, axis=-1), jnp.inf)
+    best = jnp.take_along_axis(u, jnp.argmin(dist, axis=-1)[..., None, None], axis=-2)[..., 0, :]
+    inside = jnp.all(jnp.einsum("ij,...j->...i", Au, c) <= b, axis=-1)
+    return jnp.where(inside[..., None], t, best / d)
 
 
 def clip_wheel_rates(

@@ -23,40 +23,12 @@ budget (scripts/baseline_error_budget.py), before dynamics.
 from __future__ import annotations
 
 import argparse
-import itertools
 
 import jax
 import numpy as np
 
-from mecanum_jax import kinematics, limits
+from mecanum_jax import limits
 from mecanum_jax.env import EnvConfig, MecanumEnv
-
-
-def nearest_feasible(J: np.ndarray, m: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """argmin_t |t - c|² subject to |J t| <= m (per wheel), exactly.
-
-    The feasible set is a polytope in 3-D with the half-spaces ±J_i t <= m_i. The nearest
-    point lies on a face, an edge or a vertex: every set of 1 to 3 active constraints is
-    tried (projection onto their intersection) and the nearest feasible candidate kept.
-    """
-    A = np.concatenate([J, -J])
-    b = np.concatenate([m, m])
-    if np.all(A @ c <= b + 1e-12):
-        return c
-    best, best_d = None, np.inf
-    for k in (1, 2, 3):
-        for rows in itertools.combinations(range(len(A)), k):
-            Ak, bk = A[list(rows)], b[list(rows)]
-            gram = Ak @ Ak.T
-            if np.linalg.matrix_rank(gram) < k:
-                continue
-            t = c - Ak.T @ np.linalg.solve(gram, Ak @ c - bk)
-            d = float(np.sum((t - c) ** 2))
-            if d < best_d and np.all(A @ t <= b + 1e-9):
-                best, best_d = t, d
-    if best is None:
-        raise RuntimeError(f"no feasible projection for command {c}")
-    return best
 
 
 def main() -> None:
@@ -75,16 +47,11 @@ def main() -> None:
     cmds = np.asarray(jax.jit(jax.vmap(env.sample_command))(keys), np.float64)
     sat = np.asarray(limits.saturation(env.geometry, cmds, env.max_rates))
     out = cmds[sat > 1.0]
-    J = np.asarray(kinematics.jacobian(env.geometry), np.float64)
-    m = np.asarray(env.max_rates, np.float64) * np.ones(J.shape[0])
     scaled = np.asarray(limits.desaturate(env.geometry, out, env.max_rates)[0], np.float64)
     rows = []
     for lam in args.omega_weights:
-        d = np.array([1.0, 1.0, np.sqrt(lam)])  # project u = d * t in the weighted metric
-        nearest = np.stack([nearest_feasible(J / d, m, c * d) for c in out]) / d
-        worst = float(np.max(np.abs(nearest @ J.T) / m))
-        assert worst <= 1 + 1e-6, f"nearest twist infeasible: saturation {worst}"
-        rows.append((lam, nearest))
+        nearest = limits.nearest_feasible(env.geometry, out.astype(np.float32), env.max_rates, lam)
+        rows.append((lam, np.asarray(nearest, np.float64)))
 
     def rmse(t: np.ndarray) -> tuple[float, float]:
         e = t - out

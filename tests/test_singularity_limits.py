@@ -2,6 +2,7 @@
 
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -95,6 +96,55 @@ def test_feasible_set_vertices_and_slice(o_rect):
     assert b.shape == (8,)
     d = jnp.array([0.0, 1.0, 0.0])
     assert float(limits.max_speed(o_rect, d, m)) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("layout", ["o_rectangle", "x_square", "centripetal3"])
+@pytest.mark.parametrize("omega_weight", [1.0, 0.1])
+def test_nearest_feasible_is_the_optimum(x64, layout, omega_weight):
+    """Certified by the optimality (KKT) conditions, independently of how it is computed:
+    feasible, and the weighted error c - t is a non-negative combination of the normals of
+    the limits it touches. Also never worse than uniform scaling in the same metric."""
+    from scipy.optimize import nnls
+
+    g = {
+        "o_rectangle": lambda: geometry.o_rectangle(0.05, 0.1, 0.125, dtype=jnp.float64),
+        "x_square": lambda: geometry.x_square(0.05, 0.1, dtype=jnp.float64),  # singular
+        "centripetal3": lambda: geometry.centripetal(0.05, 0.15, 3, dtype=jnp.float64),
+    }[layout]()
+    m = 20.0
+    far = np.random.default_rng(3).normal(size=(200, 3)) * [1.5, 1.5, 15.0]
+    near = 0.9 * np.asarray(limits.desaturate(g, far[:50], m)[0])  # within reach
+    twists = np.concatenate([far, near])
+    got = np.asarray(jax.jit(lambda t: limits.nearest_feasible(g, t, m, omega_weight))(twists))
+    sat = np.asarray(limits.saturation(g, got, m))
+    assert np.all(sat <= 1 + 1e-9)
+    inside = np.asarray(limits.saturation(g, twists, m)) <= 1
+    np.testing.assert_array_equal(got[inside], twists[inside])  # feasible: unchanged
+    assert (~inside).sum() > 100
+    assert inside.sum() >= 50
+    d = np.array([1.0, 1.0, math.sqrt(omega_weight)])
+    A, b = (np.asarray(x) for x in limits.feasible_facets(g, m))
+    scaled = np.asarray(limits.desaturate(g, twists, m)[0])
+    for c, t, s in zip(twists[~inside], got[~inside], scaled[~inside], strict=True):
+        active = np.abs(A @ t - b) < 1e-9 * m
+        assert active.any()
+        normals = (A[active] / d).T  # in the weighted coordinates u = d t
+        _, residual = nnls(normals, (c - t) * d)
+        assert residual < 1e-9 * max(1.0, float(np.linalg.norm((c - t) * d)))
+        assert np.sum(((t - c) * d) ** 2) <= np.sum(((s - c) * d) ** 2) + 1e-12
+    # the weight trades ω error for v error, as documented
+    if omega_weight == 1.0 and layout == "o_rectangle":
+        light = np.asarray(limits.nearest_feasible(g, twists, m, 0.01))
+        v_err = lambda t: np.hypot(*(t - twists)[:, :2].T).mean()  # noqa: E731
+        w_err = lambda t: np.abs(t - twists)[:, 2].mean()  # noqa: E731
+        assert v_err(light) < v_err(got)
+        assert w_err(light) > w_err(got)
+
+
+def test_nearest_feasible_rejects_bad_weight(o_rect):
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(InputError, match="omega_weight"):
+            limits.nearest_feasible(o_rect, jnp.ones(3), 20.0, bad)
 
 
 def test_limits_reject_bad_input(o_rect):
