@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # What the physics step costs in PPO training throughput (device machine, carry .whl):
-# the gpu config at 5 ms (4 substeps per 20 ms control step) and 10 ms (2 substeps) against
-# the default 4 ms (5 substeps), all with 12 Newton iterations. One train.bench process per
+# the gpu config at the default 5 ms (4 substeps per 20 ms control step) against the former
+# 4 ms (5 substeps), 6.67 ms (3) and 10 ms (2), all with 12 Newton iterations. One train.bench process per
 # variant, so that a run cut short still leaves the variants it finished in $OUT.
 # scripts/physics_step_candidates.py measures what each step does to tracking and stability.
 #   bash scripts/device/substeps_bench.sh [EPOCHS]
@@ -12,7 +12,8 @@ O="${OUT:-/tmp}"; EPOCHS="${1:-1}"
 {
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
 date -u
-for v in "ts5=env.physics_timestep=0.005,env.contact_timeconst=0.01" "ts4=" \
+for v in "ts5=" "ts4=env.physics_timestep=0.004,env.contact_timeconst=0.008" \
+         "ts6.67=env.physics_timestep=0.006666666666666667,env.contact_timeconst=0.013333333333333334" \
          "ts10=env.physics_timestep=0.01,env.contact_timeconst=0.02"; do
   python3 -m train.bench --config gpu --epochs "$EPOCHS" --variant "$v" \
     --json-out "$O/substeps_${v%%=*}.json" 2>&1 | grep -v -i warp | grep -E '│ ts'
