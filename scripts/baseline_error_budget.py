@@ -19,6 +19,8 @@ import numpy as np
 from mecanum_jax import limits
 from mecanum_jax.env import EnvConfig, MecanumEnv, TrainingEnv, baseline_policy
 
+_KEY = jax.random.PRNGKey(0)
+
 
 def main() -> None:
     ap = argparse.ArgumentParser()
@@ -41,7 +43,7 @@ def main() -> None:
         s = tenv.reset(keys)
 
         def f(s, _):
-            a, _ = policy(s.obs, None)
+            a, _ = policy(s.obs, _KEY)  # the baseline ignores its key
             ns = tenv.step(s, a)
             twist = jax.vmap(env.robot.sensors)(ns.pipeline_state).twist
             return ns, (s.info["command"], twist)

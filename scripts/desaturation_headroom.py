@@ -48,7 +48,7 @@ def main() -> None:
     sat = np.asarray(limits.saturation(env.geometry, cmds, env.max_rates))
     out = cmds[sat > 1.0]
     scaled = np.asarray(limits.desaturate(env.geometry, out, env.max_rates)[0], np.float64)
-    rows = []
+    rows: list[tuple[float, np.ndarray]] = []
     for lam in args.omega_weights:
         nearest = limits.nearest_feasible(env.geometry, out.astype(np.float32), env.max_rates, lam)
         rows.append((lam, np.asarray(nearest, np.float64)))
@@ -66,8 +66,8 @@ def main() -> None:
     print("| answer | RMSE v (m/s) | RMSE ω (rad/s) |")
     print("|---|---|---|")
     print(f"| scaled (baseline) | {sv:.3f} | {sw:.3f} |")
-    for lam, nearest in rows:
-        nv, nw = rmse(nearest)
+    for lam, near in rows:
+        nv, nw = rmse(near)
         print(f"| nearest, λ = {lam:g} | {nv:.3f} ({nv / sv:.2f}x) | {nw:.3f} ({nw / sw:.2f}x) |")
 
 

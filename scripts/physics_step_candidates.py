@@ -35,6 +35,8 @@ TWISTS = np.array(
     np.float32,
 )
 
+_KEY = jax.random.PRNGKey(0)
+
 
 def parse(spec: str) -> tuple[float, float, int]:
     try:
@@ -63,7 +65,7 @@ def steady(env: MecanumEnv, steps: int) -> np.ndarray:
         s = env.set_command(env.reset(key), cmd)
 
         def f(s, _):
-            a, _ = policy(s.obs, None)
+            a, _ = policy(s.obs, _KEY)  # the baseline ignores its key
             s = env.step(s, a)
             return s, env.robot.sensors(s.pipeline_state).twist
 
@@ -112,7 +114,7 @@ def baseline_randomized(env: MecanumEnv, robots: int, chunks: int, steps: int) -
 
         def f(carry, _):
             s, tip = carry
-            a, _ = policy(s.obs, None)
+            a, _ = policy(s.obs, _KEY)  # the baseline ignores its key
             s = tenv.step(s, a)
             return (s, tip | tipped(env, s.pipeline_state.data.qpos)), s.metrics["error/wz2"]
 
