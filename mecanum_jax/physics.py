@@ -44,6 +44,7 @@ ServoModel = Literal["chord", "mjx"]
 
 GRAVITY = 9.81
 MAX_ABS_QVEL = 2.0e3  # rad/s or m/s: beyond this a state counts as unstable
+TIPPED_UP_Z = 0.7  # a chassis whose up axis has a world z below this (tilt > 45.6°) has tipped
 MAX_ABS_QPOS = 1.0e5  # m or rad (wheel angles accumulate; 1e5 rad is > 1 h at 20 rad/s)
 
 
@@ -388,6 +389,13 @@ class Robot:
             twist=jnp.stack([v_body[0], v_body[1], omega_body[2]]),
         )
 
+    def up_z(self, state: SimState) -> jax.Array:
+        """World z component of the chassis's up axis: 1 upright, below
+        :data:`TIPPED_UP_Z` tipped over (no flat-floor mecanum base gets there physically:
+        scripts/runaway_episodes.py counts such robots)."""
+        f = self.index.free_qpos
+        return _quat_to_mat(state.data.qpos[f + 3 : f + 7])[2, 2]
+
     # --- batches ------------------------------------------------------------------------
 
     def batched(self, substeps: int = 1) -> tuple[Any, Any, Any]:
@@ -444,6 +452,7 @@ def steady_twist(
 
 
 __all__ = [
+    "TIPPED_UP_Z",
     "Robot",
     "RobotParams",
     "Sensors",

@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mecanum_jax.env import EnvConfig, MecanumEnv, TrainingEnv, baseline_policy
+from mecanum_jax.physics import TIPPED_UP_Z, SimState
 
 TWISTS = np.array(
     [[1.0, 0.0, 0.0], [0.0, 0.8, 0.0], [0.0, 0.0, 3.0], [0.6, 0.4, 1.5], [-0.5, 0.5, -2.0]],
@@ -51,10 +52,8 @@ def parse(spec: str) -> tuple[float, float, int]:
     return out
 
 
-def tipped(env: MecanumEnv, qpos: jax.Array) -> jax.Array:
-    free = env.robot.index.free_qpos
-    quat = qpos[..., free + 3 : free + 7]
-    return 1 - 2 * (quat[..., 1] ** 2 + quat[..., 2] ** 2) < 0.7
+def tipped(env: MecanumEnv, states: SimState) -> jax.Array:
+    return jax.vmap(env.robot.up_z)(states) < TIPPED_UP_Z
 
 
 def steady(env: MecanumEnv, steps: int) -> np.ndarray:
@@ -90,7 +89,7 @@ def random_actions(env: MecanumEnv, robots: int, chunks: int, steps: int) -> dic
             s = tenv.step(s, a)
             d = s.pipeline_state.data
             qmax = jnp.maximum(qmax, jnp.max(jnp.abs(d.qvel), -1))
-            return (s, qmax, tip | tipped(env, d.qpos)), None
+            return (s, qmax, tip | tipped(env, s.pipeline_state)), None
 
         init = (s0, jnp.zeros(robots), jnp.zeros(robots, bool))
         (s, qmax, tip), _ = jax.lax.scan(f, init, jax.random.split(k1, steps))
@@ -116,7 +115,7 @@ def baseline_randomized(env: MecanumEnv, robots: int, chunks: int, steps: int) -
             s, tip = carry
             a, _ = policy(s.obs, _KEY)  # the baseline ignores its key
             s = tenv.step(s, a)
-            return (s, tip | tipped(env, s.pipeline_state.data.qpos)), s.metrics["error/wz2"]
+            return (s, tip | tipped(env, s.pipeline_state)), s.metrics["error/wz2"]
 
         (_, tip), wz2 = jax.lax.scan(f, (s0, jnp.zeros(robots, bool)), None, length=steps)
         return jnp.mean(wz2), tip

@@ -199,6 +199,20 @@ def test_nominal_params_reject_unknown_fields(fast_robot):
         fast_robot.nominal_params(frction=0.5)
 
 
+def test_up_z_tells_upright_from_tipped(fast_robot):
+    state = fast_robot.reset(fast_robot.nominal_params())
+    assert float(fast_robot.up_z(state)) == pytest.approx(1.0, abs=1e-6)
+    f = fast_robot.index.free_qpos
+    for angle, tipped in ((0.5, False), (1.0, True), (math.pi, True)):  # roll about x
+        quat = jnp.array([math.cos(angle / 2), math.sin(angle / 2), 0.0, 0.0])
+        rolled = state.replace(
+            data=state.data.replace(qpos=state.data.qpos.at[f + 3 : f + 7].set(quat))
+        )
+        up = float(fast_robot.up_z(rolled))
+        assert up == pytest.approx(math.cos(angle), abs=1e-6)
+        assert (up < physics.TIPPED_UP_Z) == tipped
+
+
 def test_radius_error_changes_speed(fast_robot):
     cmd = kinematics.inverse(fast_robot.geometry, jnp.array([0.3, 0.0, 0.0]))
     big = fast_robot.nominal_params(radius_scale=1.05)
