@@ -68,6 +68,9 @@ def test_full_run_writes_its_directory(full_run, tiny):
     assert checkpoint.latest_epoch(d) == 3
     assert summary["epochs"] == 3
     assert summary["seeds"][0]["eval"]["nominal"]["rmse_lin"] > 0
+    # wall time (and "beat at") counts the whole session: set-up, compilation, baseline
+    assert summary["walltime_s"] == pytest.approx(summary["session_s"], abs=0.5)
+    assert 0 < lines[0]["walltime"] < lines[-1]["walltime"] <= summary["walltime_s"]
 
 
 def test_interrupted_run_resumes_exactly(full_run, tiny, learner, tmp_path, monkeypatch):

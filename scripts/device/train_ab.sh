@@ -8,7 +8,7 @@
 set -euo pipefail
 python3 -m pip install -q --no-index --no-deps --no-compile --upgrade --target /tmp/site .whl/*.whl 2>&1 | grep -v "already exists" || true
 export PYTHONPATH=/tmp/site:$PWD XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUFFERED=1; unset MUJOCO_GL
-export JAX_COMPILATION_CACHE_DIR=/tmp/jax_cache
+export JAX_COMPILATION_CACHE_DIR=/tmp/jax_cache_$(date +%s)  # fresh: the training compiles cold, its evaluation reuses
 O="${OUT:-/tmp/out}"; mkdir -p "$O"
 MIN="$1"; shift
 {
