@@ -4,6 +4,7 @@ All runs use ``configs/train/tiny.toml`` on the suite's two CPU devices (so the 
 with gradient averaging is exercised) and share one compiled :class:`Learner`.
 """
 
+import dataclasses
 import json
 
 import jax
@@ -14,7 +15,7 @@ from brax.training.agents.ppo.losses import PPONetworkParams
 from mecanum_jax.config import ConfigError
 from train import checkpoint, cli
 from train.config import PPOConfig, TrainConfig, load_train_config, parse_train_config
-from train.ppo import gradient_clip
+from train.ppo import Learner, gradient_clip, to_host
 from train.run import Run, RunDirError, TrainingDiverged, beats
 
 
@@ -101,6 +102,39 @@ def test_interrupted_run_resumes_exactly(full_run, tiny, learner, tmp_path, monk
         np.testing.assert_array_equal(x, y)  # optimizer, params, normalizer, keys: identical
     lines = [json.loads(x) for x in (run.dir / "metrics.jsonl").read_text().splitlines()]
     assert [x["epoch"] for x in lines] == [1, 2, 3]
+
+
+def test_sharded_parallel_trains_like_pmap(full_run, tiny, learner, tmp_path):
+    """``run.parallel = "sharded"`` (jit over a device mesh, the workaround for pmap's
+    compiler crash on 2 GPUs) computes Brax's pmap path's epoch, on both devices."""
+    cfg = dataclasses.replace(tiny, run=dataclasses.replace(tiny.run, parallel="sharded"))
+    sharded = Learner(cfg)
+    host = to_host(learner.init())
+    ts, es = sharded.place(*host)
+    leaf = jax.tree.leaves(ts)[0]
+    assert len(leaf.sharding.device_set) == 2
+    assert leaf.sharding.spec[0] == "d"
+    ref_ts, _, ref_m = learner.epoch(*learner.place(*host))
+    got_ts, _, got_m = sharded.epoch(ts, es)
+    # the same epoch up to the two compilations' rounding (~3e-7 after one iteration,
+    # which the following iterations' rollouts amplify)
+    for k, v in to_host(ref_m).items():
+        np.testing.assert_allclose(to_host(got_m)[k], v, rtol=1e-4, atol=1e-6, err_msg=k)
+    for x, y in zip(
+        jax.tree.leaves(to_host(ref_ts)), jax.tree.leaves(to_host(got_ts)), strict=True
+    ):
+        if np.issubdtype(y.dtype, np.floating):  # (rng keys differ per device by design)
+            np.testing.assert_array_equal(y[0], y[1])  # replicas agree: the all-reduce works
+            np.testing.assert_allclose(y, x, rtol=1e-3, atol=1e-5)
+        else:
+            np.testing.assert_array_equal(y, x)
+    # a whole run through it: checkpoints, logs, evaluation
+    run = Run.create(cfg, tmp_path / "sharded")
+    summary = run.train(learner=sharded)
+    assert json.loads((run.dir / "status.json").read_text())["state"] == "finished"
+    assert summary["epochs"] == full_run[1]["epochs"]
+    restored, _ = _final_train_state(run, sharded)
+    assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(restored))
 
 
 def test_nan_stops_and_keeps_last_good_checkpoint(tiny, learner, tmp_path, monkeypatch):

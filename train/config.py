@@ -78,6 +78,11 @@ class RunConfig:
     """Seeds, evaluation, checkpoints, devices.
 
     ``seeds`` are trained side by side, vectorized in one program (``jax.vmap``).
+    ``parallel`` spreads that program over the devices: ``"pmap"`` (Brax's path) or
+    ``"sharded"`` (``jit`` with the device axis sharded over a mesh; the collectives are
+    those of a named ``vmap``). With jax 0.11.2 on 2 GPUs, ``pmap`` (and ``shard_map``)
+    of any MJX step crashes XLA's compiler, while sharded ``jit`` compiles
+    (``scripts/device/diag_2gpu_narrow.py``).
     ``epoch_iterations`` training iterations run per compiled call; logging, the NaN
     check and Ctrl-C checkpoints happen between calls. Evaluation and periodic
     checkpoints happen every ``eval_every`` / ``checkpoint_every`` epochs and at the end.
@@ -93,6 +98,7 @@ class RunConfig:
     eval_episode_length: int = 250
     max_devices: int = 0
     matmul_precision: Literal["default", "high", "highest"] = "highest"
+    parallel: Literal["pmap", "sharded"] = "pmap"
 
 
 @dataclasses.dataclass(frozen=True)

@@ -8,7 +8,8 @@ observation normalizer) from an outer loop whose whole state is explicit:
   environment state are the only things that change between epochs, and both go into
   every checkpoint, so a resumed run continues exactly as the uninterrupted one would have;
 - several seeds train side by side in one compiled program (``jax.vmap`` over a seed
-  axis), and the program is ``jax.pmap``-ed over local devices (gradients and normalizer
+  axis), and the program is ``jax.pmap``-ed over local devices, or (``run.parallel =
+  "sharded"``) jitted with its device axis sharded over a mesh (gradients and normalizer
   statistics are averaged across devices, as in Brax);
 - between epochs the host checks for NaNs, evaluates the policy and the analytic
   baseline on the same fixed, held-out episodes, logs and checkpoints.
@@ -34,11 +35,13 @@ from brax.training.acme import running_statistics, specs
 from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
 from flax import linen
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from mecanum_jax.env import MecanumEnv, TrainingEnv, baseline_policy
 from train.config import TrainConfig
 
 AXIS = "devices"
+MESH_AXIS = "d"  # the device mesh axis of run.parallel = "sharded"
 ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
     "swish": linen.swish,
     "tanh": linen.tanh,
@@ -158,8 +161,23 @@ class Learner:
             normalize_advantage=True,
         )
         self._loss_and_grad = gradients.loss_and_pgrad(loss_fn, pmap_axis_name=AXIS, has_aux=True)
-        self._pmapped_epoch = jax.pmap(jax.vmap(self._epoch), axis_name=AXIS, devices=self.devices)
-        self._identity = jax.pmap(lambda *x: x, axis_name=AXIS, devices=self.devices)
+        self._sharding: NamedSharding | None = None
+        if cfg.run.parallel == "pmap":
+            self._pmapped_epoch = jax.pmap(
+                jax.vmap(self._epoch), axis_name=AXIS, devices=self.devices
+            )
+            self._identity = jax.pmap(lambda *x: x, axis_name=AXIS, devices=self.devices)
+        else:
+            # The same program as a named vmap over the device axis (the collectives are
+            # vmap's), that axis sharded over a mesh of all devices of all processes.
+            devices = self.devices if self.n_processes == 1 else jax.devices()
+            mesh = Mesh(np.array(devices), (MESH_AXIS,))
+            self._sharding = NamedSharding(mesh, PartitionSpec(MESH_AXIS))
+            self._pmapped_epoch = jax.jit(
+                jax.vmap(jax.vmap(self._epoch), axis_name=AXIS, spmd_axis_name=MESH_AXIS),
+                in_shardings=self._sharding,
+                out_shardings=self._sharding,
+            )
         # reset on one device, then :meth:`place` spreads it (a pmapped MJX reset crashed
         # XLA's compiler on 2 H200s with jax 0.11.2)
         self._reset = jax.jit(jax.vmap(jax.vmap(self.train_env.reset)))
@@ -276,7 +294,19 @@ class Learner:
     def place(self, ts: TrainingState, env_state: Any) -> tuple[TrainingState, Any]:
         """Put host ``(D, ...)`` states on the devices exactly as :meth:`epoch` returns them
         (same shardings, no weak types), so fresh and restored runs hit the compiled epoch."""
-        return self._identity(strip_weak_types(ts), strip_weak_types(env_state))
+        ts, env_state = strip_weak_types(ts), strip_weak_types(env_state)
+        if self._sharding is None:
+            return self._identity(ts, env_state)
+        sharding = self._sharding
+
+        def put(x: Any) -> jax.Array:
+            x = np.asarray(x)
+            if self.n_processes == 1:
+                return jax.device_put(x, sharding)
+            shape = (x.shape[0] * self.n_processes, *x.shape[1:])
+            return jax.make_array_from_process_local_data(sharding, x, shape)
+
+        return jax.tree.map(put, ts), jax.tree.map(put, env_state)
 
     def _unroll(self, policy: Any, env_state: Any, key: jax.Array) -> tuple[Any, Any, Any]:
         env = self.train_env
@@ -459,7 +489,15 @@ def first_device(tree: Any) -> Any:
 
 
 def to_host(tree: Any) -> Any:
-    return jax.tree.map(np.asarray, tree)
+    """Host numpy copies; of an array spread over processes, this process's devices' part."""
+
+    def host(x: Any) -> np.ndarray:
+        if isinstance(x, jax.Array) and not x.is_fully_addressable:
+            shards = sorted(x.addressable_shards, key=lambda s: s.index[0].start or 0)
+            return np.concatenate([np.asarray(s.data) for s in shards])
+        return np.asarray(x)
+
+    return jax.tree.map(host, tree)
 
 
 __all__ = [

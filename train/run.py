@@ -275,7 +275,7 @@ class Run:
                     t_epoch = time.time()
                     try:
                         new_state, new_env, metrics = learner.epoch(state, env_state)
-                        metrics = {k: np.asarray(v)[0] for k, v in metrics.items()}  # (S,)
+                        metrics = {k: v[0] for k, v in to_host(metrics).items()}  # (S,)
                     except KeyboardInterrupt:
                         self.console.log(f"interrupted: saving epoch {epoch}")
                         save(epoch, state, env_state)
