@@ -53,6 +53,11 @@ class PPOConfig:
 
     ``clip_per_network``: clip the policy's and the value function's gradients at
     ``max_grad_norm`` each, not together (:func:`train.ppo.make_optimizer`).
+
+    ``policy_warmup_steps`` > 0 ramps the policy's updates linearly from zero over that
+    many environment steps while the value function learns at the full rate: the
+    untrained critic's advantages are noise, and early policy steps on them moved a
+    residual policy away from the baseline it starts at (docs/training.md, session 8).
     """
 
     num_timesteps: int = 400_000
@@ -71,6 +76,7 @@ class PPOConfig:
     normalize_observations: bool = True
     clip_observations: float = 5.0
     clip_per_network: bool = True
+    policy_warmup_steps: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,7 +88,8 @@ class RunConfig:
     ``"sharded"`` (``jit`` with the device axis sharded over a mesh; the collectives are
     those of a named ``vmap``). With jax 0.11.2 on 2 GPUs, ``pmap`` (and ``shard_map``)
     of any MJX step crashes XLA's compiler, while sharded ``jit`` compiles
-    (``scripts/device/diag_2gpu_narrow.py``).
+    (``scripts/device/diag_2gpu_narrow.py``); ``"auto"`` therefore picks ``"sharded"``
+    for several GPUs and ``"pmap"`` otherwise (one GPU, CPUs: the path measured there).
     ``epoch_iterations`` training iterations run per compiled call; logging, the NaN
     check and Ctrl-C checkpoints happen between calls. Evaluation and periodic
     checkpoints happen every ``eval_every`` / ``checkpoint_every`` epochs and at the end.
@@ -98,7 +105,7 @@ class RunConfig:
     eval_episode_length: int = 250
     max_devices: int = 0
     matmul_precision: Literal["default", "high", "highest"] = "highest"
-    parallel: Literal["pmap", "sharded"] = "pmap"
+    parallel: Literal["auto", "pmap", "sharded"] = "auto"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,6 +150,7 @@ class TrainConfig:
         )
         require(p, "ppo", ("entropy_cost",), lambda v: v >= 0, "must be >= 0")
         require(p, "ppo", ("clip_observations",), lambda v: v >= 0, "must be >= 0 (0: off)")
+        require(p, "ppo", ("policy_warmup_steps",), lambda v: v >= 0, "must be >= 0 (0: off)")
         require(p, "ppo", ("discounting", "gae_lambda"), lambda v: 0 < v <= 1, "must be in (0, 1]")
         if (p.batch_size * p.num_minibatches) % p.num_envs:
             raise invalid(

@@ -110,18 +110,34 @@ def gradient_clip(cfg: TrainConfig) -> optax.GradientTransformation:
     if not p.clip_per_network:
         return clip
 
-    def labels(params: ppo_losses.PPONetworkParams) -> ppo_losses.PPONetworkParams:
-        return ppo_losses.PPONetworkParams(
-            policy=jax.tree.map(lambda _: "policy", params.policy),
-            value=jax.tree.map(lambda _: "value", params.value),
-        )
-
-    return optax.multi_transform({"policy": clip, "value": clip}, labels)
+    return optax.multi_transform({"policy": clip, "value": clip}, _labels)
 
 
 def make_optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
-    """Adam after :func:`gradient_clip`."""
-    return optax.chain(gradient_clip(cfg), optax.adam(cfg.ppo.learning_rate))
+    """Adam after :func:`gradient_clip`; with ``ppo.policy_warmup_steps``, the policy's
+    updates ramp up linearly from zero (the value function's do not)."""
+    p = cfg.ppo
+    opt = optax.chain(gradient_clip(cfg), optax.adam(p.learning_rate))
+    if not p.policy_warmup_steps:
+        return opt  # (the optimizer state's tree, and so older checkpoints, stay as they were)
+    updates_per_iteration = p.num_minibatches * p.num_updates_per_batch
+    warmup_updates = max(
+        1, p.policy_warmup_steps * updates_per_iteration // cfg.steps_per_iteration
+    )
+    ramp = optax.linear_schedule(0.0, 1.0, warmup_updates)
+    return optax.chain(
+        opt,
+        optax.multi_transform(
+            {"policy": optax.scale_by_schedule(ramp), "value": optax.identity()}, _labels
+        ),
+    )
+
+
+def _labels(params: ppo_losses.PPONetworkParams) -> ppo_losses.PPONetworkParams:
+    return ppo_losses.PPONetworkParams(
+        policy=jax.tree.map(lambda _: "policy", params.policy),
+        value=jax.tree.map(lambda _: "value", params.value),
+    )
 
 
 def all_finite(tree: Any) -> jax.Array:
@@ -162,7 +178,13 @@ class Learner:
         )
         self._loss_and_grad = gradients.loss_and_pgrad(loss_fn, pmap_axis_name=AXIS, has_aux=True)
         self._sharding: NamedSharding | None = None
-        if cfg.run.parallel == "pmap":
+        self.parallel = cfg.run.parallel
+        if self.parallel == "auto":
+            several_gpus = self.n_devices * self.n_processes > 1 and all(
+                d.platform == "gpu" for d in self.devices
+            )
+            self.parallel = "sharded" if several_gpus else "pmap"
+        if self.parallel == "pmap":
             self._pmapped_epoch = jax.pmap(
                 jax.vmap(self._epoch), axis_name=AXIS, devices=self.devices
             )
