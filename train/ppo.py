@@ -185,7 +185,7 @@ class Learner:
             )
             self.parallel = "sharded" if several_gpus else "pmap"
         if self.parallel == "pmap":
-            self._pmapped_epoch = jax.pmap(
+            self._parallel_epoch = jax.pmap(
                 jax.vmap(self._epoch), axis_name=AXIS, devices=self.devices
             )
             self._identity = jax.pmap(lambda *x: x, axis_name=AXIS, devices=self.devices)
@@ -195,7 +195,7 @@ class Learner:
             devices = self.devices if self.n_processes == 1 else jax.devices()
             mesh = Mesh(np.array(devices), (MESH_AXIS,))
             self._sharding = NamedSharding(mesh, PartitionSpec(MESH_AXIS))
-            self._pmapped_epoch = jax.jit(
+            self._parallel_epoch = jax.jit(
                 jax.vmap(jax.vmap(self._epoch), axis_name=AXIS, spmd_axis_name=MESH_AXIS),
                 in_shardings=self._sharding,
                 out_shardings=self._sharding,
@@ -292,7 +292,7 @@ class Learner:
         Pass states from :meth:`init`, :meth:`place` or a previous epoch: they share one
         signature (dtypes and shardings), so the program compiles once.
         """
-        return self._pmapped_epoch(ts, env_state)
+        return self._parallel_epoch(ts, env_state)
 
     def pack_env(self, env_state: Any) -> dict[str, Any]:
         """The environment state without its zero-size leaves (MJX has several).
