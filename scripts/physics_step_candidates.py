@@ -95,11 +95,13 @@ def random_actions(env: MecanumEnv, robots: int, chunks: int, steps: int) -> dic
         (s, qmax, tip), _ = jax.lax.scan(f, init, jax.random.split(k1, steps))
         return qmax, s.pipeline_state.unstable, tip
 
-    qmax, unstable, tip = (np.asarray(x) for x in run(jax.random.PRNGKey(1)))
+    parts = [
+        [np.asarray(x) for x in run(k)] for k in jax.random.split(jax.random.PRNGKey(1), chunks)
+    ]
     return {
-        "max_qvel": float(qmax.max()),
-        "unstable": int(unstable.sum()),
-        "tipped": int(tip.sum()),
+        "max_qvel": float(max(p[0].max() for p in parts)),
+        "unstable": sum(int(p[1].sum()) for p in parts),
+        "tipped": sum(int(p[2].sum()) for p in parts),
     }
 
 

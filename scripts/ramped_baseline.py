@@ -15,7 +15,6 @@ task's randomized robots and on the nominal one, side by side with the unramped 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -64,7 +63,7 @@ def main() -> None:
     cfg = EnvConfig(residual=False)
     envs = {
         "randomized": MecanumEnv(cfg),
-        "nominal": MecanumEnv(dataclasses.replace(cfg.nominal())),
+        "nominal": MecanumEnv(cfg.nominal()),
     }
     print(f"{args.chunks} x {args.robots} robots x {args.steps} control steps (50 Hz)")
     print("| scenario | δ per step | RMSE v (m/s) | RMSE ω (rad/s) | energy per episode (J) |")
