@@ -157,7 +157,9 @@ class Robot:
         self.sim_model = self.mj_model
         if strip_visual:  # geom indices change: the index must be the simulated model's
             self.sim_model, self.index = mjcf.build_model(desc, fidelity, visual=False)
-        self.mjx_model = mjx.put_model(self.sim_model, impl="jax")
+        # MJX's default device is jax.devices()[0], which another process of a
+        # jax.distributed run cannot address; this process's first device always works
+        self.mjx_model = mjx.put_model(self.sim_model, device=jax.local_devices()[0], impl="jax")
         self.geometry: WheelGeometry = desc.build_geometry(warn_singular=False)
         self.n_wheels = self.geometry.n_wheels
         self.dt = float(self.mj_model.opt.timestep)
@@ -266,7 +268,8 @@ class Robot:
         r = jnp.max(params.radius_scale * jnp.asarray(self.geometry.radii))
         qpos = qpos.at[f + 2].add(r - r_nominal)
         with jax.numpy_rank_promotion("allow"):
-            data = mjx.make_data(self.model_for(params)).replace(qpos=qpos)
+            data = mjx.make_data(self.model_for(params), device=jax.local_devices()[0])
+            data = data.replace(qpos=qpos)
         n = self.n_wheels
         return SimState(
             data=data,

@@ -28,7 +28,8 @@ from rich.table import Table
 
 from mecanum_jax.config import ConfigError, from_mapping
 from train.config import TrainConfig, load_train_config
-from train.ppo import Learner
+from train.distributed import init_distributed
+from train.ppo import Learner, to_host
 
 
 def apply_overrides(cfg: TrainConfig, spec: str) -> TrainConfig:
@@ -87,14 +88,15 @@ def measure(cfg: TrainConfig, epochs: int) -> dict[str, Any]:
         "num_minibatches": cfg.ppo.num_minibatches,
         "substeps": learner.env.substeps,
         "matmul_precision": cfg.run.matmul_precision,
-        "devices": learner.n_devices,
+        "devices": learner.n_devices * learner.n_processes,
         "first_epoch_s": first,
         "epoch_s": times,
         "steps_per_epoch": steps,
         "steps_per_s_median": steps / float(np.median(times)),
         "steps_per_s_best": steps / best,
         "physics_steps_per_s_median": steps * learner.env.substeps / float(np.median(times)),
-        "finite": bool(np.all(np.asarray(metrics["finite"]) > 0)),
+        "processes": jax.process_count(),
+        "finite": bool(np.all(to_host(metrics["finite"]) > 0)),
     }
 
 
@@ -104,9 +106,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--epochs", type=int, default=3)
     parser.add_argument("--variant", action="append", default=None, help="name=overrides")
     parser.add_argument("--json-out", default=None)
+    parser.add_argument(
+        "--distributed", action="store_true", help="join a jax.distributed run (process 0 reports)"
+    )
     args = parser.parse_args(argv)
     console = Console()
     try:
+        init_distributed(args.distributed)
         if args.epochs < 1:
             raise ConfigError(f"--epochs = {args.epochs}: must be >= 1")
         base = load_train_config(args.config)
@@ -126,6 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     for col in (
         "variant",
         "envs",
+        "devices",
         "seeds",
         "precision",
         "1st epoch s",
@@ -137,12 +144,15 @@ def main(argv: list[str] | None = None) -> int:
         table.add_row(
             r["variant"],
             str(r["num_envs"]),
+            str(r["devices"]),
             str(r["seeds"]),
             r["matmul_precision"],
             f"{r['first_epoch_s']:.1f}",
             f"{r['steps_per_s_median']:,.0f}",
             f"{r['physics_steps_per_s_median']:,.0f}",
         )
+    if jax.process_index() != 0:
+        return 0
     console.print(table)
     if args.json_out:
         out = {

@@ -33,8 +33,21 @@ class CheckpointError(ValueError):
 
 
 def manager(run_dir: Path, max_to_keep: int = 3, create: bool = True) -> ocp.CheckpointManager:
-    options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=create)
-    return ocp.CheckpointManager((run_dir / CHECKPOINT_DIR).absolute(), options=options)
+    root = (run_dir / CHECKPOINT_DIR).absolute()
+    extra: dict[str, Any] = {}
+    if jax.process_count() > 1:
+        # process-local: process 0 alone writes its host copies; orbax's default would
+        # wait at barriers for every process of a jax.distributed run (and with a process
+        # subset it leaves creating the root to the caller)
+        me = jax.process_index()
+        extra["multiprocessing_options"] = ocp.options.MultiprocessingOptions(
+            primary_host=me, active_processes={me}
+        )
+        if create:
+            root.mkdir(parents=True, exist_ok=True)
+        create = False
+    options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=create, **extra)
+    return ocp.CheckpointManager(root, options=options)
 
 
 def pack(tree: Any) -> dict[str, np.ndarray]:

@@ -29,6 +29,7 @@ from rich.table import Table
 from mecanum_jax.config import ConfigError
 from train import checkpoint
 from train.config import TrainConfig, load_train_config
+from train.distributed import init_distributed
 from train.run import Run, RunDirError, TrainingDiverged, write_json
 
 console = Console(stderr=True)
@@ -59,16 +60,6 @@ def _overrides(base: TrainConfig, args: list[str], prog: str, description: str) 
         config=(tyro.conf.FlagConversionOff,),
     )
     return cfg.validate()
-
-
-def _init_distributed(enabled: bool) -> None:
-    if enabled:
-        import jax
-
-        # coordinator address, process count and id come from the cluster environment
-        # (SLURM, Open MPI, Cloud TPU) or from
-        # JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES / JAX_PROCESS_ID
-        jax.distributed.initialize()
 
 
 def results_table(summary: dict[str, Any], title: str) -> Table:
@@ -107,22 +98,27 @@ def main(argv: list[str] | None = None) -> int:
         "Train PPO on the mecanum tracking task. Options besides the config fields: "
         "--config PATH|NAME (default: quick), --run-dir DIR (default: runs/<name>-<time>), "
         "--resume DIR, --max-minutes M (stop resumably after M minutes), "
-        "--distributed (multi-host through jax.distributed)."
+        "--distributed (multi-process through jax.distributed; see train/distributed.py)."
     )
     try:
+        # before anything touches JAX (loading a config may): jax.distributed requires it
+        init_distributed(meta.distributed)
         if meta.resume and (meta.config or meta.run_dir):
             raise ConfigError("--resume: give either --resume or --config/--run-dir, not both")
         if meta.resume:
             saved = Path(meta.resume) / "config.json"
             base = load_train_config(saved) if saved.exists() else TrainConfig()
             cfg = _overrides(base, rest, prog, description)
-            _init_distributed(meta.distributed)
             run = Run.resume(meta.resume, overrides=cfg, console=console)
         else:
             base = load_train_config(meta.config or "quick")
             cfg = _overrides(base, rest, prog, description)
+            if meta.distributed and not meta.run_dir:
+                raise ConfigError(
+                    "--distributed: give --run-dir (a default name from the clock could "
+                    "differ between processes)"
+                )
             run_dir = meta.run_dir or f"runs/{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-            _init_distributed(meta.distributed)
             run = Run.create(cfg, run_dir, console=console)
         console.log(f"run directory: {run.dir}")
         limit = None if meta.max_minutes is None else 60 * meta.max_minutes
@@ -151,7 +147,7 @@ def batch_main(argv: list[str] | None = None) -> int:
         "Config-field flags apply to every variant."
     )
     try:
-        _init_distributed(meta.distributed)
+        init_distributed(meta.distributed)
         variants = []
         for name in meta.configs:
             cfg = _overrides(load_train_config(name), rest, prog, description)

@@ -89,7 +89,8 @@ class RunConfig:
     those of a named ``vmap``). With jax 0.11.2 on 2 GPUs, ``pmap`` (and ``shard_map``)
     of any MJX step crashes XLA's compiler, while sharded ``jit`` compiles
     (``scripts/device/diag_2gpu_narrow.py``); ``"auto"`` therefore picks ``"sharded"``
-    for several GPUs and ``"pmap"`` otherwise (one GPU, CPUs: the path measured there).
+    for several GPUs or several processes (``--distributed``), ``"pmap"`` otherwise (one
+    GPU, CPUs of one process: the path measured there).
     ``epoch_iterations`` training iterations run per compiled call; logging, the NaN
     check and Ctrl-C checkpoints happen between calls. Evaluation and periodic
     checkpoints happen every ``eval_every`` / ``checkpoint_every`` epochs and at the end.

@@ -180,10 +180,8 @@ class Learner:
         self._sharding: NamedSharding | None = None
         self.parallel = cfg.run.parallel
         if self.parallel == "auto":
-            several_gpus = self.n_devices * self.n_processes > 1 and all(
-                d.platform == "gpu" for d in self.devices
-            )
-            self.parallel = "sharded" if several_gpus else "pmap"
+            several_gpus = self.n_devices > 1 and all(d.platform == "gpu" for d in self.devices)
+            self.parallel = "sharded" if several_gpus or self.n_processes > 1 else "pmap"
         if self.parallel == "pmap":
             self._parallel_epoch = jax.pmap(
                 jax.vmap(self._epoch), axis_name=AXIS, devices=self.devices
@@ -252,8 +250,13 @@ class Learner:
         seeded = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *states)
         # replicate over devices; each device gets its own loop key
         per_device = jax.tree.map(lambda x: np.broadcast_to(x, (D, *x.shape)).copy(), seeded)
+        # numbered globally: processes' devices must not share loop keys
+        first = jax.process_index() * D
         loop_keys = np.stack(
-            [np.stack([np.asarray(jax.random.fold_in(s.key, d)) for s in states]) for d in range(D)]
+            [
+                np.stack([np.asarray(jax.random.fold_in(s.key, first + d)) for s in states])
+                for d in range(D)
+            ]
         )
         per_device = per_device.replace(key=loop_keys)
         return per_device, np.stack(env_keys, axis=1)

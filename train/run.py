@@ -26,6 +26,7 @@ from typing import Any
 
 import jax
 import numpy as np
+from jax.experimental import multihost_utils
 from rich.console import Console
 from rich.progress import (
     BarColumn,
@@ -108,6 +109,8 @@ class Run:
                 f"run directory {str(run_dir)!r} already exists and is not empty; "
                 f"resume it with --resume {run_dir} or choose another --run-dir"
             )
+        if jax.process_count() > 1:  # every process checks before process 0 writes
+            multihost_utils.sync_global_devices(f"run-create {run_dir}")
         run = cls(cfg, run_dir, **kw)
         if run.is_writer:
             run_dir.mkdir(parents=True, exist_ok=True)
@@ -133,9 +136,12 @@ class Run:
                     f"only {sorted(RESUMABLE_CHANGES)} may change"
                 )
             cfg = overrides.validate()
-            write_json(path, cfg.to_dict())
         if checkpoint.latest_epoch(run_dir) is None:
             raise RunDirError(f"--resume {str(run_dir)!r}: no checkpoint to resume from")
+        if jax.process_count() > 1:  # every process has read it before process 0 rewrites it
+            multihost_utils.sync_global_devices(f"run-resume {run_dir}")
+        if cfg is not saved and jax.process_index() == 0:
+            write_json(path, cfg.to_dict())
         return cls(cfg, run_dir, **kw)
 
     def _status(self, state: str, **extra: Any) -> None:
@@ -209,6 +215,10 @@ class Run:
                 self.dir, to_host(state), to_host(env_state)
             )
             checkpoint.check_compatible(meta, learner.env, f"checkpoint in {str(self.dir)!r}")
+            if jax.process_index() != 0:
+                # the checkpoint holds process 0's robots; the others restart theirs from
+                # their own fresh resets rather than duplicate process 0's
+                host_env = to_host(env_state)
             state, env_state = learner.place(host_state, host_env)
             epoch, walltime_before = int(meta["epoch"]), float(meta["walltime"])
             beat_at = meta.get("beat_baseline", {})
@@ -400,7 +410,8 @@ class Run:
             * self.cfg.run.epoch_iterations,
             "walltime_s": walltime,
             "session_s": time.time() - t_start,
-            "devices": self.learner.n_devices if self.learner else None,
+            "devices": self.learner.n_devices * self.learner.n_processes if self.learner else None,
+            "processes": jax.process_count(),
             "device_kind": jax.devices()[0].device_kind,
             "baseline": baseline,
             "seeds": per_seed,

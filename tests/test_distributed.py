@@ -1,0 +1,128 @@
+"""``--distributed``: the jax.distributed arguments come from validated environment variables."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from mecanum_jax.config import ConfigError
+from train.distributed import distributed_args, init_distributed
+
+FULL = {
+    "JAX_COORDINATOR_ADDRESS": "localhost:12355",
+    "JAX_NUM_PROCESSES": "2",
+    "JAX_PROCESS_ID": "1",
+}
+
+
+def test_full_environment_gives_all_three_arguments() -> None:
+    assert distributed_args(FULL) == {
+        "coordinator_address": "localhost:12355",
+        "num_processes": 2,
+        "process_id": 1,
+    }
+
+
+def test_empty_environment_leaves_detection_to_jax() -> None:
+    assert distributed_args({}) == {}
+    # an address alone is what JAX reads itself; cluster detection supplies the rest
+    assert distributed_args({"JAX_COORDINATOR_ADDRESS": "10.0.0.1:1234"}) == {
+        "coordinator_address": "10.0.0.1:1234"
+    }
+
+
+@pytest.mark.parametrize(
+    ("update", "needle"),
+    [
+        ({"JAX_NUM_PROCESSES": "two"}, "JAX_NUM_PROCESSES = 'two'"),
+        ({"JAX_PROCESS_ID": "1.5"}, "JAX_PROCESS_ID = '1.5'"),
+        ({"JAX_NUM_PROCESSES": "0", "JAX_PROCESS_ID": "0"}, "JAX_NUM_PROCESSES = 0"),
+        ({"JAX_PROCESS_ID": "-1"}, "JAX_PROCESS_ID = -1"),
+        ({"JAX_PROCESS_ID": "2"}, "JAX_PROCESS_ID = 2: must be < JAX_NUM_PROCESSES = 2"),
+        ({"JAX_COORDINATOR_ADDRESS": "localhost"}, "JAX_COORDINATOR_ADDRESS = 'localhost'"),
+        ({"JAX_COORDINATOR_ADDRESS": "host:99999"}, "JAX_COORDINATOR_ADDRESS = 'host:99999'"),
+        ({"JAX_COORDINATOR_ADDRESS": ":80"}, "JAX_COORDINATOR_ADDRESS = ':80'"),
+    ],
+)
+def test_malformed_variable_is_named_with_its_value(update: dict[str, str], needle: str) -> None:
+    with pytest.raises(ConfigError, match=needle.replace("(", r"\(")):
+        distributed_args({**FULL, **update})
+
+
+def test_count_without_id_and_id_without_count_are_rejected() -> None:
+    with pytest.raises(ConfigError, match="JAX_NUM_PROCESSES = '2' is set but JAX_PROCESS_ID"):
+        distributed_args({"JAX_COORDINATOR_ADDRESS": "h:1", "JAX_NUM_PROCESSES": "2"})
+    with pytest.raises(ConfigError, match="JAX_PROCESS_ID = '0' is set but JAX_NUM_PROCESSES"):
+        distributed_args({"JAX_COORDINATOR_ADDRESS": "h:1", "JAX_PROCESS_ID": "0"})
+
+
+def test_count_without_address_is_rejected() -> None:
+    with pytest.raises(ConfigError, match="JAX_COORDINATOR_ADDRESS"):
+        distributed_args({"JAX_NUM_PROCESSES": "2", "JAX_PROCESS_ID": "0"})
+
+
+def test_init_calls_initialize_only_when_enabled() -> None:
+    calls: list[dict[str, Any]] = []
+
+    def fake(**kw: Any) -> None:
+        calls.append(kw)
+
+    assert init_distributed(False, FULL, fake) == {}
+    assert calls == []
+    passed = init_distributed(True, FULL, fake)
+    assert calls == [passed] == [distributed_args(FULL)]
+    # bad input fails before jax.distributed is touched
+    with pytest.raises(ConfigError):
+        init_distributed(True, {**FULL, "JAX_PROCESS_ID": "x"}, fake)
+    assert len(calls) == 1
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        return int(s.getsockname()[1])
+
+
+def test_two_process_run_trains_as_one(tmp_path: Path) -> None:
+    """``mecanum-train --distributed`` as two processes (2 CPU devices each, gloo
+    collectives): both finish, only process 0 writes, and both hold the same policy, which
+    they can only if the gradients were averaged across the processes."""
+    run_dir = tmp_path / "run"
+    port = _free_port()
+    procs = []
+    for i in range(2):
+        env = {
+            **os.environ,
+            "JAX_PLATFORMS": "cpu",
+            "JAX_CPU_COLLECTIVES_IMPLEMENTATION": "gloo",
+            "JAX_COORDINATOR_ADDRESS": f"localhost:{port}",
+            "JAX_NUM_PROCESSES": "2",
+            "JAX_PROCESS_ID": str(i),
+            "COLUMNS": "200",
+        }
+        cmd = [sys.executable, "-m", "train.cli", "--distributed", "--config", "tiny"]
+        cmd += ["--run-dir", str(run_dir), "--run.eval-every", "3"]
+        procs.append(
+            subprocess.Popen(
+                cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+            )
+        )
+    outs = [p.communicate(timeout=900) for p in procs]
+    for p, (_, err) in zip(procs, outs, strict=True):
+        assert p.returncode == 0, err[-3000:]
+    summary = json.loads((run_dir / "summary.json").read_text())
+    rmse = summary["seeds"][0]["eval"]["randomized"]["rmse_wz"]
+    # process 1 printed its own evaluation of its own parameters in the results table
+    assert f"{rmse:.4f}" in outs[1][0], (rmse, outs[1][0][-2000:])
+    rows = [json.loads(x) for x in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in rows] == [1, 2, 3]  # written once, by process 0
+    assert rows[-1]["env_steps"] == 960  # num_envs is global: 8 robots over 4 devices
+    assert (summary["devices"], summary["processes"]) == (4, 2)
+    assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == ["1", "2", "3"]

@@ -1,0 +1,83 @@
+"""Starting a multi-process (multi-host, or one process per GPU) run through ``jax.distributed``.
+
+``jax.distributed.initialize()`` detects SLURM, Open MPI and Cloud TPU clusters by itself, and
+reads ``JAX_COORDINATOR_ADDRESS`` and ``JAX_LOCAL_DEVICE_IDS``, but nothing tells it the process
+count and id outside those clusters. :func:`init_distributed` also reads
+``JAX_NUM_PROCESSES`` and ``JAX_PROCESS_ID``, so a hand-started run needs only environment
+variables (here two processes on one host, one GPU each)::
+
+    for i in 0 1; do
+      JAX_COORDINATOR_ADDRESS=localhost:12355 JAX_NUM_PROCESSES=2 JAX_PROCESS_ID=$i \\
+      JAX_LOCAL_DEVICE_IDS=$i mecanum-train --config gpu --distributed &
+    done; wait
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from mecanum_jax.config import ConfigError
+
+ENV_KEYS = ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID")
+
+
+def distributed_args(environ: Mapping[str, str]) -> dict[str, Any]:
+    """``jax.distributed.initialize`` keyword arguments from ``environ``; raises
+    :class:`ConfigError` naming the variable and its value when one is malformed."""
+    args: dict[str, Any] = {}
+    address = environ.get("JAX_COORDINATOR_ADDRESS")
+    if address is not None:
+        host, sep, port = address.rpartition(":")
+        if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+            raise ConfigError(
+                f"JAX_COORDINATOR_ADDRESS = {address!r}: expected host:port (port 1-65535)"
+            )
+        args["coordinator_address"] = address
+    for key, name in (("JAX_NUM_PROCESSES", "num_processes"), ("JAX_PROCESS_ID", "process_id")):
+        raw = environ.get(key)
+        if raw is None:
+            continue
+        try:
+            args[name] = int(raw)
+        except ValueError:
+            raise ConfigError(f"{key} = {raw!r}: expected an integer") from None
+    n, pid = args.get("num_processes"), args.get("process_id")
+    if n is not None and n < 1:
+        raise ConfigError(f"JAX_NUM_PROCESSES = {n}: must be >= 1")
+    if pid is not None and pid < 0:
+        raise ConfigError(f"JAX_PROCESS_ID = {pid}: must be >= 0")
+    if n is not None and pid is not None and pid >= n:
+        raise ConfigError(f"JAX_PROCESS_ID = {pid}: must be < JAX_NUM_PROCESSES = {n}")
+    if (n is None) != (pid is None):
+        given, missing = ("JAX_NUM_PROCESSES", "JAX_PROCESS_ID")[:: 1 if pid is None else -1]
+        raise ConfigError(f"{given} = {environ[given]!r} is set but {missing} is not")
+    if n is not None and address is None:
+        raise ConfigError(
+            f"JAX_NUM_PROCESSES = {n}: JAX_COORDINATOR_ADDRESS (host:port of process 0) "
+            "must be set too"
+        )
+    return args
+
+
+def init_distributed(
+    enabled: bool,
+    environ: Mapping[str, str] | None = None,
+    initialize: Callable[..., None] | None = None,
+) -> dict[str, Any]:
+    """Join the ``jax.distributed`` run when ``enabled`` (``--distributed``): from the
+    environment variables above, else from the cluster environment JAX detects. Returns the
+    arguments it passed (empty when not enabled)."""
+    if not enabled:
+        return {}
+    args = distributed_args(os.environ if environ is None else environ)
+    if initialize is None:
+        import jax
+
+        initialize = jax.distributed.initialize
+    initialize(**args)
+    return args
+
+
+__all__ = ["ENV_KEYS", "distributed_args", "init_distributed"]
