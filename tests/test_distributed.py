@@ -13,6 +13,7 @@ from typing import Any
 import pytest
 
 from mecanum_jax.config import ConfigError
+from train import cli
 from train.distributed import distributed_args, init_distributed
 
 FULL = {
@@ -126,3 +127,39 @@ def test_two_process_run_trains_as_one(tmp_path: Path) -> None:
     assert rows[-1]["env_steps"] == 960  # num_envs is global: 8 robots over 4 devices
     assert (summary["devices"], summary["processes"]) == (4, 2)
     assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == ["1", "2", "3"]
+
+
+def test_no_cluster_and_no_variables_is_a_config_error() -> None:
+    def jax_like(**kw: Any) -> None:
+        if "coordinator_address" not in kw:
+            raise ValueError("coordinator_address should be defined.")
+
+    with pytest.raises(ConfigError, match=r"--distributed: coordinator_address.*JAX_NUM_PROC"):
+        init_distributed(True, {}, jax_like)
+
+
+@pytest.mark.parametrize(
+    ("main", "argv", "needle"),
+    [
+        (cli.main, ["--distributed", "--config", "tiny"], "--distributed: give --run-dir"),
+        (cli.batch_main, ["--distributed", "--configs", "tiny"], "--distributed: give --out"),
+        (
+            cli.main,
+            ["--distributed", "--config", "tiny", "--run-dir", "x", "--ppo.num-envs", "0"],
+            "num_envs",
+        ),
+    ],
+)
+def test_cli_distributed_needs_a_shared_directory_name(
+    main: Any, argv: list[str], needle: str, tmp_path: Path, monkeypatch: Any, capsys: Any
+) -> None:
+    """Every process must name the same run directory; the clock's default name may not."""
+    joined: list[bool] = []
+    monkeypatch.setattr(cli, "init_distributed", joined.append)
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    assert joined == [True]  # joined first: JAX refuses to start distributed later
+    captured = capsys.readouterr()
+    assert needle in (captured.out + captured.err).replace("\n", "")
+    assert not (tmp_path / "runs").exists()
+    assert not (tmp_path / "x").exists()

@@ -148,6 +148,11 @@ def batch_main(argv: list[str] | None = None) -> int:
     )
     try:
         init_distributed(meta.distributed)
+        if meta.distributed and not meta.out:
+            raise ConfigError(
+                "--distributed: give --out (a default name from the clock could differ "
+                "between processes)"
+            )
         variants = []
         for name in meta.configs:
             cfg = _overrides(load_train_config(name), rest, prog, description)
@@ -176,8 +181,9 @@ def batch_main(argv: list[str] | None = None) -> int:
             return 130
     table = batch_table(summaries)
     Console().print(table)
-    write_json(out / "summary.json", summaries)
-    console.log(f"summary: {out / 'summary.json'}")
+    if runs[0].is_writer:
+        write_json(out / "summary.json", summaries)
+        console.log(f"summary: {out / 'summary.json'}")
     return 0
 
 

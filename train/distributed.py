@@ -76,7 +76,13 @@ def init_distributed(
         import jax
 
         initialize = jax.distributed.initialize
-    initialize(**args)
+    try:
+        initialize(**args)
+    except ValueError as err:  # JAX found no cluster and was not told the rest
+        raise ConfigError(
+            f"--distributed: {err} (no SLURM / Open MPI / Cloud TPU environment detected; "
+            f"set {', '.join(ENV_KEYS)})"
+        ) from err
     return args
 
 
