@@ -163,3 +163,24 @@ def test_cli_distributed_needs_a_shared_directory_name(
     assert needle in (captured.out + captured.err).replace("\n", "")
     assert not (tmp_path / "runs").exists()
     assert not (tmp_path / "x").exists()
+
+
+def test_process_keys_are_distinct_per_process(monkeypatch: Any) -> None:
+    import jax
+    import numpy as np
+
+    from train import run
+
+    keys = np.asarray(jax.random.split(jax.random.PRNGKey(3), 6)).reshape(2, 3, 2)
+    streams = []
+    for index in (0, 1, 2):
+        monkeypatch.setattr(jax, "process_index", lambda i=index: i)
+        out = run.process_keys(keys)
+        assert out.shape == keys.shape
+        assert out.dtype == keys.dtype
+        streams.append(out)
+    # a process's keys differ from the checkpoint's and from every other process's
+    for i in range(3):
+        assert not np.any(np.all(streams[i] == keys, axis=-1))
+        for j in range(i):
+            assert not np.any(np.all(streams[i] == streams[j], axis=-1))

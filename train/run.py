@@ -86,6 +86,14 @@ def beats(policy: dict[str, Any], baseline: dict[str, Any], factor: float = 1.0)
     )
 
 
+def process_keys(keys: np.ndarray) -> np.ndarray:
+    """PRNG keys ``(..., 2)`` with this process's index folded in (a process's own stream)."""
+    flat = np.asarray(keys).reshape(-1, keys.shape[-1])
+    index = jax.process_index()
+    out = np.stack([np.asarray(jax.random.fold_in(k, index)) for k in flat])
+    return out.reshape(keys.shape).astype(keys.dtype)
+
+
 class Run:
     """A training run bound to its directory. ``Run.create`` or ``Run.resume``, then ``train``."""
 
@@ -216,9 +224,11 @@ class Run:
             )
             checkpoint.check_compatible(meta, learner.env, f"checkpoint in {str(self.dir)!r}")
             if jax.process_index() != 0:
-                # the checkpoint holds process 0's robots; the others restart theirs from
-                # their own fresh resets rather than duplicate process 0's
+                # the checkpoint holds process 0's robots and loop keys; the others restart
+                # their robots from their own fresh resets and fold their index into the
+                # keys, rather than duplicate process 0's
                 host_env = to_host(env_state)
+                host_state = host_state.replace(key=process_keys(host_state.key))
             state, env_state = learner.place(host_state, host_env)
             epoch, walltime_before = int(meta["epoch"]), float(meta["walltime"])
             beat_at = meta.get("beat_baseline", {})
