@@ -91,11 +91,9 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def test_two_process_run_trains_as_one(tmp_path: Path) -> None:
-    """``mecanum-train --distributed`` as two processes (2 CPU devices each, gloo
-    collectives): both finish, only process 0 writes, and both hold the same policy, which
-    they can only if the gradients were averaged across the processes."""
-    run_dir = tmp_path / "run"
+def _two_processes(*args: str) -> list[str]:
+    """``python -m train.cli --distributed ARGS`` as two processes of one run (2 CPU devices
+    each, gloo collectives); their standard outputs."""
     port = _free_port()
     procs = []
     for i in range(2):
@@ -108,8 +106,7 @@ def test_two_process_run_trains_as_one(tmp_path: Path) -> None:
             "JAX_PROCESS_ID": str(i),
             "COLUMNS": "200",
         }
-        cmd = [sys.executable, "-m", "train.cli", "--distributed", "--config", "tiny"]
-        cmd += ["--run-dir", str(run_dir), "--run.eval-every", "3"]
+        cmd = [sys.executable, "-m", "train.cli", "--distributed", *args]
         procs.append(
             subprocess.Popen(
                 cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
@@ -118,15 +115,40 @@ def test_two_process_run_trains_as_one(tmp_path: Path) -> None:
     outs = [p.communicate(timeout=900) for p in procs]
     for p, (_, err) in zip(procs, outs, strict=True):
         assert p.returncode == 0, err[-3000:]
-    summary = json.loads((run_dir / "summary.json").read_text())
+    return [out for out, _ in outs]
+
+
+def _metrics(run_dir: Path) -> list[dict[str, Any]]:
+    return [json.loads(x) for x in (run_dir / "metrics.jsonl").read_text().splitlines()]
+
+
+def test_two_process_run_trains_as_one_and_resumes_exactly(tmp_path: Path) -> None:
+    """``mecanum-train --distributed`` as two processes: both finish, only process 0 writes
+    the run, both hold the same policy (they can only if the gradients were averaged across
+    the processes), and a run interrupted after 2 epochs and resumed ends exactly as the
+    uninterrupted one (process 1's robots and keys come back from its own saved state)."""
+    full = tmp_path / "full"
+    outs = _two_processes("--config", "tiny", "--run-dir", str(full), "--run.eval-every", "3")
+    summary = json.loads((full / "summary.json").read_text())
     rmse = summary["seeds"][0]["eval"]["randomized"]["rmse_wz"]
     # process 1 printed its own evaluation of its own parameters in the results table
-    assert f"{rmse:.4f}" in outs[1][0], (rmse, outs[1][0][-2000:])
-    rows = [json.loads(x) for x in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    assert f"{rmse:.4f}" in outs[1], (rmse, outs[1][-2000:])
+    rows = _metrics(full)
     assert [r["epoch"] for r in rows] == [1, 2, 3]  # written once, by process 0
     assert rows[-1]["env_steps"] == 960  # num_envs is global: 8 robots over 4 devices
     assert (summary["devices"], summary["processes"]) == (4, 2)
-    assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == ["1", "2", "3"]
+    assert sorted(p.name for p in (full / "checkpoints").iterdir()) == ["1", "2", "3"]
+    assert sorted(p.name for p in (full / "process_state").iterdir()) == ["p1"]
+
+    part = tmp_path / "part"
+    _two_processes("--config", "tiny", "--run-dir", str(part), "--ppo.num-timesteps", "640")
+    _two_processes("--resume", str(part), "--ppo.num-timesteps", "960", "--run.eval-every", "3")
+    resumed = json.loads((part / "summary.json").read_text())
+    assert resumed["seeds"][0]["eval"] == summary["seeds"][0]["eval"]
+    timing = {"steps_per_s"}
+    last = {k: v for k, v in _metrics(part)[-1]["train"].items() if k not in timing}
+    assert last == {k: v for k, v in rows[-1]["train"].items() if k not in timing}
+    assert len(last) > 20  # losses, rewards, errors
 
 
 def test_no_cluster_and_no_variables_is_a_config_error() -> None:

@@ -14,9 +14,12 @@ variables (here two processes on one host, one GPU each)::
 
 from __future__ import annotations
 
+import itertools
 import os
 from collections.abc import Callable, Mapping
 from typing import Any
+
+import jax
 
 from mecanum_jax.config import ConfigError
 
@@ -73,8 +76,6 @@ def init_distributed(
         return {}
     args = distributed_args(os.environ if environ is None else environ)
     if initialize is None:
-        import jax
-
         initialize = jax.distributed.initialize
     try:
         initialize(**args)
@@ -86,4 +87,25 @@ def init_distributed(
     return args
 
 
-__all__ = ["ENV_KEYS", "distributed_args", "init_distributed"]
+_barriers = itertools.count()
+
+
+def barrier(name: str, timeout_s: float = 1800.0) -> None:
+    """Wait until every process of a ``jax.distributed`` run gets here (no-op for one).
+
+    Through the coordination service, not a collective: CPU (gloo) collectives give up
+    when a peer is 30 s late to their first use, and one process may still be compiling
+    (a warm compilation cache serves processes unevenly). ``jax.distributed`` has no
+    public barrier; this is the client orbax and JAX's own serialization use.
+    """
+    if jax.process_count() == 1:
+        return
+    from jax._src import distributed as jax_distributed
+
+    client = jax_distributed.global_state.client
+    if client is None:  # several processes without jax.distributed: nothing to wait on
+        return
+    client.wait_at_barrier(f"mecanum/{name}/{next(_barriers)}", int(timeout_s * 1000))
+
+
+__all__ = ["ENV_KEYS", "barrier", "distributed_args", "init_distributed"]

@@ -178,6 +178,7 @@ class Learner:
         )
         self._loss_and_grad = gradients.loss_and_pgrad(loss_fn, pmap_axis_name=AXIS, has_aux=True)
         self._sharding: NamedSharding | None = None
+        self._compiled_epoch: Any = None
         self.parallel = cfg.run.parallel
         if self.parallel == "auto":
             several_gpus = self.n_devices > 1 and all(d.platform == "gpu" for d in self.devices)
@@ -295,7 +296,13 @@ class Learner:
         Pass states from :meth:`init`, :meth:`place` or a previous epoch: they share one
         signature (dtypes and shardings), so the program compiles once.
         """
+        if self._compiled_epoch is not None:
+            return self._compiled_epoch(ts, env_state)
         return self._parallel_epoch(ts, env_state)
+
+    def compile_epoch(self, ts: TrainingState, env_state: Any) -> None:
+        """Compile :meth:`epoch` for these states now, ahead of its first call."""
+        self._compiled_epoch = self._parallel_epoch.lower(ts, env_state).compile()
 
     def pack_env(self, env_state: Any) -> dict[str, Any]:
         """The environment state without its zero-size leaves (MJX has several).

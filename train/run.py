@@ -26,7 +26,6 @@ from typing import Any
 
 import jax
 import numpy as np
-from jax.experimental import multihost_utils
 from rich.console import Console
 from rich.progress import (
     BarColumn,
@@ -40,6 +39,7 @@ from mecanum_jax.config import ConfigError
 from mecanum_jax.description import fingerprint
 from train import checkpoint
 from train.config import TrainConfig, config_diff, load_train_config
+from train.distributed import barrier
 from train.ppo import Learner, first_device, to_host
 
 # Fields a resumed run may change: its length and its logging/evaluation cadence.
@@ -118,7 +118,7 @@ class Run:
                 f"resume it with --resume {run_dir} or choose another --run-dir"
             )
         if jax.process_count() > 1:  # every process checks before process 0 writes
-            multihost_utils.sync_global_devices(f"run-create {run_dir}")
+            barrier("run-create")
         run = cls(cfg, run_dir, **kw)
         if run.is_writer:
             run_dir.mkdir(parents=True, exist_ok=True)
@@ -147,7 +147,7 @@ class Run:
         if checkpoint.latest_epoch(run_dir) is None:
             raise RunDirError(f"--resume {str(run_dir)!r}: no checkpoint to resume from")
         if jax.process_count() > 1:  # every process has read it before process 0 rewrites it
-            multihost_utils.sync_global_devices(f"run-resume {run_dir}")
+            barrier("run-resume")
         if cfg is not saved and jax.process_index() == 0:
             write_json(path, cfg.to_dict())
         return cls(cfg, run_dir, **kw)
@@ -224,15 +224,29 @@ class Run:
             )
             checkpoint.check_compatible(meta, learner.env, f"checkpoint in {str(self.dir)!r}")
             if jax.process_index() != 0:
-                # the checkpoint holds process 0's robots and loop keys; the others restart
-                # their robots from their own fresh resets and fold their index into the
-                # keys, rather than duplicate process 0's
-                host_env = to_host(env_state)
-                host_state = host_state.replace(key=process_keys(host_state.key))
+                # the checkpoint holds process 0's robots and loop keys; the others saved
+                # theirs beside it (checkpoint.save_process)
+                own = checkpoint.restore_process(
+                    self.dir, int(meta["epoch"]), host_state.key, host_env
+                )
+                if own is None:  # lost: fresh robots, and a stream of this process's own
+                    self.console.log(
+                        f"[yellow]process {jax.process_index()}: no saved robots for epoch "
+                        f"{meta['epoch']}; they restart from fresh resets[/]"
+                    )
+                    host_env = to_host(env_state)
+                    host_state = host_state.replace(key=process_keys(host_state.key))
+                else:
+                    keys, host_env = own
+                    host_state = host_state.replace(key=keys)
             state, env_state = learner.place(host_state, host_env)
             epoch, walltime_before = int(meta["epoch"]), float(meta["walltime"])
             beat_at = meta.get("beat_baseline", {})
             self.console.log(f"resumed {self.dir} at epoch {epoch} ({meta['env_steps']:,} steps)")
+        if jax.process_count() > 1:
+            # compile before any process runs the epoch's collectives (see barrier)
+            learner.compile_epoch(state, env_state)
+            barrier("epoch-compiled")
         self._open_logs()
         self._status("running", epoch=epoch)
 
@@ -267,8 +281,11 @@ class Run:
 
         def save(ep: int, ts: Any, es: Any) -> None:
             nonlocal saved_epoch
-            if mgr is not None and ep != saved_epoch:
+            if ep != saved_epoch and mgr is not None:
                 checkpoint.save(mgr, ep, to_host(ts), to_host(es), meta_for(ep))
+            elif ep != saved_epoch and jax.process_count() > 1:
+                keep = cfg.run.max_checkpoints
+                checkpoint.save_process(self.dir, ep, to_host(ts).key, to_host(es), keep)
             saved_epoch = ep
 
         progress = Progress(
