@@ -187,22 +187,17 @@ def test_cli_distributed_needs_a_shared_directory_name(
     assert not (tmp_path / "x").exists()
 
 
-def test_process_keys_are_distinct_per_process(monkeypatch: Any) -> None:
+def test_loop_keys_are_distinct_per_process(learner: Any, monkeypatch: Any) -> None:
+    """Each process's devices get their own PPO loop keys (a resumed process whose saved
+    keys are lost falls back to these), and process 0's are those of a one-process run."""
     import jax
     import numpy as np
 
-    from train import run
-
-    keys = np.asarray(jax.random.split(jax.random.PRNGKey(3), 6)).reshape(2, 3, 2)
+    alone = np.asarray(learner.init_training()[0].key)
     streams = []
     for index in (0, 1, 2):
         monkeypatch.setattr(jax, "process_index", lambda i=index: i)
-        out = run.process_keys(keys)
-        assert out.shape == keys.shape
-        assert out.dtype == keys.dtype
-        streams.append(out)
-    # a process's keys differ from the checkpoint's and from every other process's
-    for i in range(3):
-        assert not np.any(np.all(streams[i] == keys, axis=-1))
-        for j in range(i):
-            assert not np.any(np.all(streams[i] == streams[j], axis=-1))
+        streams.append(np.asarray(learner.init_training()[0].key))  # (D, S, 2)
+    np.testing.assert_array_equal(streams[0], alone)
+    keys = np.concatenate(streams).reshape(-1, alone.shape[-1])
+    assert len({tuple(k) for k in keys}) == len(keys)  # every device of every process

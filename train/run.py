@@ -86,14 +86,6 @@ def beats(policy: dict[str, Any], baseline: dict[str, Any], factor: float = 1.0)
     )
 
 
-def process_keys(keys: np.ndarray) -> np.ndarray:
-    """PRNG keys ``(..., 2)`` with this process's index folded in (a process's own stream)."""
-    flat = np.asarray(keys).reshape(-1, keys.shape[-1])
-    index = jax.process_index()
-    out = np.stack([np.asarray(jax.random.fold_in(k, index)) for k in flat])
-    return out.reshape(keys.shape).astype(keys.dtype)
-
-
 class Run:
     """A training run bound to its directory. ``Run.create`` or ``Run.resume``, then ``train``."""
 
@@ -117,8 +109,7 @@ class Run:
                 f"run directory {str(run_dir)!r} already exists and is not empty; "
                 f"resume it with --resume {run_dir} or choose another --run-dir"
             )
-        if jax.process_count() > 1:  # every process checks before process 0 writes
-            barrier("run-create")
+        barrier("run-create")  # every process checks before process 0 writes
         run = cls(cfg, run_dir, **kw)
         if run.is_writer:
             run_dir.mkdir(parents=True, exist_ok=True)
@@ -146,8 +137,7 @@ class Run:
             cfg = overrides.validate()
         if checkpoint.latest_epoch(run_dir) is None:
             raise RunDirError(f"--resume {str(run_dir)!r}: no checkpoint to resume from")
-        if jax.process_count() > 1:  # every process has read it before process 0 rewrites it
-            barrier("run-resume")
+        barrier("run-resume")  # every process has read it before process 0 rewrites it
         if cfg is not saved and jax.process_index() == 0:
             write_json(path, cfg.to_dict())
         return cls(cfg, run_dir, **kw)
@@ -229,16 +219,14 @@ class Run:
                 own = checkpoint.restore_process(
                     self.dir, int(meta["epoch"]), host_state.key, host_env
                 )
-                if own is None:  # lost: fresh robots, and a stream of this process's own
+                if own is None:  # lost: this process's fresh robots and loop keys
                     self.console.log(
                         f"[yellow]process {jax.process_index()}: no saved robots for epoch "
                         f"{meta['epoch']}; they restart from fresh resets[/]"
                     )
-                    host_env = to_host(env_state)
-                    host_state = host_state.replace(key=process_keys(host_state.key))
-                else:
-                    keys, host_env = own
-                    host_state = host_state.replace(key=keys)
+                    own = to_host(state.key), to_host(env_state)
+                keys, host_env = own
+                host_state = host_state.replace(key=keys)
             state, env_state = learner.place(host_state, host_env)
             epoch, walltime_before = int(meta["epoch"]), float(meta["walltime"])
             beat_at = meta.get("beat_baseline", {})
@@ -281,11 +269,12 @@ class Run:
 
         def save(ep: int, ts: Any, es: Any) -> None:
             nonlocal saved_epoch
-            if ep != saved_epoch and mgr is not None:
-                checkpoint.save(mgr, ep, to_host(ts), to_host(es), meta_for(ep))
-            elif ep != saved_epoch and jax.process_count() > 1:
-                keep = cfg.run.max_checkpoints
-                checkpoint.save_process(self.dir, ep, to_host(ts).key, to_host(es), keep)
+            if ep != saved_epoch:
+                if mgr is not None:
+                    checkpoint.save(mgr, ep, to_host(ts), to_host(es), meta_for(ep))
+                elif jax.process_count() > 1:  # only its keys and robots are its own
+                    keep = cfg.run.max_checkpoints
+                    checkpoint.save_process(self.dir, ep, to_host(ts.key), to_host(es), keep)
             saved_epoch = ep
 
         progress = Progress(
