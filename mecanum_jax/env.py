@@ -40,6 +40,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+# isort: split
+import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
+
+# isort: split
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -152,6 +156,33 @@ class RewardConfig:
     energy: float = 0.0005
 
 
+@dataclasses.dataclass(frozen=True)
+class FeedbackConfig:
+    """The ``feedback`` reference controller: inverse-model feedforward, a yaw-rate PI loop
+    on the (noisy, delayed) gyro, and nearest-feasible desaturation.
+
+    Yaw-rate correction ``u = kp·e + I`` with ``e = ωz_cmd − gyro`` and
+    ``I ← clip(I + ki·e·dt, ±i_max)``; the integrator holds while the corrected twist is out
+    of the wheels' reach and ``e`` would drive it further (conditional-integration
+    anti-windup). The gains come from a sweep on training-distribution episodes
+    (experiments/tune_feedback.py; docs/evaluation.md).
+    """
+
+    kp: float = 0.5
+    """Proportional gain, rad/s of yaw-rate correction per rad/s of error (>= 0)."""
+    ki: float = 4.0
+    """Integral gain, 1/s (>= 0)."""
+    i_max: float = 2.0
+    """Integrator clamp, rad/s (>= 0)."""
+    omega_weight: float = 0.1
+    """Nearest-feasible metric: (m/s)² per (rad/s)² of yaw-rate error (> 0)."""
+
+
+REFERENCES = ("analytic", "analytic_nearest", "feedback")
+"""The reference controllers, by index: the analytic inverse model with uniform
+desaturation (the baseline), the same with nearest-feasible desaturation, and
+:class:`FeedbackConfig`'s closed loop."""
+
 RESIDUAL_SPACES = ("wheel", "twist")
 
 
@@ -189,6 +220,7 @@ class EnvConfig:
     randomization: RandomizationConfig = RandomizationConfig()
     noise: NoiseConfig = NoiseConfig()
     reward: RewardConfig = RewardConfig()
+    feedback: FeedbackConfig = FeedbackConfig()
 
     def validate(self, where: str = "env") -> EnvConfig:
         """Check values (not only types); raise :class:`ConfigError` naming the field."""
@@ -297,6 +329,9 @@ class EnvConfig:
             lambda v: v >= 0,
             "must be >= 0 (a weight)",
         )
+        fb = self.feedback
+        require(fb, f"{where}.feedback", ("kp", "ki", "i_max"), lambda v: v >= 0, "must be >= 0")
+        require(fb, f"{where}.feedback", ("omega_weight",), lambda v: v > 0, "must be > 0")
         self.description(where)  # the robot must load
         return self
 
@@ -437,6 +472,8 @@ class MecanumEnv(Env):
             "last_action": zeros,
             "history": history,
             "yaw_integral": jnp.asarray(0.0),
+            "feedback_integral": jnp.asarray(0.0),
+            "feedback_gains": self.feedback_gains(),
             "truncation": jnp.asarray(0.0),
         }
         obs = self._observe(sens, info)
@@ -460,12 +497,18 @@ class MecanumEnv(Env):
         obs = {k: v.at[:3].set(scaled) for k, v in state.obs.items()}  # command comes first
         return state.replace(obs=obs, info=info)
 
-    def step(self, state: State, action: jax.Array) -> State:
+    def step(self, state: State, action: jax.Array, reference: jax.Array | None = None) -> State:
+        """One control step under ``action``; with ``reference`` (an index into
+        :data:`REFERENCES`, may be traced; negative: none) that reference controller's
+        setpoints replace the action's."""
         info = dict(state.info)
         action = jnp.clip(action, -1.0, 1.0)
         params: RobotParams = info["params"]
         command = info["command"]
         rates = self.wheel_setpoints(command, action)
+        if reference is not None:
+            rates = jnp.where(reference >= 0, self.reference_rates(reference, state.info), rates)
+        feedback_integral = self._feedback_integral(state.info)
         sim = self.robot.step(state.pipeline_state, rates, params, self.substeps)
         sens = self.robot.sensors(sim)
         rng, k_noise, k_cmd, k_time = jax.random.split(info["rng"], 4)
@@ -516,6 +559,7 @@ class MecanumEnv(Env):
         info["step"] = step
         info["rng"] = rng
         info["last_action"] = action
+        info["feedback_integral"] = feedback_integral
         sensors = self._sensor_vector(sens, k_noise, info["noise_std"])
         info["history"] = jnp.concatenate([sensors[None], info["history"][:-1]], axis=0)
         if self.config.yaw_integral_tau > 0:  # against the command tracked in this step
@@ -549,6 +593,56 @@ class MecanumEnv(Env):
         """The analytic baseline: the nominal inverse model, desaturated to the rate limits."""
         twist, _ = limits.desaturate(self.geometry, command, self.max_rates)
         return kinematics.apply_rows(self._jacobian, twist)
+
+    def measured_yaw_rate(self, info: dict[str, Any]) -> jax.Array:
+        """The gyro's yaw rate as the controller sees it now (noisy, ``latency`` steps old)."""
+        return self._delayed(info)[self.n_wheels] * self.command_scale[2]
+
+    def _rates(self, twist: jax.Array) -> jax.Array:
+        return kinematics.apply_rows(self._jacobian, twist)
+
+    def feedback_gains(self, feedback: FeedbackConfig | None = None) -> jax.Array:
+        """``(kp, ki, i_max)`` of a feedback config (default: this task's), as the array the
+        state carries in ``info["feedback_gains"]`` (so a gain sweep compiles once)."""
+        fb = feedback or self.config.feedback
+        return jnp.asarray([fb.kp, fb.ki, fb.i_max], jnp.float32)
+
+    def _feedback_twist(self, info: dict[str, Any]) -> tuple[jax.Array, jax.Array]:
+        """The PI-corrected twist command, and the yaw-rate error it corrects."""
+        kp = info["feedback_gains"][0]
+        command = info["command"]
+        err = command[2] - self.measured_yaw_rate(info)
+        u = kp * err + info["feedback_integral"]
+        return command + jnp.asarray([0.0, 0.0, 1.0]) * u, err
+
+    def _feedback_integral(self, info: dict[str, Any]) -> jax.Array:
+        """The feedback controller's integrator after this step (see :class:`FeedbackConfig`)."""
+        _, ki, i_max = info["feedback_gains"]
+        twist, err = self._feedback_twist(info)
+        saturated = jnp.max(jnp.abs(self._rates(twist)) / self.max_rates) > 1.0
+        u = twist[2] - info["command"][2]
+        hold = saturated & (err * u > 0)  # the error would wind it up further
+        grown = jnp.clip(info["feedback_integral"] + ki * err * self.config.control_dt,
+                         -i_max, i_max)  # fmt: skip
+        return jnp.where(hold, info["feedback_integral"], grown)
+
+    def nearest_rates(self, twist: jax.Array) -> jax.Array:
+        """Wheel rates of the feasible twist nearest ``twist`` (nominal geometry)."""
+        w = self.config.feedback.omega_weight
+        return self._rates(limits.nearest_feasible(self.geometry, twist, self.max_rates, w))
+
+    def reference_rates(self, reference: int | jax.Array, info: dict[str, Any]) -> jax.Array:
+        """Wheel-rate setpoints of reference controller ``reference`` (an index into
+        :data:`REFERENCES`; a Python int computes only that one) for the state's ``info``."""
+        candidates = (
+            lambda: self.baseline_rates(info["command"]),
+            lambda: self.nearest_rates(info["command"]),
+            lambda: self.nearest_rates(self._feedback_twist(info)[0]),
+        )
+        if isinstance(reference, int):
+            return candidates[reference]()
+        index = jnp.clip(jnp.asarray(reference), 0, len(candidates) - 1)
+        return jnp.select([index == i for i in range(len(candidates))], [c() for c in candidates])
 
     def wheel_setpoints(self, command: jax.Array, action: jax.Array) -> jax.Array:
         """Wheel-rate setpoints (rad/s) for an action in [-1, 1]^action_size under ``command``."""

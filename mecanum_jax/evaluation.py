@@ -1,23 +1,26 @@
-"""Batched evaluation: play a scenario's episodes with a policy and the analytic baseline.
+"""Batched evaluation: play a scenario's episodes with a policy and the reference controllers.
 
 :class:`Evaluator` compiles **one** rollout program per episode-batch shape: a scenario's
 physics, latency, noise and command schedule are arrays (:class:`~mecanum_jax.scenarios.
-EpisodeBatch`), and the learned policy's parameters and a ``use_baseline`` flag are
-arguments, so every scenario of the same size and both policies share the compilation.
-Both policies see the same episodes: the same robots, commands, and sensor noise (the
-noise stream depends on the episode key only, not on the actions).
+EpisodeBatch`), and the learned policy's parameters and a per-episode controller code
+(:func:`who_code`: the policy or one of ``env.REFERENCES``) are arguments, so every
+scenario of the same size and every controller share the compilation. All controllers see
+the same episodes: the same robots, commands, and sensor noise (the noise stream depends on
+the episode key only, not on the actions).
 
-:func:`summarize` turns a :class:`Trace` into the report's metrics:
+:func:`summarize` turns a :class:`Trace` into the report's metrics
+(:mod:`mecanum_jax.metrics` defines them and their paired comparison):
 
 - ``rmse_vx``, ``rmse_vy`` (m/s), ``rmse_wz`` (rad/s), ``rmse_lin`` (of the velocity
   vector), over every control step of every episode, against the command in force;
-  ``worst_rmse_lin`` and ``worst_rmse_wz``: the same over the worst single episode (one
-  robot that spins away hides in the mean);
+  ``worst_rmse_lin`` and ``worst_rmse_wz``: the same over the worst single episode;
+- ``ss_*``: steady-state error against the nearest feasible twist of the true robot;
+  ``settle_lin_s``, ``settle_wz_s``: settling time after command steps;
 - for scripted (fixed-sequence) scenarios, the final pose error against the path the
   commands describe — ``drift_m`` and ``heading_drift_rad`` (mean over episodes); on a
   closed sequence that is the distance from the start;
-- ``energy_j``: Σ|τ·ω|·dt per episode (mean over episodes), with the servos' torques and
-  wheel rates sampled at every control step;
+- ``energy_j``: Σ|τ·ω|·dt per episode (mean over episodes); ``energy_per_m`` per metre
+  travelled; ``null_energy_j`` the part of it in the wheels' null space;
 - ``saturated``: the fraction of wheel-steps with the torque at its limit;
 - ``unstable``: physics resets (should be 0).
 """
@@ -32,8 +35,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mecanum_jax import odometry
-from mecanum_jax.env import MecanumEnv, baseline_policy
+from mecanum_jax import limits, metrics, odometry
+from mecanum_jax.env import REFERENCES, MecanumEnv
 from mecanum_jax.scenarios import EpisodeBatch
 
 PolicyApply = Callable[[Any, dict[str, jax.Array]], jax.Array]
@@ -42,35 +45,59 @@ METRICS = (
     "rmse_vy",
     "rmse_wz",
     "rmse_lin",
+    "ss_vx",
+    "ss_vy",
+    "ss_wz",
+    "ss_lin",
+    "settle_lin_s",
+    "settle_wz_s",
     "worst_rmse_lin",
     "worst_rmse_wz",
     "drift_m",
     "heading_drift_rad",
     "energy_j",
+    "energy_per_m",
+    "null_energy_j",
     "saturated",
     "unstable",
 )
+
+
+LEARNED = -1
+"""The ``who`` code of the learned policy; references are their index in ``REFERENCES``."""
 
 
 class Trace(NamedTuple):
     """A rollout, per episode and control step (leading axes E, T); numpy on the host."""
 
     command: Any  # (E, T, 3) command in force during the step
+    target: Any  # (E, T, 3) the command's nearest feasible twist for the true robot
     twist: Any  # (E, T, 3) true body twist at the end of the step
     pose: Any  # (E, T, 3) world pose (x, y, yaw) at the end of the step
     start: Any  # (E, 3) pose before the first step
     energy_j: Any  # (E, T)
     saturated: Any  # (E, T)
     unstable: Any  # (E, T)
+    wheel_torque: Any  # (E, T, n) N·m
+    wheel_rate: Any  # (E, T, n) rad/s
     qpos: Any  # (E, T, nq), for rendering
 
 
+def who_code(who: str) -> int:
+    """``"policy"`` → :data:`LEARNED`; a reference's name → its index in ``REFERENCES``."""
+    if who == "policy":
+        return LEARNED
+    if who not in REFERENCES:
+        raise ValueError(f"{who!r}: not a policy; expected 'policy' or one of {REFERENCES}")
+    return REFERENCES.index(who)
+
+
 class Evaluator:
-    """Rollouts of ``env`` under a learned policy (``apply(params, obs) -> action``) or the
-    analytic baseline, compiled once per chunk shape.
+    """Rollouts of ``env`` under a learned policy (``apply(params, obs) -> action``) or a
+    reference controller (``REFERENCES``), compiled once per chunk shape.
 
     :meth:`run_many` plays many episode batches at once: they are concatenated along the
-    episode axis (each episode with its own policy flag) and cut into chunks of at most
+    episode axis (each episode with its own controller code) and cut into chunks of at most
     ``max_batch`` robots, the last one padded, so a whole evaluation is a few calls of one
     compiled program. On a GPU one chunk holds everything; on CPU keep ``max_batch`` at 64
     (larger MJX batches deadlock jaxlib 0.10.2's CPU backend, see docs/benchmarks.md).
@@ -82,56 +109,79 @@ class Evaluator:
         self.env = env
         self.apply = apply
         self.max_batch = max_batch
-        self._baseline = baseline_policy(env)
         self._run = jax.jit(self._rollout)
 
-    def _rollout(self, params: Any, use_baseline: jax.Array, batch: EpisodeBatch) -> Trace:
+    def _feasible_targets(self, batch: EpisodeBatch) -> jax.Array:
+        """(E, T, 3): each command's nearest feasible twist for the robot as it really is
+        (its wheels' actual radii, the rate limits), in the reference controllers' metric."""
+        env = self.env
+        w = env.config.feedback.omega_weight
+
+        def one(radius_scale: jax.Array, commands: jax.Array) -> jax.Array:
+            geom = env.geometry.replace(radii=env.geometry.radii * radius_scale)
+            return limits.nearest_feasible(geom, commands, env.max_rates, w)
+
+        return jax.vmap(one)(batch.params.radius_scale, batch.commands)
+
+    def _rollout(self, params: Any, who: jax.Array, batch: EpisodeBatch, gains: jax.Array) -> Trace:
         env = self.env
         state = jax.vmap(env.reset_to)(batch.keys, batch.params, batch.latency, batch.noise_std)
+        info = dict(state.info)
+        info["feedback_gains"] = jnp.broadcast_to(gains, info["feedback_gains"].shape)
+        state = state.replace(info=info)
         start = jax.vmap(env.robot.sensors)(state.pipeline_state).pose
 
         def step(s: Any, command: jax.Array) -> tuple[Any, Trace]:
             s = jax.vmap(env.set_command)(s, command)
-            action, _ = self._baseline(s.obs, jax.random.PRNGKey(0))
+            action = jnp.zeros((command.shape[0], env.action_size))
             if self.apply is not None:
                 with jax.numpy_rank_promotion("allow"):  # Brax's normalizer broadcasts
-                    learned = self.apply(params, s.obs)
-                action = jnp.where(use_baseline[:, None], action, learned)
-            ns = jax.vmap(env.step)(s, action)
+                    action = self.apply(params, s.obs)
+            ns = jax.vmap(env.step)(s, action, who)
             sens = jax.vmap(env.robot.sensors)(ns.pipeline_state)
             m = ns.metrics
             out = Trace(
                 command=command,
+                target=None,
                 twist=sens.twist,
                 pose=sens.pose,
                 start=None,
                 energy_j=m["energy_j"],
                 saturated=m["saturated"],
                 unstable=m["unstable"],
+                wheel_torque=sens.wheel_torque,
+                wheel_rate=sens.wheel_rate,
                 qpos=ns.pipeline_state.data.qpos,
             )
             return ns, out
 
         _, trace = jax.lax.scan(step, state, jnp.swapaxes(batch.commands, 0, 1))
         trace = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), trace)
-        return trace._replace(start=start)
+        return trace._replace(start=start, target=self._feasible_targets(batch))
 
-    def run(self, batch: EpisodeBatch, params: Any = None, baseline: bool = False) -> Trace:
-        """Play ``batch``; ``baseline=True`` (or no learned policy) plays the baseline."""
-        return self.run_many([(batch, baseline)], params)[0]
+    def run(self, batch: EpisodeBatch, params: Any = None, who: str = "analytic") -> Trace:
+        """Play ``batch`` with ``who`` (``"policy"`` or a reference's name)."""
+        return self.run_many([(batch, who)], params)[0]
 
     def run_many(
         self,
-        jobs: Sequence[tuple[EpisodeBatch, bool]],
+        jobs: Sequence[tuple[EpisodeBatch, str]],
         params: Any = None,
         progress: Callable[[int, int], None] | None = None,
+        feedback_gains: Any = None,
     ) -> list[Trace]:
-        """Play every ``(batch, baseline?)`` job; batches of equal length run together.
+        """Play every ``(batch, who)`` job; batches of equal length run together.
 
+        ``who`` is ``"policy"`` or a reference's name (``REFERENCES``).
         ``progress(done, total)`` is called after each compiled chunk.
+        ``feedback_gains``: ``(kp, ki, i_max)`` of the ``feedback`` controller (default: the
+        environment's config); traced, so a gain sweep compiles once.
         """
-        if self.apply is None and not all(b for _, b in jobs):
-            raise ValueError("this Evaluator has no learned policy: pass baseline=True")
+        gains = self.env.feedback_gains() if feedback_gains is None else feedback_gains
+        gains = jnp.asarray(gains, jnp.float32)
+        codes = [who_code(who) for _, who in jobs]
+        if self.apply is None and LEARNED in codes:
+            raise ValueError("this Evaluator has no learned policy: evaluate a reference")
         results: list[Trace | None] = [None] * len(jobs)
         by_length: dict[int, list[int]] = {}
         for i, (batch, _) in enumerate(jobs):
@@ -142,8 +192,7 @@ class Evaluator:
                 lambda *xs: np.concatenate([np.asarray(x) for x in xs]),
                 *[jobs[i][0] for i in idx],
             )
-            flags = np.concatenate([np.full(len(jobs[i][0].keys), jobs[i][1]) for i in idx])
-            flags |= self.apply is None
+            flags = np.concatenate([np.full(len(jobs[i][0].keys), codes[i], np.int32) for i in idx])
             total = len(flags)
             size = min(self.max_batch, total)
             for lo in range(0, total, size):
@@ -152,7 +201,7 @@ class Evaluator:
         for n, (idx, merged, flags, total, lo, size) in enumerate(chunks):
             take = (np.arange(lo, lo + size) % total) if lo + size > total else slice(lo, lo + size)
             part = jax.tree.map(lambda x, t=take: x[t], merged)
-            out = self._run(params, jnp.asarray(flags[take]), part)
+            out = self._run(params, jnp.asarray(flags[take]), part, gains)
             keep = min(size, total - lo)
             outputs.setdefault(tuple(idx), []).append(Trace(*(np.asarray(x)[:keep] for x in out)))
             if progress is not None:
@@ -190,20 +239,41 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return (a + np.pi) % (2 * np.pi) - np.pi
 
 
-def summarize(trace: Trace, dt: float, scripted: bool) -> dict[str, float | None]:
+def trace_parts(
+    trace: Trace, jacobian: Any, dt: float, cfg: metrics.MetricConfig | None = None
+) -> dict[str, metrics.Part]:
+    """The per-episode metrics of a rollout (:func:`mecanum_jax.metrics.episode_parts`)."""
+    return metrics.episode_parts(
+        trace.command,
+        trace.target,
+        trace.twist,
+        trace.pose,
+        trace.start,
+        trace.energy_j,
+        trace.saturated,
+        trace.wheel_torque,
+        trace.wheel_rate,
+        np.asarray(jacobian),
+        dt,
+        cfg,
+    )
+
+
+def summarize(
+    trace: Trace,
+    dt: float,
+    scripted: bool,
+    jacobian: Any,
+    cfg: metrics.MetricConfig | None = None,
+) -> dict[str, float | None]:
     """The report's metrics of one rollout (see the module docstring)."""
     err = trace.twist - trace.command
-    out: dict[str, float | None] = {
-        "rmse_vx": float(np.sqrt(np.mean(err[..., 0] ** 2))),
-        "rmse_vy": float(np.sqrt(np.mean(err[..., 1] ** 2))),
-        "rmse_wz": float(np.sqrt(np.mean(err[..., 2] ** 2))),
-        "rmse_lin": float(np.sqrt(np.mean(err[..., 0] ** 2 + err[..., 1] ** 2))),
+    out: dict[str, float | None] = metrics.summary(trace_parts(trace, jacobian, dt, cfg))
+    out |= {
         "worst_rmse_lin": float(np.max(np.sqrt(np.mean(err[..., 0] ** 2 + err[..., 1] ** 2, 1)))),
         "worst_rmse_wz": float(np.max(np.sqrt(np.mean(err[..., 2] ** 2, axis=1)))),
         "drift_m": None,
         "heading_drift_rad": None,
-        "energy_j": float(np.mean(np.sum(trace.energy_j, axis=1))),
-        "saturated": float(np.mean(trace.saturated)),
         "unstable": float(np.sum(trace.unstable > 0)),
     }
     if scripted:
@@ -212,6 +282,17 @@ def summarize(trace: Trace, dt: float, scripted: bool) -> dict[str, float | None
         out["drift_m"] = float(np.mean(np.linalg.norm(final[:, :2] - goal[:, :2], axis=-1)))
         out["heading_drift_rad"] = float(np.mean(np.abs(_wrap(final[:, 2] - goal[:, 2]))))
     return out
+
+
+def drift_parts(trace: Trace, dt: float) -> dict[str, metrics.Part]:
+    """Final position and heading drift of a scripted rollout, per episode."""
+    final = relative_poses(trace)[:, -1]
+    goal = intended_poses(trace.command, dt)[:, -1]
+    ones = np.ones(len(final))
+    return {
+        "drift_m": metrics.Part(np.linalg.norm(final[:, :2] - goal[:, :2], axis=-1), ones, "mean"),
+        "heading_drift_rad": metrics.Part(np.abs(_wrap(final[:, 2] - goal[:, 2])), ones, "mean"),
+    }
 
 
 def per_episode(trace: Trace, dt: float, scripted: bool) -> dict[str, list[float]]:
@@ -231,7 +312,13 @@ def per_episode(trace: Trace, dt: float, scripted: bool) -> dict[str, list[float
 
 # --- plots (matplotlib) ---------------------------------------------------------------------
 
-_COLORS = {"policy": "tab:blue", "baseline": "tab:orange", "command": "black"}
+_COLORS = {
+    "policy": "tab:blue",
+    "analytic": "tab:orange",
+    "analytic_nearest": "tab:green",
+    "feedback": "tab:red",
+    "command": "black",
+}
 
 
 def _pyplot() -> Any:
@@ -310,7 +397,8 @@ def plot_trajectories(
 
 
 def plot_errors(results: dict[str, dict[str, dict[str, Any]]], out: Path) -> Path:
-    """Bar chart of RMSE of v (m/s) and ωz (rad/s) per scenario, every policy side by side."""
+    """Bar chart of the steady-state error of v (m/s) and ωz (rad/s) per scenario, every
+    controller side by side."""
     plt = _pyplot()
     names = list(results)
     whos: list[str] = sorted({w for r in results.values() for w in r}, key=_policy_order)
@@ -318,7 +406,10 @@ def plot_errors(results: dict[str, dict[str, dict[str, Any]]], out: Path) -> Pat
     x = np.arange(len(names))
     width = 0.8 / len(whos)
     for ax, key, label in zip(
-        axes, ("rmse_lin", "rmse_wz"), ("RMSE v (m/s)", "RMSE ωz (rad/s)"), strict=True
+        axes,
+        ("ss_lin", "ss_wz"),
+        ("steady-state error v (m/s)", "steady-state error ωz (rad/s)"),
+        strict=True,
     ):
         for j, who in enumerate(whos):
             vals = [results[n].get(who, {}).get(key, np.nan) for n in names]
@@ -333,12 +424,13 @@ def plot_errors(results: dict[str, dict[str, dict[str, Any]]], out: Path) -> Pat
         ax.set_ylabel(label)
         ax.grid(axis="y", alpha=0.3)
     axes[0].legend(fontsize=8)
-    fig.suptitle("tracking error per scenario", fontsize=10)
+    fig.suptitle("steady-state tracking error per scenario", fontsize=10)
     return _save(fig, out)
 
 
 def _policy_order(who: str) -> int:
-    return {"policy": 0, "baseline": 1}.get(who, 2)
+    order = ("policy", *REFERENCES)
+    return order.index(who) if who in order else len(order)
 
 
 def _save(fig: Any, out: Path) -> Path:
@@ -369,9 +461,11 @@ def side_by_side(videos: Sequence[np.ndarray], labels: Sequence[str]) -> np.ndar
 
 
 __all__ = [
+    "LEARNED",
     "METRICS",
     "Evaluator",
     "Trace",
+    "drift_parts",
     "intended_poses",
     "per_episode",
     "plot_errors",
@@ -380,4 +474,6 @@ __all__ = [
     "relative_poses",
     "side_by_side",
     "summarize",
+    "trace_parts",
+    "who_code",
 ]

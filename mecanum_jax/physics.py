@@ -28,6 +28,10 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Literal, NamedTuple
 
+# isort: split
+import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
+
+# isort: split
 import jax
 import jax.numpy as jnp
 import mujoco

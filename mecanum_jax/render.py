@@ -1,9 +1,10 @@
 """Render rollouts: video with MuJoCo's renderer, and a top-down trajectory plot.
 
-Video backend: MuJoCo's offscreen renderer, through EGL on a GPU machine and OSMesa on CPU
-machines (Debian's ``libosmesa6``, installed by ``.ci/run``). Choose with ``MUJOCO_GL``
-before MuJoCo is imported; :func:`ensure_gl_backend` defaults it to ``osmesa`` when no
-display is present and nothing was chosen.
+Video backend: MuJoCo's offscreen renderer, headless through OSMesa or EGL (Mesa's EGL
+renders on the CPU too). Choose with ``MUJOCO_GL`` before MuJoCo is imported;
+:func:`ensure_gl_backend` picks whichever of the two is installed when no display is
+present and nothing was chosen, and :func:`gl_unavailable_reason` says why rendering
+cannot work on this machine.
 
 Command (the six motion modes of seed 000, one after another):
 ``python -m mecanum_jax.render --out runs/six_modes.mp4 [--fidelity reference]``
@@ -31,6 +32,29 @@ def ensure_gl_backend() -> str:
                 os.environ.setdefault("PYOPENGL_PLATFORM", backend)
                 break
     return os.environ.get("MUJOCO_GL", "")
+
+
+def gl_unavailable_reason() -> str | None:
+    """``None`` when MuJoCo can render offscreen here, else why not (naming the missing
+    library). Picks a backend first (:func:`ensure_gl_backend`) and renders one tiny frame."""
+    backend = ensure_gl_backend()
+    if not backend and not os.environ.get("DISPLAY"):
+        return (
+            "no display and no headless GL library (libOSMesa or libEGL) found: install "
+            "Debian's libosmesa6 or libegl1 to render videos"
+        )
+    try:
+        import mujoco
+
+        model = mujoco.MjModel.from_xml_string(
+            "<mujoco><worldbody><geom size='0.1'/></worldbody></mujoco>"
+        )
+        with mujoco.Renderer(model, 8, 8) as renderer:
+            renderer.update_scene(mujoco.MjData(model))
+            renderer.render()
+    except Exception as err:  # MuJoCo raises several types for a missing GL context
+        return f"MUJOCO_GL={backend or '(display)'}: cannot render: {type(err).__name__}: {err}"
+    return None
 
 
 import argparse  # noqa: E402

@@ -3,20 +3,23 @@
 - Two host CPU devices, so multi-device code (pmap, the compat shim) is exercised.
 - ``jax_numpy_rank_promotion = "raise"``: accidental broadcasting is an error (as Equinox does).
 - JAX's persistent compilation cache, shared across test processes and CI runs.
-- MuJoCo renders through OSMesa when there is no display (.ci/run installs libosmesa6).
+- MuJoCo renders headless through whichever of OSMesa and EGL is installed; tests marked
+  ``render`` are skipped, with the reason, where neither works.
+- Tiers: the default run leaves out tests marked ``full`` (slow end-to-end runs);
+  ``--full`` (what ``.ci/run`` passes) runs them too.
 """
 
 import os
 
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
-if not os.environ.get("DISPLAY"):  # headless rendering; must precede the first mujoco import
-    os.environ.setdefault("MUJOCO_GL", "osmesa")
-    os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+from mecanum_jax.render import ensure_gl_backend  # imports no MuJoCo
 
-import jax
-import pytest
-from hypothesis import HealthCheck, settings
+ensure_gl_backend()  # must precede the first mujoco import
+
+import jax  # noqa: E402
+import pytest  # noqa: E402
+from hypothesis import HealthCheck, settings  # noqa: E402
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
 if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
@@ -33,6 +36,28 @@ settings.register_profile(
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
 import mecanum_jax  # noqa: E402,F401  (installs the compat shim)
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--full", action="store_true", help="also run the full tier (tests marked 'full')"
+    )
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    full = config.getoption("--full")
+    skip_full = pytest.mark.skip(reason="full tier: run with ./dev test --full")
+    gl_reason: list[str | None] = []
+    for item in items:
+        if "full" in item.keywords and not full:
+            item.add_marker(skip_full)
+        elif "render" in item.keywords:
+            if not gl_reason:
+                from mecanum_jax.render import gl_unavailable_reason
+
+                gl_reason.append(gl_unavailable_reason())
+            if gl_reason[0]:
+                item.add_marker(pytest.mark.skip(reason=gl_reason[0]))
 
 
 @pytest.fixture

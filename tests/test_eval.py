@@ -196,15 +196,19 @@ def test_summarize_on_a_known_trace():
     pose[:, -1, 2] = 0.2
     trace = evaluation.Trace(
         command=command,
+        target=command,
         twist=twist,
         pose=pose,
         start=np.zeros((E, 3)),
         energy_j=np.full((E, T), 0.5),
         saturated=np.zeros((E, T)),
         unstable=np.zeros((E, T)),
+        wheel_torque=np.zeros((E, T, 4)),
+        wheel_rate=np.zeros((E, T, 4)),
         qpos=np.zeros((E, T, 1)),
     )
-    m = evaluation.summarize(trace, dt, scripted=True)
+    jac = np.ones((4, 3))
+    m = evaluation.summarize(trace, dt, True, jac)
     assert m["rmse_vx"] == pytest.approx(0.0)
     assert m["rmse_vy"] == pytest.approx(0.1)
     assert m["rmse_lin"] == pytest.approx(0.1)
@@ -214,7 +218,8 @@ def test_summarize_on_a_known_trace():
     assert m["drift_m"] == pytest.approx(0.05, abs=1e-6)
     assert m["heading_drift_rad"] == pytest.approx(0.2, abs=1e-6)
     assert m["energy_j"] == pytest.approx(25.0)
-    assert evaluation.summarize(trace, dt, scripted=False)["drift_m"] is None
+    assert m["energy_per_m"] == pytest.approx(25.0 / np.hypot(0.48, 0.05) + 0 * 1, rel=0.2)
+    assert evaluation.summarize(trace, dt, False, jac)["drift_m"] is None
     detail = evaluation.per_episode(trace, dt, scripted=True)
     np.testing.assert_allclose(detail["rmse_wz"], [0.0, 0.3], atol=1e-6)
     np.testing.assert_allclose(detail["drift_m"], [0.05, 0.05], atol=1e-6)
@@ -224,11 +229,11 @@ def test_summarize_on_a_known_trace():
 def test_baseline_rollout_tracks_and_is_deterministic(env, small, baseline_evaluator):
     sc = small.scenarios[2]  # nominal, random commands
     batch = scenarios.prepare(env, sc)
-    a = baseline_evaluator.run(batch, baseline=True)
-    b = baseline_evaluator.run(batch, baseline=True)
+    a = baseline_evaluator.run(batch)
+    b = baseline_evaluator.run(batch)
     np.testing.assert_array_equal(a.twist, b.twist)
     np.testing.assert_array_equal(a.command, np.asarray(batch.commands))
-    m = evaluation.summarize(a, env.config.control_dt, False)
+    m = evaluation.summarize(a, env.config.control_dt, False, env._jacobian)
     assert m["unstable"] == 0
     # it tracks: far better than standing still
     still = np.sqrt(np.mean(np.sum(a.command[..., :2] ** 2, axis=-1)))
@@ -246,8 +251,8 @@ def test_policy_and_baseline_face_the_same_episodes(full_run, small):
     evaluator = evaluation.Evaluator(env, restored.apply)
     batch = scenarios.prepare(env, small.scenarios[0])
     params = (restored.normalizer, restored.params)
-    pol = evaluator.run(batch, params)
-    base = evaluator.run(batch, params, baseline=True)
+    pol = evaluator.run(batch, params, "policy")
+    base = evaluator.run(batch, params, "analytic")
     np.testing.assert_array_equal(pol.command, base.command)
     np.testing.assert_array_equal(pol.start, base.start)
     assert not np.array_equal(pol.twist, base.twist)  # the trained policy acts differently
@@ -273,9 +278,13 @@ def test_eval_baseline_cli_reduced_set(tmp_path, capsys):
     assert list(report["scenarios"]) == ["nominal", "singular_pass"]
     sp = report["scenarios"]["singular_pass"]
     assert "policy" not in sp
-    assert sp["baseline"]["drift_m"] is not None
-    assert report["scenarios"]["nominal"]["baseline"]["drift_m"] is None
-    assert len(sp["per_episode"]["baseline"]["drift_m"]) == 2
+    assert sp["analytic"]["drift_m"] is not None
+    assert sp["feedback"]["ss_wz"] is not None
+    assert report["scenarios"]["nominal"]["analytic"]["drift_m"] is None
+    assert len(sp["per_episode"]["analytic"]["drift_m"]) == 2
+    cmp = sp["compare"]["analytic/feedback"]["drift_m"]
+    assert cmp["lo"] <= cmp["ratio"] <= cmp["hi"]
+    assert cmp["verdict"] in ("better", "worse", "tie")
     for name in ("errors.png", "trajectories.png", "twist_nominal.png", "twist_singular_pass.png"):
         assert (out / name).stat().st_size > 1000
     assert not (tmp_path / "base.partial").exists()
@@ -293,7 +302,8 @@ def test_eval_checkpoint_cli_with_video_and_export(full_run, tmp_path):
     assert _run_cli(argv) == 0
     report = json.loads((out / "report.json").read_text())
     r = report["scenarios"]["six_modes"]
-    assert set(r) >= {"policy", "baseline"}
+    assert set(r) >= {"policy", "analytic", "analytic_nearest", "feedback"}
+    assert set(r["compare"]) == {"policy/analytic", "policy/analytic_nearest", "policy/feedback"}
     assert report["epoch"] == 3
     assert (out / "video_six_modes.mp4").stat().st_size > 1000
     import imageio.v3 as iio
@@ -451,10 +461,11 @@ def test_run_many_chunks_and_pads_like_single_runs(env, shipped, baseline_evalua
     batches = [scenarios.prepare(env, s) for s in chosen.scenarios]
     chunked = evaluation.Evaluator(env, max_batch=4)
     calls = []
-    many = chunked.run_many([(b, True) for b in batches], progress=lambda d, t: calls.append(t))
+    jobs = [(b, "analytic") for b in batches]
+    many = chunked.run_many(jobs, progress=lambda d, t: calls.append(t))
     assert calls == [2, 2]  # 6 episodes in chunks of 4: two calls of one compiled program
     for b, got in zip(batches, many, strict=True):
-        want = baseline_evaluator.run(b, baseline=True)
+        want = baseline_evaluator.run(b)
         for x, y in zip(got, want, strict=True):
             np.testing.assert_allclose(x, y, atol=1e-4)
 

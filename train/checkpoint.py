@@ -15,7 +15,10 @@ deterministic ``obs -> action`` function for evaluation and deployment.
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
+import shutil
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -31,6 +34,24 @@ CHECKPOINT_DIR = "checkpoints"
 
 class CheckpointError(ValueError):
     """A checkpoint is missing, corrupt, or does not match what is being loaded."""
+
+
+def quiet_closed_loop_noise() -> None:
+    """Drop the "Event loop is closed" tracebacks that orbax's reader threads leave behind
+    after a failed read (Python reports them as unraisable exceptions at exit); every other
+    unraisable exception is reported as before. Called by the command lines."""
+    if getattr(sys.unraisablehook, "_mecanum_quiet", False):
+        return
+    previous = sys.unraisablehook
+
+    def hook(unraisable: Any) -> None:
+        exc = unraisable.exc_value
+        if isinstance(exc, RuntimeError) and str(exc) == "Event loop is closed":
+            return
+        previous(unraisable)
+
+    hook._mecanum_quiet = True  # type: ignore[attr-defined]
+    sys.unraisablehook = hook
 
 
 def manager(run_dir: Path, max_to_keep: int = 3, create: bool = True) -> ocp.CheckpointManager:
@@ -139,53 +160,105 @@ def restore_process(
 def latest_epoch(run_dir: Path) -> int | None:
     if not (run_dir / CHECKPOINT_DIR).is_dir():
         return None
-    return manager(run_dir, create=False).latest_step()
-
-
-def _abstract(tree: Any) -> Any:
-    return jax.tree.map(lambda x: np.zeros(np.shape(x), np.asarray(x).dtype), tree)
-
-
-def restore(
-    run_dir: Path, train_like: Any, env_like: Any, epoch: int | None = None
-) -> tuple[Any, Any, dict[str, Any]]:
-    """Restore the full state of ``epoch`` (default: latest) into trees shaped like the given."""
     mgr = manager(run_dir, create=False)
-    epoch = mgr.latest_step() if epoch is None else epoch
-    if epoch is None:
-        raise CheckpointError(f"run directory {str(run_dir)!r}: no checkpoint to resume from")
     try:
-        out = mgr.restore(
+        return mgr.latest_step()
+    finally:
+        mgr.close()
+
+
+def _checkpoint_path(run_dir: Path, epoch: int) -> Path:
+    return run_dir / CHECKPOINT_DIR / str(epoch)
+
+
+def _read_all(mgr: ocp.CheckpointManager, epoch: int) -> dict[str, Any]:
+    """Every item of checkpoint ``epoch`` as it was saved (no template: a file that does
+    not decode is corruption, not a shape mismatch)."""
+    return dict(
+        mgr.restore(
             epoch,
             args=ocp.args.Composite(
-                train=ocp.args.StandardRestore(pack(_abstract(train_like))),
-                env=ocp.args.StandardRestore(pack(_abstract(env_like))),
+                train=ocp.args.StandardRestore(),
+                env=ocp.args.StandardRestore(),
                 meta=ocp.args.JsonRestore(),
             ),
         )
-    except Exception as err:  # orbax raises many types for unreadable/mismatched files
+    )
+
+
+def restore(
+    run_dir: Path,
+    train_like: Any,
+    env_like: Any,
+    epoch: int | None = None,
+    log: Callable[[str], None] | None = None,
+) -> tuple[Any, Any, dict[str, Any]]:
+    """Restore the full state of ``epoch`` into trees shaped like the given.
+
+    Without ``epoch``: the newest checkpoint that reads cleanly. A newer one that is
+    corrupt or was cut short mid-write is renamed ``<epoch>.corrupt`` (kept for inspection,
+    out of the way of the next save) and reported through ``log``. A checkpoint that reads
+    but has another shape (an older version's training state) is an error, not skipped.
+    """
+    mgr = manager(run_dir, create=False)
+    try:
+        epochs = sorted(mgr.all_steps(), reverse=True) if epoch is None else [epoch]
+        if not epochs:
+            raise CheckpointError(f"run directory {str(run_dir)!r}: no checkpoint to resume from")
+        bad: list[str] = []
+        for ep in epochs:
+            path = _checkpoint_path(run_dir, ep)
+            try:
+                out = _read_all(mgr, ep)
+            except Exception as err:  # orbax raises many types for unreadable files
+                reason = f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}"
+                bad.append(f"{str(path)!r} ({reason})")
+                if epoch is not None:
+                    break
+                aside = path.with_name(f"{ep}.corrupt")
+                path.rename(aside)
+                if log is not None:
+                    log(
+                        f"checkpoint {str(path)!r} is corrupt or incomplete ({reason}); "
+                        f"moved to {str(aside)!r} for inspection; trying the previous one"
+                    )
+                continue
+            try:
+                train = unpack(train_like, out["train"])
+                env = unpack(env_like, out["env"])
+            except (CheckpointError, KeyError) as err:
+                raise CheckpointError(
+                    f"checkpoint {str(path)!r} reads, but does not fit this run's state: "
+                    f"{err}. A checkpoint written by an older version of mecanum_jax, whose "
+                    "training state had another shape, can still be evaluated (mecanum-eval) "
+                    "but not resumed"
+                ) from err
+            if bad and log is not None:
+                log(f"resuming from checkpoint {str(path)!r}, the newest that reads cleanly")
+            return train, env, dict(out["meta"])
         raise CheckpointError(
-            f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r} cannot be restored "
-            f"into this run's state: {type(err).__name__}: {err}. A checkpoint written by "
-            "an older version of mecanum_jax, whose training state had another shape, can "
-            "still be evaluated (mecanum-eval) but not resumed"
-        ) from err
-    train = unpack(train_like, out["train"])
-    env = unpack(env_like, out["env"])
-    return train, env, dict(out["meta"])
+            f"run directory {str(run_dir)!r}: no checkpoint reads cleanly: {'; '.join(bad)}"
+        )
+    finally:
+        mgr.close()
 
 
 def read_meta(run_dir: Path, epoch: int | None = None) -> tuple[int, dict[str, Any]]:
     mgr = manager(run_dir, create=False)
-    epoch = mgr.latest_step() if epoch is None else epoch
-    if epoch is None:
-        raise CheckpointError(f"{str(run_dir)!r}: no checkpoints in {CHECKPOINT_DIR}/")
     try:
-        meta = mgr.restore(epoch, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
-    except Exception as err:
-        raise CheckpointError(
-            f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r}: metadata unreadable: {err}"
-        ) from err
+        epoch = mgr.latest_step() if epoch is None else epoch
+        if epoch is None:
+            raise CheckpointError(f"{str(run_dir)!r}: no checkpoints in {CHECKPOINT_DIR}/")
+        try:
+            args = ocp.args.Composite(meta=ocp.args.JsonRestore())
+            meta = mgr.restore(epoch, args=args)["meta"]
+        except Exception as err:
+            raise CheckpointError(
+                f"checkpoint {str(_checkpoint_path(run_dir, epoch))!r}: metadata unreadable: "
+                f"{type(err).__name__}: {err}"
+            ) from err
+    finally:
+        mgr.close()
     return epoch, dict(meta)
 
 
@@ -253,14 +326,16 @@ def restore_policy(
     train_like = jax.tree.map(lambda x: np.zeros((d, *x.shape[1:]), x.dtype), template)
     mgr = manager(run_dir, create=False)
     try:
-        train = mgr.restore(
-            epoch, args=ocp.args.Composite(train=ocp.args.StandardRestore(pack(train_like)))
-        )["train"]
-        train = unpack(train_like, train)
+        args = ocp.args.Composite(train=ocp.args.StandardRestore())
+        saved = mgr.restore(epoch, args=args)["train"]
     except Exception as err:
         raise CheckpointError(
-            f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r}: unreadable: {err}"
+            f"checkpoint {str(_checkpoint_path(run_dir, epoch))!r} is corrupt or incomplete: "
+            f"{type(err).__name__}: {err}"
         ) from err
+    finally:
+        mgr.close()
+    train = unpack(train_like, saved)
     one = jax.tree.map(lambda x: x[0, seeds.index(seed)], train)
     return RestoredPolicy(
         run_dir=run_dir,
@@ -272,6 +347,45 @@ def restore_policy(
         params=one.params.policy,
         meta=meta,
     )
+
+
+PROVENANCE = "provenance.json"
+
+
+def package_model(restored: RestoredPolicy, out: Path, provenance: dict[str, Any]) -> Path:
+    """A self-contained model directory from one checkpoint of a run: ``config.json``,
+    ``checkpoints/<epoch>/`` with the training state and metadata but not the environment
+    state (the robots of every training slot), and ``provenance.json`` (the run, epoch,
+    seed, wall time and env steps from the checkpoint, plus ``provenance``). mecanum-eval
+    and mecanum-export read it as they read a run directory. Written atomically."""
+    src = _checkpoint_path(restored.run_dir, restored.epoch)
+    tmp = out.with_name(out.name + ".partial")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    dst = tmp / CHECKPOINT_DIR / str(restored.epoch)
+    dst.mkdir(parents=True)
+    for item in ("train", "meta"):
+        shutil.copytree(src / item, dst / item)
+    for name in ("_CHECKPOINT_METADATA", "commit_success.txt"):
+        if (src / name).exists():
+            shutil.copyfile(src / name, dst / name)
+    config = restored.run_dir / "config.json"
+    if config.exists():
+        shutil.copyfile(config, tmp / "config.json")
+    meta = restored.meta
+    record = {
+        "source_run": str(restored.run_dir),
+        "epoch": restored.epoch,
+        "seed": restored.seed,
+        "env_steps": meta.get("env_steps"),
+        "walltime_s": meta.get("walltime"),
+        "robot": meta.get("robot"),
+        "devices": meta.get("devices"),
+        **provenance,
+    }
+    (tmp / PROVENANCE).write_text(json.dumps(record, indent=2) + "\n")
+    tmp.rename(out)
+    return out
 
 
 def check_compatible(meta: dict[str, Any], env: Any, what: str) -> None:
@@ -334,6 +448,7 @@ __all__ = [
     "latest_epoch",
     "load_policy",
     "manager",
+    "package_model",
     "read_meta",
     "restore",
     "restore_policy",

@@ -91,6 +91,7 @@ def _fail(err: BaseException, code: int) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """``mecanum-train``: train one run (several seeds side by side), then evaluate it."""
+    checkpoint.quiet_closed_loop_noise()
     argv = sys.argv[1:] if argv is None else argv
     prog = "mecanum-train"
     meta, rest = _meta_parser(prog, batch=False).parse_known_args(argv)
@@ -110,6 +111,16 @@ def main(argv: list[str] | None = None) -> int:
             base = load_train_config(saved) if saved.exists() else TrainConfig()
             cfg = _overrides(base, rest, prog, description)
             run = Run.resume(meta.resume, overrides=cfg, console=console)
+            done = checkpoint.latest_epoch(run.dir)
+            if done is not None and done >= run.cfg.num_epochs:
+                steps = done * run.cfg.steps_per_iteration * run.cfg.run.epoch_iterations
+                console.print(
+                    f"run {str(run.dir)!r} is already finished: epoch {done} of "
+                    f"{run.cfg.num_epochs} ({steps:,} env steps per seed). Its results: "
+                    f"{run.dir / 'summary.json'}; evaluate it with mecanum-eval {run.dir}; "
+                    "train it further with --resume and a larger --ppo.num-timesteps"
+                )
+                return 0
         else:
             base = load_train_config(meta.config or "quick")
             cfg = _overrides(base, rest, prog, description)

@@ -1,18 +1,22 @@
-"""``mecanum-eval``: evaluate a trained policy, or the analytic baseline, on named scenarios.
+"""``mecanum-eval``: evaluate a trained policy against reference controllers on named scenarios.
 
 Examples::
 
-    mecanum-eval baseline                               # the analytic baseline alone
+    mecanum-eval baseline                               # the reference controllers alone
+    mecanum-eval models/o_rectangle                     # the shipped GPU-trained policy
     mecanum-eval runs/gpu-20261122-101500               # latest checkpoint, first seed
     mecanum-eval runs/gpu-.../checkpoints/40 --seed 1 --video
     mecanum-eval runs/gpu-... --only nominal slippery --episodes 8 --out runs/eval-a
     mecanum-eval runs/gpu-... --scenarios my_scenarios.toml
     mecanum-export runs/gpu-... policy.npz              # weights + normalizer, for NumPy
 
-With a checkpoint, the analytic baseline always runs on the same episodes (same robots,
-command sequences and sensor noise), and the table, ``report.json`` and the plots put the
-two side by side. Evaluation seeds come from the scenario file, in an rng domain of their
-own: evaluation never replays a training stream.
+The reference controllers (``--references``, default all of ``env.REFERENCES``:
+``analytic``, the baseline; ``analytic_nearest``; ``feedback``) always run on the same
+episodes as the policy (same robots, command sequences and sensor noise), and the tables,
+``report.json`` and the plots put them side by side. Every policy-vs-reference ratio comes
+with a paired bootstrap 95% interval over the episodes; the policy is "better" only where
+the whole interval lies below 1 (mecanum_jax/metrics.py). Evaluation seeds come from the
+scenario file, in an rng domain of their own: evaluation never replays a training stream.
 
 Everything is written to a ``<out>.partial`` directory that is renamed to ``<out>`` only
 when complete, so an interrupted evaluation never leaves a report that looks finished;
@@ -46,11 +50,11 @@ from rich.progress import (  # noqa: E402
 )
 from rich.table import Table  # noqa: E402
 
-from mecanum_jax import deploy, kinematics, scenarios  # noqa: E402
+from mecanum_jax import deploy, kinematics, metrics, scenarios  # noqa: E402
 from mecanum_jax import evaluation as ev  # noqa: E402
 from mecanum_jax.config import ConfigError  # noqa: E402
 from mecanum_jax.description import fingerprint  # noqa: E402
-from mecanum_jax.env import MecanumEnv  # noqa: E402
+from mecanum_jax.env import REFERENCES, MecanumEnv  # noqa: E402
 from mecanum_jax.physics import GRAVITY  # noqa: E402
 from train import checkpoint  # noqa: E402
 from train.config import load_train_config  # noqa: E402
@@ -61,7 +65,7 @@ console = Console(stderr=True)
 
 @dataclasses.dataclass
 class EvalArgs:
-    """Evaluate a policy against the analytic baseline on named scenarios."""
+    """Evaluate a policy against the reference controllers on named scenarios."""
 
     target: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="TARGET")]
     """``baseline``, a run directory (latest checkpoint), or ``<run>/checkpoints/<epoch>``."""
@@ -101,6 +105,13 @@ class EvalArgs:
     max_batch: int | None = None
     """Robots per compiled rollout (default: 64 on CPU, where larger MJX batches deadlock
     jaxlib 0.10.2; 16384 on GPU, so a whole evaluation is one rollout)."""
+    references: tuple[str, ...] = REFERENCES
+    """Reference controllers to run on the same episodes (analytic, analytic_nearest,
+    feedback)."""
+    settle_s: float = 0.5
+    """Steady-state error counts control steps at least this long after a command change, s."""
+    bootstrap: int = 2000
+    """Bootstrap resamples of the paired intervals."""
     export: bool = False
     """Also write the deployable policy (policy.npz + mecanum_policy.py) to the output."""
 
@@ -117,7 +128,7 @@ class Target:
             for name in ("seed", "epoch"):
                 if getattr(args, name) is not None:
                     raise ConfigError(f"--{name} = {getattr(args, name)}: only for a checkpoint")
-            self.label = "baseline"
+            self.label = "references"
         else:
             for name in ("robot", "config"):
                 if getattr(args, name) is not None:
@@ -147,22 +158,58 @@ class Target:
 def default_out(args: EvalArgs, target: Target) -> Path:
     stamp = time.strftime("%Y%m%d-%H%M%S")
     if target.restored is None:
-        return Path(f"runs/eval-baseline-{stamp}")
-    return target.restored.run_dir / "eval" / f"epoch{target.restored.epoch}-{stamp}"
+        return Path(f"runs/eval-references-{stamp}")
+    run_dir = target.restored.run_dir
+    if (run_dir / checkpoint.PROVENANCE).exists():  # a shipped model: not a place to write
+        return Path(f"runs/eval-{run_dir.name}-{stamp}")
+    return run_dir / "eval" / f"epoch{target.restored.epoch}-{stamp}"
+
+
+COMPARED = (
+    "rmse_lin",
+    "rmse_wz",
+    "ss_lin",
+    "ss_wz",
+    "settle_lin_s",
+    "settle_wz_s",
+    "drift_m",
+    "heading_drift_rad",
+    "energy_j",
+    "energy_per_m",
+)
+"""Metrics compared pairwise (policy against each reference), with intervals."""
+
+
+def whos(target: Target, args: EvalArgs) -> list[str]:
+    return (["policy"] if target.restored is not None else []) + list(args.references)
+
+
+def compare(
+    parts: dict[str, dict[str, metrics.Part]], who: str, ref: str, n_boot: int
+) -> dict[str, dict[str, float | str]]:
+    """``who``'s metrics over ``ref``'s on the same episodes: ratio, interval, verdict."""
+    out: dict[str, dict[str, float | str]] = {}
+    for key in COMPARED:
+        if key in parts[who]:
+            c = metrics.paired_ratio(parts[who][key], parts[ref][key], n_boot)
+            if c is not None:
+                out[key] = c.as_dict()
+    return out
 
 
 def evaluate(
-    target: Target, scenario_set: scenarios.ScenarioSet
+    target: Target, scenario_set: scenarios.ScenarioSet, args: EvalArgs
 ) -> tuple[dict[str, Any], dict[str, dict[str, ev.Trace]], dict[str, float]]:
-    """Every scenario with the policy (if any) and the baseline, all in as few compiled
+    """Every scenario with the policy (if any) and the references, all in as few compiled
     chunks as the batch limit allows: results, traces and timings."""
     env = target.env
     dt = env.config.control_dt
+    mcfg = metrics.MetricConfig(settle_s=args.settle_s)
     t0 = time.time()
     batches = [scenarios.prepare(env, sc) for sc in scenario_set.scenarios]
     t_prepare = time.time() - t0
-    whos = (["policy"] if target.restored is not None else []) + ["baseline"]
-    jobs = [(b, who == "baseline") for b in batches for who in whos]
+    players = whos(target, args)
+    jobs = [(b, who) for b in batches for who in players]
     columns = (TextColumn("rollouts"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=console, transient=True) as bar:
         task = bar.add_task("rollouts", total=None)
@@ -172,16 +219,28 @@ def evaluate(
     t_rollout = time.time() - t0 - t_prepare
     results: dict[str, Any] = {}
     traces: dict[str, dict[str, ev.Trace]] = {}
+    jac = kinematics.jacobian(env.geometry)
     for k, sc in enumerate(scenario_set.scenarios):
-        per = {who: out[k * len(whos) + j] for j, who in enumerate(whos)}
+        per = {who: out[k * len(players) + j] for j, who in enumerate(players)}
         traces[sc.name] = per
+        parts = {who: ev.trace_parts(tr, jac, dt, mcfg) for who, tr in per.items()}
+        if sc.scripted:
+            for who, tr in per.items():
+                parts[who] |= ev.drift_parts(tr, dt)
+        first = players[0]
+        refs = [r for r in players if r != first] if first == "policy" else players[1:]
         results[sc.name] = {
             "description": sc.description,
             "episodes": sc.episodes,
             "seconds": sc.seconds,
             "seed": sc.seed,
             "scripted": sc.scripted,
-            **{who: ev.summarize(tr, dt, sc.scripted) for who, tr in per.items()},
+            **{who: ev.summarize(tr, dt, sc.scripted, jac, mcfg) for who, tr in per.items()},
+            "compare": {
+                f"{first}/{ref}": compare(parts, first, ref, args.bootstrap)
+                for ref in refs
+                if first != ref
+            },
             "per_episode": {who: ev.per_episode(tr, dt, sc.scripted) for who, tr in per.items()},
         }
     steps = sum(int(np.prod(b.commands.shape[:2])) for b, _ in jobs)
@@ -198,52 +257,69 @@ def evaluate(
     return results, traces, timing
 
 
+TABLE = (
+    ("RMSE v", "rmse_lin", "{:.3f}"),
+    ("RMSE ωz", "rmse_wz", "{:.3f}"),
+    ("ss v", "ss_lin", "{:.3f}"),
+    ("ss ωz", "ss_wz", "{:.3f}"),
+    ("settle v s", "settle_lin_s", "{:.2f}"),
+    ("settle ω s", "settle_wz_s", "{:.2f}"),
+    ("drift m", "drift_m", "{:.3f}"),
+    ("energy J", "energy_j", "{:.0f}"),
+    ("null J", "null_energy_j", "{:.1f}"),
+)
+
+
 def results_table(results: dict[str, Any], title: str) -> Table:
-    """Policy against baseline per scenario; the better tracking figure in green."""
+    """Every controller per scenario; the best tracking figure of each scenario in green.
+
+    v in m/s, ωz in rad/s; ``ss``: steady-state error against the nearest feasible twist.
+    """
     table = Table(title=title)
-    cols = (
-        "scenario",
-        "who",
-        "RMSE vx",
-        "RMSE vy",
-        "RMSE ωz",
-        "worst ωz",
-        "drift m",
-        "heading rad",
-        "energy J",
-        "saturated",
-    )
-    keys = (
-        "rmse_vx",
-        "rmse_vy",
-        "rmse_wz",
-        "worst_rmse_wz",
-        "drift_m",
-        "heading_drift_rad",
-        "energy_j",
-        "saturated",
-    )
-    for c in cols:
+    for c in ("scenario", "who", *(c for c, _, _ in TABLE)):
         table.add_column(c, justify="left" if c in ("scenario", "who") else "right")
     for name, r in results.items():
-        whos = [w for w in ("policy", "baseline") if w in r]
-        for i, who in enumerate(whos):
+        players = [w for w in ("policy", *REFERENCES) if w in r]
+        for i, who in enumerate(players):
             cells = []
-            for k in keys:
-                v = r[who][k]
-                text = "-" if v is None else (f"{v:.1%}" if k == "saturated" else f"{v:.4g}")
-                other = r.get("baseline" if who == "policy" else "policy")
-                lower_better = k.startswith(("rmse", "worst", "drift", "heading"))
+            for _, key, fmt in TABLE:
+                v = r[who].get(key)
+                text = "-" if v is None else fmt.format(v)
+                values = [r[w].get(key) for w in players if r[w].get(key) is not None]
                 if (
-                    lower_better
-                    and v is not None
-                    and other
-                    and other[k] is not None
-                    and v < other[k]
+                    v is not None
+                    and len(values) > 1
+                    and key != "null_energy_j"
+                    and v == min(values)
                 ):
                     text = f"[green]{text}[/]"
                 cells.append(text)
             table.add_row(name if i == 0 else "", who, *cells)
+    return table
+
+
+def comparison_table(results: dict[str, Any], pair: str) -> Table:
+    """``pair`` (e.g. ``policy/analytic``) ratios with 95% intervals per scenario; green
+    where the interval lies wholly below 1 (better), red wholly above (worse)."""
+    keys = ("ss_lin", "ss_wz", "rmse_lin", "rmse_wz", "settle_wz_s", "drift_m", "energy_j")
+    table = Table(title=f"{pair}: ratio [95% paired bootstrap interval]")
+    table.add_column("scenario")
+    for k in keys:
+        table.add_column(k, justify="right")
+    for name, r in results.items():
+        cmp = r.get("compare", {}).get(pair)
+        if cmp is None:
+            continue
+        cells = []
+        for k in keys:
+            c = cmp.get(k)
+            if c is None:
+                cells.append("-")
+                continue
+            text = f"{c['ratio']:.2f} [{c['lo']:.2f},{c['hi']:.2f}]"
+            color = {"better": "green", "worse": "red"}.get(str(c["verdict"]))
+            cells.append(f"[{color}]{text}[/]" if color else text)
+        table.add_row(name, *cells)
     return table
 
 
@@ -252,7 +328,7 @@ def write_plots(
 ) -> list[Path]:
     paths = [
         ev.plot_errors(
-            {n: {w: r[w] for w in ("policy", "baseline") if w in r} for n, r in results.items()},
+            {n: {w: r[w] for w in ("policy", *REFERENCES) if w in r} for n, r in results.items()},
             out / "errors.png",
         ),
         ev.plot_trajectories(
@@ -357,12 +433,20 @@ def _check_args(args: EvalArgs) -> None:
         raise ConfigError(f"--max-batch = {args.max_batch}: must be >= 1")
     if args.video_scenarios and not args.video:
         raise ConfigError("--video-scenarios: needs --video")
+    unknown = [r for r in args.references if r not in REFERENCES]
+    if unknown or not args.references:
+        raise ConfigError(f"--references = {list(args.references)}: expected some of {REFERENCES}")
+    if not args.settle_s >= 0:
+        raise ConfigError(f"--settle-s = {args.settle_s}: must be >= 0")
+    if args.bootstrap < 100:
+        raise ConfigError(f"--bootstrap = {args.bootstrap}: must be >= 100")
     if args.export and args.target == "baseline":
         raise ConfigError("--export: the baseline has no weights to export; give a checkpoint")
 
 
 def main(argv: list[str] | None = None) -> int:
     """``mecanum-eval``: see the module docstring."""
+    checkpoint.quiet_closed_loop_noise()
     argv = sys.argv[1:] if argv is None else argv
     args = _parse(argv, "mecanum-eval", EvalArgs)
     t_start = time.time()
@@ -392,7 +476,7 @@ def main(argv: list[str] | None = None) -> int:
     partial.mkdir(parents=True)
     try:
         console.log(f"evaluating {target.label} on {scenario_set.names} ({scenario_set.source})")
-        results, traces, timing = evaluate(target, scenario_set)
+        results, traces, timing = evaluate(target, scenario_set, args)
         dt = target.env.config.control_dt
         files: list[Path] = []
         if args.plots:
@@ -424,47 +508,82 @@ def main(argv: list[str] | None = None) -> int:
         console.print(f"[yellow]interrupted[/]: incomplete output left in {partial}")
         return 130
     title = (
-        "the analytic baseline"
+        "the reference controllers"
         if target.restored is None
-        else f"{target.label}: policy vs analytic baseline"
+        else f"{target.label}: policy vs reference controllers"
     )
-    Console(width=None if sys.stdout.isatty() else 140).print(results_table(results, title))
+    out_console = Console(width=None if sys.stdout.isatty() else 140)
+    out_console.print(results_table(results, title))
+    first = whos(target, args)[0]
+    for ref in args.references:
+        if ref != first:
+            out_console.print(comparison_table(results, f"{first}/{ref}"))
     console.log(f"report: {out / 'report.json'} ({time.time() - t_start:.0f} s)")
     return 0
 
 
 @dataclasses.dataclass
 class ExportArgs:
-    """Write a trained policy as a small NumPy file (weights + observation normalizer)."""
+    """Write a trained policy: a small NumPy file (weights + observation normalizer), or a
+    model directory (``--model``) that mecanum-eval and mecanum-export read like a run."""
 
     run: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN")]
     """A run directory (latest checkpoint) or ``<run>/checkpoints/<epoch>``."""
-    out: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="OUT.npz")]
-    """The .npz file to write; ``mecanum_policy.py`` (NumPy inference) is copied beside it."""
+    out: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="OUT")]
+    """The .npz file to write (``mecanum_policy.py``, NumPy inference, is copied beside it);
+    with ``--model``, the directory to create."""
     seed: int | None = None
+    """Which of the run's training seeds (default: the first)."""
     epoch: int | None = None
+    """Which checkpoint (default: the latest)."""
+    model: bool = False
+    """Write a model directory: the policy's checkpoint (no optimizer-free copy is made:
+    the training state of that epoch, without the environment state), the resolved config,
+    ``provenance.json`` and the NumPy export."""
+    provenance: tuple[str, ...] = ()
+    """``--model``: KEY=VALUE pairs for provenance.json (e.g. command=..., device=...)."""
 
 
 def export_main(argv: list[str] | None = None) -> int:
     """``mecanum-export RUN OUT.npz``."""
+    checkpoint.quiet_closed_loop_noise()
     argv = sys.argv[1:] if argv is None else argv
     args = _parse(argv, "mecanum-export", ExportArgs)
     try:
-        if not args.out.endswith(".npz"):
-            raise ConfigError(f"out = {args.out!r}: expected a .npz file name")
+        if not args.model and not args.out.endswith(".npz"):
+            raise ConfigError(f"out = {args.out!r}: expected a .npz file name (or --model)")
         if Path(args.out).exists():
             raise ConfigError(f"out = {args.out!r}: already exists; never overwritten")
+        extra = {}
+        for item in args.provenance:
+            key, sep, value = item.partition("=")
+            if not sep or not key:
+                raise ConfigError(f"--provenance {item!r}: expected KEY=VALUE")
+            extra[key] = value
         run_dir, epoch = checkpoint.split_target(args.run)
         restored = checkpoint.restore_policy(run_dir, args.seed, epoch or args.epoch)
     except (ConfigError, checkpoint.CheckpointError) as err:
         _error(err)
         return 2
+    if args.model:
+        out = checkpoint.package_model(restored, Path(args.out), extra)
+        export_policy(restored, out / "policy.npz")
+        console.log(f"wrote model directory {out}")
+        return 0
     path = export_policy(restored, Path(args.out))
     console.log(f"wrote {path} and {path.with_name('mecanum_policy.py')}")
     return 0
 
 
-__all__ = ["EvalArgs", "evaluate", "export_main", "export_policy", "main", "results_table"]
+__all__ = [
+    "EvalArgs",
+    "comparison_table",
+    "evaluate",
+    "export_main",
+    "export_policy",
+    "main",
+    "results_table",
+]
 
 
 if __name__ == "__main__":

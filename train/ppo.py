@@ -25,6 +25,10 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+# isort: split
+import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
+
+# isort: split
 import flax
 import jax
 import jax.numpy as jnp

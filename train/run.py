@@ -31,7 +31,6 @@ from rich.progress import (
     BarColumn,
     Progress,
     TextColumn,
-    TimeElapsedColumn,
     TimeRemainingColumn,
 )
 
@@ -205,12 +204,11 @@ class Run:
             "action_size": learner.env.action_size,
             "devices": learner.n_devices,
         }
-        mgr = checkpoint.manager(self.dir, cfg.run.max_checkpoints) if self.is_writer else None
         state, env_state = learner.init()
         epoch, walltime_before, beat_at = 0, 0.0, {}
         if checkpoint.latest_epoch(self.dir) is not None:
             host_state, host_env, meta = checkpoint.restore(
-                self.dir, to_host(state), to_host(env_state)
+                self.dir, to_host(state), to_host(env_state), log=self.console.log
             )
             checkpoint.check_compatible(meta, learner.env, f"checkpoint in {str(self.dir)!r}")
             if jax.process_index() != 0:
@@ -231,6 +229,8 @@ class Run:
             epoch, walltime_before = int(meta["epoch"]), float(meta["walltime"])
             beat_at = meta.get("beat_baseline", {})
             self.console.log(f"resumed {self.dir} at epoch {epoch} ({meta['env_steps']:,} steps)")
+        # opened after the restore, which may move a corrupt newest checkpoint aside
+        mgr = checkpoint.manager(self.dir, cfg.run.max_checkpoints) if self.is_writer else None
         if jax.process_count() > 1:
             # compile before any process runs the epoch's collectives (see barrier)
             learner.compile_epoch(state, env_state)
@@ -279,22 +279,29 @@ class Run:
 
         progress = Progress(
             TextColumn("[bold]{task.description}"),
-            BarColumn(),
-            TextColumn("{task.completed:,.0f}/{task.total:,.0f} steps"),
-            TextColumn("{task.fields[sps]} steps/s"),
-            TextColumn("{task.fields[info]}"),
-            TimeElapsedColumn(),
+            BarColumn(bar_width=8),
+            TextColumn("{task.fields[steps]}"),
+            TextColumn("{task.fields[sps]}/s"),
             TimeRemainingColumn(),
+            TextColumn("{task.fields[info]}"),
             console=self.console,
             disable=not self.is_writer,
         )
+        total_steps = total_epochs * steps_per_epoch
         task = progress.add_task(
-            cfg.name,
-            total=total_epochs * steps_per_epoch,
+            cfg.name[:12],
+            total=total_steps,
             completed=epoch * steps_per_epoch,
+            steps=f"{_si(epoch * steps_per_epoch)}/{_si(total_steps)}",
             sps="-",
             info="compiling",
         )
+        if self.is_writer:
+            self.console.log(
+                "progress: steps, env steps/s, time left | RMSE v (m/s) and ω (rad/s) of "
+                "the policy/baseline on held-out randomized episodes"
+            )
+        shown = ""  # the last evaluation's figures, kept on the progress line
         try:
             with progress:
                 while epoch < last_epoch:
@@ -347,16 +354,18 @@ class Run:
                     walltime = time.time() - t0
                     rows = self._rows(metrics, evals, baseline, sps)
                     self._log(epoch, epoch * steps_per_epoch, walltime, rows)
-                    info = f"reward {np.mean(metrics['reward']):.3f}"
                     if evals:
-                        r = evals["randomized"]
-                        b = baseline["randomized"]
-                        info += (
-                            f" | rmse v {np.mean(r['rmse_lin']):.3f} (base {b['rmse_lin']:.3f})"
-                            f" ω {np.mean(r['rmse_wz']):.3f} (base {b['rmse_wz']:.3f})"
+                        r, b = evals["randomized"], baseline["randomized"]
+                        shown = (
+                            f"v {np.mean(r['rmse_lin']):.2f}/{b['rmse_lin']:.2f} "
+                            f"ω {np.mean(r['rmse_wz']):.2f}/{b['rmse_wz']:.2f}"
                         )
                     progress.update(
-                        task, completed=epoch * steps_per_epoch, sps=f"{sps:,.0f}", info=info
+                        task,
+                        completed=epoch * steps_per_epoch,
+                        steps=f"{_si(epoch * steps_per_epoch)}/{_si(total_steps)}",
+                        sps=_si(sps),
+                        info=shown,
                     )
                     out_of_time = time_limit_s is not None and time.time() - t_start > time_limit_s
                     if epoch % cfg.run.checkpoint_every == 0 or is_last or out_of_time:
@@ -432,6 +441,14 @@ class Run:
             "baseline": baseline,
             "seeds": per_seed,
         }
+
+
+def _si(x: float) -> str:
+    """A count in three significant figures: 614k, 1.19M."""
+    for div, unit in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
+        if abs(x) >= div:
+            return f"{x / div:.3g}{unit}"
+    return f"{x:.0f}"
 
 
 def _get(cfg: Any, dotted: str) -> Any:
