@@ -165,14 +165,17 @@ class FeedbackConfig:
     ``I ← clip(I + ki·e·dt, ±i_max)``; the integrator holds while the corrected twist is out
     of the wheels' reach and ``e`` would drive it further (conditional-integration
     anti-windup). The gains come from a sweep on training-distribution episodes
-    (experiments/tune_feedback.py; docs/evaluation.md).
+    (experiments/tune_feedback.py; docs/evaluation.md): any proportional gain (even 0.02)
+    raised the steady-state ωz error there, since the servos' own step response overshoots
+    within one control step and the gyro arrives noisy and up to 2 steps late; integral
+    gains above about 0.8/s oscillate.
     """
 
-    kp: float = 0.5
+    kp: float = 0.0
     """Proportional gain, rad/s of yaw-rate correction per rad/s of error (>= 0)."""
-    ki: float = 4.0
+    ki: float = 0.5
     """Integral gain, 1/s (>= 0)."""
-    i_max: float = 2.0
+    i_max: float = 1.5
     """Integrator clamp, rad/s (>= 0)."""
     omega_weight: float = 0.1
     """Nearest-feasible metric: (m/s)² per (rad/s)² of yaw-rate error (> 0)."""
