@@ -10,7 +10,7 @@ export PYTHONPATH=/tmp/site:$PWD XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUF
 export JAX_COMPILATION_CACHE_DIR=/tmp/jax_cache
 O="${OUT:-/tmp/out}"; mkdir -p "$O"
 MIN="${1:-8}"; shift || true
-COMMIT=$(git rev-parse --short HEAD 2>/dev/null || echo unknown)
+COMMIT="${COMMIT:-$(git rev-parse --short HEAD 2>/dev/null || echo unknown)}"
 DEVICE=$(nvidia-smi --query-gpu=name --format=csv,noheader | head -1)
 {
 echo "device: $DEVICE; commit $COMMIT; $(date -u +%Y-%m-%dT%H:%M:%SZ)"
