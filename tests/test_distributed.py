@@ -122,6 +122,7 @@ def _metrics(run_dir: Path) -> list[dict[str, Any]]:
     return [json.loads(x) for x in (run_dir / "metrics.jsonl").read_text().splitlines()]
 
 
+@pytest.mark.full
 def test_two_process_run_trains_as_one_and_resumes_exactly(tmp_path: Path) -> None:
     """``mecanum-train --distributed`` as two processes: both finish, only process 0 writes
     the run, both hold the same policy (they can only if the gradients were averaged across

@@ -47,6 +47,7 @@ def test_spaces(env):
     assert env.substeps == 4  # 20 ms control / 5 ms physics
 
 
+@pytest.mark.full
 def test_default_physics_step_tracks_like_the_fine_step(env):
     """The environment's coarse physics step (5 ms, 4 substeps, for throughput) drives the
     nominal robot at a combined twist as the description's 2 ms step does."""
@@ -157,6 +158,7 @@ def test_rewards_and_metrics_are_consistent(env, rollout):
     assert np.all(np.isfinite(np.asarray(states.obs["state"])))
 
 
+@pytest.mark.full
 def test_observation_latency_delays_sensors():
     cfg = EnvConfig(
         randomization=dataclasses.replace(EnvConfig().randomization, latency_steps=(2, 2))
@@ -204,6 +206,7 @@ def test_bad_env_config_names_field(table, message):
         from_mapping(EnvConfig, table, "env").validate()
 
 
+@pytest.mark.full
 def test_twist_residual_acts_only_through_the_inverse_model():
     """residual_space = "twist": three actions, the zero action is the baseline, and a
     correction changes the setpoints by exactly the inverse model's image of the twist

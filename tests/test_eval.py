@@ -294,6 +294,8 @@ def test_eval_baseline_cli_reduced_set(tmp_path, capsys):
     assert "already exists" in capsys.readouterr().err
 
 
+@pytest.mark.full
+@pytest.mark.render
 def test_eval_checkpoint_cli_with_video_and_export(full_run, tmp_path):
     run, _ = full_run
     out = tmp_path / "ev"
@@ -309,7 +311,7 @@ def test_eval_checkpoint_cli_with_video_and_export(full_run, tmp_path):
     import imageio.v3 as iio
 
     frames = iio.imread(out / "video_six_modes.mp4")
-    assert frames.shape[1:3] == (64, 2 * 96)  # policy | baseline side by side
+    assert frames.shape[1:3] == (64, 4 * 96)  # policy | the three references side by side
     assert (out / "policy.npz").exists()
     assert (out / "mecanum_policy.py").exists()
 
@@ -357,6 +359,7 @@ def test_export_round_trip_in_numpy_alone(full_run, tmp_path, learner):
     np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.full
 def test_exported_control_loop_matches_the_environment(full_run, tmp_path, learner):
     run, _ = full_run
     path = tmp_path / "policy.npz"
@@ -409,7 +412,7 @@ def test_bad_checkpoints_and_targets(full_run, tmp_path, capsys):
         if f.is_file() and f.stat().st_size > 100:
             f.write_bytes(b"garbage")
     assert _run_cli([bad, "--out", tmp_path / "o6"]) == 2
-    assert "unreadable" in capsys.readouterr().err
+    assert "is corrupt or incomplete" in capsys.readouterr().err
     for name in ("o1", "o2", "o3", "o4", "o5", "o6"):
         assert not (tmp_path / name).exists()
 
@@ -454,6 +457,7 @@ def test_exported_file_errors(tmp_path):
     assert cli.export_main(["baseline", str(tmp_path / "p.txt")]) == 2
 
 
+@pytest.mark.full
 def test_run_many_chunks_and_pads_like_single_runs(env, shipped, baseline_evaluator):
     """Jobs merged, cut into chunks of 4 robots (the last padded) and split back give the
     same traces as one batch per job."""
@@ -529,6 +533,7 @@ def _control_loop_only(env: MecanumEnv) -> deploy.NumpyPolicy:
     return deploy.NumpyPolicy([], np.zeros(size), np.ones(size), meta)
 
 
+@pytest.mark.full
 def test_yaw_error_integral_observation_matches_the_control_loop():
     """yaw_integral_tau > 0: the environment integrates the measured yaw-rate error as a
     robot-side loop would (deploy.yaw_integral_step), and observes it last."""

@@ -39,10 +39,10 @@ def test_resuming_a_finished_run_says_so(full_run, capsys):
     assert "summary.json" in err
 
 
-def _largest_compressed_chunk(ckpt):
+def _compressed_chunks(ckpt):
     chunks = [f for f in ckpt.rglob("d/*") if f.read_bytes()[:4] == bytes.fromhex("28b52ffd")]
     assert chunks, f"no compressed chunk under {ckpt}"
-    return max(chunks, key=lambda f: f.stat().st_size)
+    return chunks
 
 
 def _corrupt(path):
@@ -62,7 +62,8 @@ def test_resume_falls_back_past_a_damaged_newest_checkpoint(full_run, learner, t
     copy = tmp_path / "run"
     shutil.copytree(run.dir, copy)
     assert checkpoint.latest_epoch(copy) == 3
-    damage(_largest_compressed_chunk(copy / "checkpoints" / "3" / "train"))
+    for chunk in _compressed_chunks(copy / "checkpoints" / "3" / "train"):
+        damage(chunk)
     state, env_state = learner.init()
     messages: list[str] = []
     host, _, meta = checkpoint.restore(

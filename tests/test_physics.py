@@ -111,6 +111,7 @@ def test_encoder_odometry_matches_truth_without_slip(fast_robot, fast_runs):
     assert err_slip > 0.5 * dist_slip  # with slip the encoders are far off
 
 
+@pytest.mark.full
 def test_x_square_cannot_spin():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SingularLayoutWarning)
@@ -123,6 +124,7 @@ def test_x_square_cannot_spin():
     assert o["twist"][0, -25:, 2].mean() > 1.0
 
 
+@pytest.mark.full
 def test_reference_fidelity_forward_within_5_percent():
     robot = physics.Robot(builtin_description("o_rectangle"), "reference")
     t = (0.3, 0.0, 0.0)
@@ -133,6 +135,7 @@ def test_reference_fidelity_forward_within_5_percent():
     assert np.linalg.norm(achieved - np.asarray(t)) < 0.05 * 0.3
 
 
+@pytest.mark.full
 def test_batched_api_per_robot_params_and_nan_isolation(fast_robot):
     reset, step, sensors = fast_robot.batched(substeps=5)
     p = physics.stack_params(
@@ -213,6 +216,7 @@ def test_up_z_tells_upright_from_tipped(fast_robot):
         assert (up < physics.TIPPED_UP_Z) == tipped
 
 
+@pytest.mark.full
 def test_radius_error_changes_speed(fast_robot):
     cmd = kinematics.inverse(fast_robot.geometry, jnp.array([0.3, 0.0, 0.0]))
     big = fast_robot.nominal_params(radius_scale=1.05)
@@ -235,6 +239,7 @@ def _robot_4ms(servo: physics.ServoModel = "chord", max_torque: float = 3.0) -> 
     )
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("servo", ["chord", "mjx"])
 def test_saturated_wheels_spin_up_at_the_torque_limit(servo):
     """In the air, a saturated servo is a constant torque: Δq̇ = t · M⁻¹ τ, whatever kp and dt.
@@ -272,6 +277,7 @@ def test_saturated_wheels_spin_up_at_the_torque_limit(servo):
         assert np.all(np.abs(rates) < 0.7 * np.abs(expected))
 
 
+@pytest.mark.full
 def test_torque_limited_spin_start_does_not_overshoot():
     """A spin from rest at 1 N·m and the 4 ms step. MJX's own servo over-spins to 1.9x the
     command (-10.5 rad/s) while its wheels lag; a converged run reaches -5.5 without
@@ -294,6 +300,7 @@ def test_torque_limited_spin_start_does_not_overshoot():
     assert abs(wz[:15].mean()) > 2.0  # and it does get going: the converged run averages -3.4
 
 
+@pytest.mark.full
 def test_slippery_floor_with_aggressive_commands_stays_stable():
     """Free-spinning wheels on ice (the evaluation's slippery scenario) must not launch the
     robot: with reflected rotor inertia as axle armature they did (docs/physics_model.md)."""

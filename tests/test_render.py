@@ -13,6 +13,8 @@ import pytest  # noqa: E402
 from mecanum_jax import render  # noqa: E402
 
 
+@pytest.mark.full
+@pytest.mark.render
 def test_six_modes_video_and_plot(tmp_path):
     out = tmp_path / "six.gif"
     render.main(["--out", str(out), "--seconds-per-mode", "0.2", "--fps", "10", "--width", "160",

@@ -106,6 +106,7 @@ def test_interrupted_run_resumes_exactly(full_run, tiny, learner, tmp_path, monk
     assert [x["epoch"] for x in lines] == [1, 2, 3]
 
 
+@pytest.mark.full
 def test_sharded_parallel_trains_like_pmap(full_run, tiny, learner, tmp_path):
     """``run.parallel = "sharded"`` (jit over a device mesh, the workaround for pmap's
     compiler crash on 2 GPUs) computes Brax's pmap path's epoch, on both devices."""
