@@ -503,7 +503,8 @@ class MecanumEnv(Env):
     def step(self, state: State, action: jax.Array, reference: jax.Array | None = None) -> State:
         """One control step under ``action``; with ``reference`` (an index into
         :data:`REFERENCES`, may be traced; negative: none) that reference controller's
-        setpoints replace the action's."""
+        setpoints replace the action's. The feedback controller's integrator is updated only
+        when ``reference`` is given."""
         info = dict(state.info)
         action = jnp.clip(action, -1.0, 1.0)
         params: RobotParams = info["params"]
@@ -511,7 +512,13 @@ class MecanumEnv(Env):
         rates = self.wheel_setpoints(command, action)
         if reference is not None:
             rates = jnp.where(reference >= 0, self.reference_rates(reference, state.info), rates)
-        feedback_integral = self._feedback_integral(state.info)
+        # the feedback reference's integrator runs only where a reference may act (evaluation),
+        # not in training, whose actions never use it
+        feedback_integral = (
+            state.info["feedback_integral"]
+            if reference is None
+            else self._feedback_integral(state.info)
+        )
         sim = self.robot.step(state.pipeline_state, rates, params, self.substeps)
         sens = self.robot.sensors(sim)
         rng, k_noise, k_cmd, k_time = jax.random.split(info["rng"], 4)
