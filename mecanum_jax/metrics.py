@@ -26,9 +26,11 @@ another only where the whole interval lies on the better side (:func:`verdict`).
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Literal, NamedTuple
+from typing import Literal, NamedTuple
 
 import numpy as np
+
+from mecanum_jax.config import require
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,12 +51,10 @@ class MetricConfig:
     """A command change counts as a yaw-rate step from this size on, rad/s."""
 
     def validate(self, where: str = "metrics") -> MetricConfig:
-        for name in ("settle_s", "band_lin", "band_wz", "min_step_lin", "min_step_wz"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"{where}.{name} = {v!r}: must be a finite number >= 0")
-        if not 0 <= self.band_fraction < 1:
-            raise ValueError(f"{where}.band_fraction = {self.band_fraction!r}: must be in [0, 1)")
+        """Check values; raise :class:`~mecanum_jax.config.ConfigError` naming the field."""
+        names = ("settle_s", "band_lin", "band_wz", "min_step_lin", "min_step_wz")
+        require(self, where, names, lambda v: np.isfinite(v) and v >= 0, "must be finite, >= 0")
+        require(self, where, ("band_fraction",), lambda v: 0 <= v < 1, "must be in [0, 1)")
         return self
 
 
@@ -272,12 +272,6 @@ def summary(parts: dict[str, Part]) -> dict[str, float | None]:
     return {k: p.value() for k, p in parts.items()}
 
 
-def parts_to_json(parts: dict[str, Part]) -> dict[str, Any]:
-    return {
-        k: {"num": p.num.tolist(), "den": p.den.tolist(), "kind": p.kind} for k, p in parts.items()
-    }
-
-
 __all__ = [
     "Comparison",
     "MetricConfig",
@@ -285,7 +279,6 @@ __all__ = [
     "episode_parts",
     "null_space_projector",
     "paired_ratio",
-    "parts_to_json",
     "segment_ids",
     "settling_times",
     "steps_since_change",

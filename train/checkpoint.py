@@ -171,19 +171,30 @@ def _checkpoint_path(run_dir: Path, epoch: int) -> Path:
     return run_dir / CHECKPOINT_DIR / str(epoch)
 
 
-def _read_all(mgr: ocp.CheckpointManager, epoch: int) -> dict[str, Any]:
-    """Every item of checkpoint ``epoch`` as it was saved (no template: a file that does
-    not decode is corruption, not a shape mismatch)."""
-    return dict(
-        mgr.restore(
-            epoch,
-            args=ocp.args.Composite(
-                train=ocp.args.StandardRestore(),
-                env=ocp.args.StandardRestore(),
-                meta=ocp.args.JsonRestore(),
-            ),
-        )
-    )
+def _read_items(mgr: ocp.CheckpointManager, epoch: int, items: tuple[str, ...]) -> dict[str, Any]:
+    """The named items of checkpoint ``epoch`` as they were saved (no template: a file that
+    does not decode is corruption, not a shape mismatch); ``meta`` is JSON, others arrays."""
+    args = {k: ocp.args.JsonRestore() if k == "meta" else ocp.args.StandardRestore() for k in items}
+    return dict(mgr.restore(epoch, args=ocp.args.Composite(**args)))
+
+
+def _read_checked(run_dir: Path, epoch: int | None, items: tuple[str, ...]) -> tuple[int, dict]:
+    """``(epoch, items)`` of checkpoint ``epoch`` (default: the latest); a missing or
+    unreadable checkpoint is a :class:`CheckpointError` naming it."""
+    mgr = manager(run_dir, create=False)
+    try:
+        epoch = mgr.latest_step() if epoch is None else epoch
+        if epoch is None:
+            raise CheckpointError(f"{str(run_dir)!r}: no checkpoints in {CHECKPOINT_DIR}/")
+        try:
+            return epoch, _read_items(mgr, epoch, items)
+        except Exception as err:  # orbax raises many types for unreadable files
+            raise CheckpointError(
+                f"checkpoint {str(_checkpoint_path(run_dir, epoch))!r} is corrupt or "
+                f"incomplete: {type(err).__name__}: {err}"
+            ) from err
+    finally:
+        mgr.close()
 
 
 def restore(
@@ -209,7 +220,7 @@ def restore(
         for ep in epochs:
             path = _checkpoint_path(run_dir, ep)
             try:
-                out = _read_all(mgr, ep)
+                out = _read_items(mgr, ep, ("train", "env", "meta"))
             except Exception as err:  # orbax raises many types for unreadable files
                 reason = f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}"
                 bad.append(f"{str(path)!r} ({reason})")
@@ -244,22 +255,8 @@ def restore(
 
 
 def read_meta(run_dir: Path, epoch: int | None = None) -> tuple[int, dict[str, Any]]:
-    mgr = manager(run_dir, create=False)
-    try:
-        epoch = mgr.latest_step() if epoch is None else epoch
-        if epoch is None:
-            raise CheckpointError(f"{str(run_dir)!r}: no checkpoints in {CHECKPOINT_DIR}/")
-        try:
-            args = ocp.args.Composite(meta=ocp.args.JsonRestore())
-            meta = mgr.restore(epoch, args=args)["meta"]
-        except Exception as err:
-            raise CheckpointError(
-                f"checkpoint {str(_checkpoint_path(run_dir, epoch))!r}: metadata unreadable: "
-                f"{type(err).__name__}: {err}"
-            ) from err
-    finally:
-        mgr.close()
-    return epoch, dict(meta)
+    epoch, out = _read_checked(run_dir, epoch, ("meta",))
+    return epoch, dict(out["meta"])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -324,18 +321,8 @@ def restore_policy(
     template, _ = learner.init_training()
     d = int(meta["devices"])
     train_like = jax.tree.map(lambda x: np.zeros((d, *x.shape[1:]), x.dtype), template)
-    mgr = manager(run_dir, create=False)
-    try:
-        args = ocp.args.Composite(train=ocp.args.StandardRestore())
-        saved = mgr.restore(epoch, args=args)["train"]
-    except Exception as err:
-        raise CheckpointError(
-            f"checkpoint {str(_checkpoint_path(run_dir, epoch))!r} is corrupt or incomplete: "
-            f"{type(err).__name__}: {err}"
-        ) from err
-    finally:
-        mgr.close()
-    train = unpack(train_like, saved)
+    _, saved = _read_checked(run_dir, epoch, ("train",))
+    train = unpack(train_like, saved["train"])
     one = jax.tree.map(lambda x: x[0, seeds.index(seed)], train)
     return RestoredPolicy(
         run_dir=run_dir,
