@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mecanum_jax import limits, metrics, odometry
+from mecanum_jax import metrics, odometry
 from mecanum_jax.env import REFERENCES, MecanumEnv
 from mecanum_jax.scenarios import EpisodeBatch
 
@@ -114,14 +114,7 @@ class Evaluator:
     def _feasible_targets(self, batch: EpisodeBatch) -> jax.Array:
         """(E, T, 3): each command's nearest feasible twist for the robot as it really is
         (its wheels' actual radii, the rate limits), in the reference controllers' metric."""
-        env = self.env
-        w = env.config.feedback.omega_weight
-
-        def one(radius_scale: jax.Array, commands: jax.Array) -> jax.Array:
-            geom = env.geometry.replace(radii=env.geometry.radii * radius_scale)
-            return limits.nearest_feasible(geom, commands, env.max_rates, w)
-
-        return jax.vmap(one)(batch.params.radius_scale, batch.commands)
+        return jax.vmap(self.env.feasible_target)(batch.commands, batch.params.radius_scale)
 
     def _rollout(self, params: Any, who: jax.Array, batch: EpisodeBatch, gains: jax.Array) -> Trace:
         env = self.env
