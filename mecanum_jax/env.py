@@ -154,14 +154,6 @@ class RewardConfig:
     error_cap: float = 0.0
     action_rate: float = 0.01
     energy: float = 0.0005
-    null_action: float = 0.0
-    """Weight of ``−|P·a|²``, the action's component in the null space of the inverse model
-    (wheels driven against each other: energy and roller squeeze, no body motion); >= 0."""
-    target: str = "command"
-    """What the error terms track: ``"command"``, the command as given; ``"feasible"``, the
-    command's nearest feasible twist for the robot as it really is (its wheels' actual radii
-    and the rate limits, metric of ``feedback.omega_weight``), the target of the evaluation's
-    steady-state error, so a policy is not paid to chase what no wheel can reach."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -195,7 +187,6 @@ desaturation (the baseline), the same with nearest-feasible desaturation, and
 :class:`FeedbackConfig`'s closed loop."""
 
 RESIDUAL_SPACES = ("wheel", "twist")
-REWARD_TARGETS = ("command", "feasible")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -337,13 +328,10 @@ class EnvConfig:
                 "error_cap",
                 "action_rate",
                 "energy",
-                "null_action",
             ),
             lambda v: v >= 0,
             "must be >= 0 (a weight)",
         )
-        if w.target not in REWARD_TARGETS:
-            raise invalid(f"{ww}.target", w.target, f"expected one of {REWARD_TARGETS}")
         fb = self.feedback
         require(fb, f"{where}.feedback", ("kp", "ki", "i_max"), lambda v: v >= 0, "must be >= 0")
         require(fb, f"{where}.feedback", ("omega_weight",), lambda v: v > 0, "must be > 0")
@@ -409,8 +397,6 @@ class MecanumEnv(Env):
         self._jacobian = jnp.asarray(kinematics.jacobian(self.geometry), jnp.float32)
         kinematics.require_full_rank(self.geometry)
         self._forward = jnp.asarray(kinematics.forward_matrix(self.geometry), jnp.float32)
-        J = np.asarray(self._jacobian, np.float64)  # wheel patterns that move no body: I - J J⁺
-        self._null = jnp.asarray(np.eye(n) - J @ np.linalg.pinv(J), jnp.float32)
         self.max_latency = config.randomization.latency_steps[1]
         self.twist_residual = config.residual and config.residual_space == "twist"
         self._action_size = 3 if self.twist_residual else n
@@ -539,18 +525,12 @@ class MecanumEnv(Env):
 
         err = sens.twist - command
         cfg = self.config.reward
-        target_err = (
-            sens.twist - self.feasible_target(command, params.radius_scale)
-            if cfg.target == "feasible"
-            else err
-        )
-        lin_err2 = target_err[0] ** 2 + target_err[1] ** 2
-        ang_err2 = target_err[2] ** 2
+        lin_err2 = err[0] ** 2 + err[1] ** 2
+        ang_err2 = err[2] ** 2
         tracking_lin = jnp.exp(-lin_err2 / cfg.sigma_lin)
         tracking_ang = jnp.exp(-ang_err2 / cfg.sigma_ang)
         action_rate = jnp.sum((action - info["last_action"]) ** 2)
         power = jnp.sum(jnp.abs(sens.wheel_torque * sens.wheel_rate))
-        null_action = jnp.sum((self._null @ action) ** 2) if not self.twist_residual else 0.0
         error = cfg.error_lin * lin_err2 + cfg.error_ang * ang_err2
         if cfg.error_cap > 0:
             error = cfg.error_cap * jnp.tanh(error / cfg.error_cap)
@@ -560,7 +540,6 @@ class MecanumEnv(Env):
             - error
             - cfg.action_rate * action_rate
             - cfg.energy * power
-            - cfg.null_action * null_action
         )
         saturated = jnp.mean(
             (jnp.abs(sens.wheel_torque) >= 0.99 * params.torque_limit).astype(jnp.float32)
@@ -573,10 +552,9 @@ class MecanumEnv(Env):
             "reward/error_penalty": -error,
             "reward/action_rate": -action_rate,
             "reward/energy": -power,
-            "reward/null_action": -jnp.asarray(null_action),
             "error/vx2": err[0] ** 2,
             "error/vy2": err[1] ** 2,
-            "error/wz2": err[2] ** 2,
+            "error/wz2": ang_err2,
             "energy_j": power * self.config.control_dt,
             "saturated": saturated,
             "unstable": sim.unstable.astype(jnp.float32),
@@ -611,7 +589,6 @@ class MecanumEnv(Env):
         "reward/error_penalty",
         "reward/action_rate",
         "reward/energy",
-        "reward/null_action",
         "error/vx2",
         "error/vy2",
         "error/wz2",
@@ -630,8 +607,7 @@ class MecanumEnv(Env):
     def feasible_target(self, command: jax.Array, radius_scale: jax.Array) -> jax.Array:
         """The nearest feasible twist to ``command`` (..., 3) for the robot as it really is
         (wheel radii scaled by ``radius_scale`` (n,), the rate limits), in the reference
-        controllers' metric: the target of the steady-state error, and what
-        ``reward.target = "feasible"`` tracks."""
+        controllers' metric: the target of the steady-state error."""
         geom = self.geometry.replace(radii=self.geometry.radii * radius_scale)
         w = self.config.feedback.omega_weight
         return limits.nearest_feasible(geom, command, self.max_rates, w)

@@ -126,33 +126,6 @@ def test_rollout_resets_episodes_with_fresh_robots(env, rollout):
     assert np.all(np.asarray(states.info["step"][6]) == 1)
 
 
-def test_feasible_target_and_null_action_penalty():
-    """``reward.target = "feasible"``: the error terms track the nearest feasible twist of the
-    robot as it is, not the command; ``reward.null_action`` penalises the action's component
-    that drives the wheels against each other."""
-    reward = RewardConfig(target="feasible", null_action=2.0)
-    env = MecanumEnv(EnvConfig(episode_length=6, reward=reward))
-    state = jax.jit(env.reset)(jax.random.PRNGKey(3))
-    beyond = 1.4 * env.command_scale * jnp.asarray([1.0, 0.0, 0.0])  # out of the wheels' reach
-    state = env.set_command(state, beyond)
-    pattern = jnp.asarray([1.0, -1.0, -1.0, 1.0])  # LF LB RB RF: the null space of J^T
-    nxt = jax.jit(env.step)(state, 0.5 * pattern)
-    m = {k: float(v) for k, v in nxt.metrics.items()}
-    twist = np.asarray(env.robot.sensors(nxt.pipeline_state).twist)
-    target = np.asarray(env.feasible_target(beyond, state.info["params"].radius_scale))
-    assert np.max(np.abs(target - np.asarray(beyond))) > 0.1  # the target is not the command
-    np.testing.assert_allclose(-m["reward/error_lin"], np.sum((twist - target)[:2] ** 2), rtol=1e-4)
-    np.testing.assert_allclose(
-        -m["reward/error_ang"], (twist - target)[2] ** 2, rtol=1e-4, atol=1e-7
-    )
-    np.testing.assert_allclose(m["error/vx2"], (twist[0] - float(beyond[0])) ** 2, rtol=1e-4)
-    jac = np.asarray(kinematics.jacobian(env.geometry))
-    assert np.allclose(jac.T @ np.asarray(pattern), 0, atol=1e-6)  # a true null pattern
-    np.testing.assert_allclose(-m["reward/null_action"], 4 * 0.25, rtol=1e-5)
-    with pytest.raises(ConfigError, match="env.reward.target = 'nearest'"):
-        EnvConfig(reward=RewardConfig(target="nearest")).validate()
-
-
 def test_rewards_and_metrics_are_consistent(env, rollout):
     _, (_, (states, _)) = rollout
     m = {k: np.asarray(v) for k, v in states.metrics.items()}
@@ -163,7 +136,6 @@ def test_rewards_and_metrics_are_consistent(env, rollout):
         + m["reward/error_penalty"]
         + r.action_rate * m["reward/action_rate"]
         + r.energy * m["reward/energy"]
-        + r.null_action * m["reward/null_action"]
     )
     np.testing.assert_allclose(np.asarray(states.reward), expected, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(

@@ -226,6 +226,7 @@ def test_summarize_on_a_known_trace():
     assert max(detail["rmse_wz"]) == pytest.approx(m["worst_rmse_wz"])
 
 
+@pytest.mark.full  # tens of seconds of XLA compilation on 2 cores
 def test_baseline_rollout_tracks_and_is_deterministic(env, small, baseline_evaluator):
     sc = small.scenarios[2]  # nominal, random commands
     batch = scenarios.prepare(env, sc)
@@ -245,6 +246,7 @@ def _tiny_restored(full_run):
     return checkpoint.restore_policy(run.dir)
 
 
+@pytest.mark.full  # tens of seconds of XLA compilation on 2 cores
 def test_policy_and_baseline_face_the_same_episodes(full_run, small):
     restored = _tiny_restored(full_run)
     env = MecanumEnv(scenarios.eval_env_config(restored.cfg.env, small))
@@ -269,6 +271,7 @@ def _run_cli(argv):
     return cli.main([str(a) for a in argv])
 
 
+@pytest.mark.full  # tens of seconds of XLA compilation on 2 cores
 def test_eval_baseline_cli_reduced_set(tmp_path, capsys):
     """What CI checks: ``mecanum-eval baseline`` on CPU, on a reduced scenario set."""
     out = tmp_path / "base"
@@ -433,6 +436,7 @@ def test_checkpoint_of_another_robot_or_layout_is_refused(full_run, learner):
         assert message in str(err.value)
 
 
+@pytest.mark.full  # tens of seconds of XLA compilation on 2 cores
 def test_interrupted_evaluation_leaves_no_complete_looking_report(tmp_path, monkeypatch):
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
