@@ -562,3 +562,41 @@ def test_yaw_error_integral_observation_matches_the_control_loop():
     assert abs(integral) > 1e-4  # the spin-up from rest left a measurable yaw error
     with pytest.raises(ValueError, match="yaw_integral = None"):
         policy.observation(tracked, sens.wheel_rate, sens.gyro_z, sens.accel, np.asarray(action))
+
+
+def test_onnx_export_matches_the_jax_policy_and_the_control_loop(full_run, tmp_path, learner):
+    """``mecanum-export --format onnx``: onnxruntime maps raw observations to the JAX
+    policy's actions, and to the NumPy control loop's wheel-rate setpoints."""
+    ort = pytest.importorskip("onnxruntime")
+    run, _ = full_run
+    path = tmp_path / "policy.onnx"
+    assert cli.export_main([str(run.dir), str(path), "--format", "onnx"]) == 0
+    assert cli.export_main([str(run.dir), str(tmp_path / "p.npz")]) == 0
+    act, _ = checkpoint.load_policy(run.dir)
+    rng = np.random.default_rng(5)
+    obs = {
+        k: (3 * rng.normal(size=(128, *shape))).astype(np.float32)
+        for k, shape in learner.env.observation_size.items()
+    }
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    action, setpoints = session.run(["action", "wheel_setpoints"], {"observation": obs["state"]})
+    expected = np.asarray(act(obs))
+    assert np.abs(expected).max() > 1e-3  # a non-trivial policy
+    np.testing.assert_allclose(action, expected, rtol=1e-5, atol=1e-5)
+    numpy_policy = deploy.load(tmp_path / "p.npz")
+    commands = obs["state"][:, :3] * numpy_policy.command_scale
+    loop = numpy_policy.wheel_setpoints(commands, action)  # batched over rows
+    assert np.abs(loop).max() >= numpy_policy.max_rates.max() * 0.999  # saturation exercised
+    np.testing.assert_allclose(setpoints, loop, rtol=1e-5, atol=1e-4)
+    # the file carries its own description of the observation layout
+    meta = json.loads({p.key: p.value for p in _onnx_props(path)}["mecanum_policy_meta"])
+    assert meta["observation_layout"] == [list(x) for x in learner.env.layout]
+    # wrong suffix: refused naming the field and the value, nothing written
+    assert cli.export_main([str(run.dir), str(tmp_path / "x.npz"), "--format", "onnx"]) == 2
+    assert not (tmp_path / "x.npz").exists()
+
+
+def _onnx_props(path):
+    import onnx
+
+    return onnx.load(str(path)).metadata_props

@@ -375,6 +375,22 @@ def write_videos(
 def export_policy(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
     """Write ``policy.npz`` (weights, normalizer, control-loop constants) and copy the
     NumPy inference module beside it as ``mecanum_policy.py``."""
+    path = deploy.save(path, *_policy_arrays(restored))
+    shutil.copyfile(deploy.__file__, path.with_name("mecanum_policy.py"))
+    return path
+
+
+def export_onnx(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
+    """Write the policy and its control loop as one ONNX graph (``mecanum_jax.onnx_export``)."""
+    from mecanum_jax import onnx_export
+
+    return onnx_export.write_onnx(deploy.NumpyPolicy(*_policy_arrays(restored)), path)
+
+
+def _policy_arrays(
+    restored: checkpoint.RestoredPolicy,
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray, np.ndarray, dict[str, Any]]:
+    """The exported policy's layers, normalizer mean and std, and metadata."""
     cfg = restored.cfg
     env = MecanumEnv(cfg.env)
     layers_tree = restored.params["params"]
@@ -408,9 +424,7 @@ def export_policy(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
         "control_dt": cfg.env.control_dt,
         "source": {"run": str(restored.run_dir), "epoch": restored.epoch, "seed": restored.seed},
     }
-    path = deploy.save(path, layers, mean, std, meta)
-    shutil.copyfile(deploy.__file__, path.with_name("mecanum_policy.py"))
-    return path
+    return layers, mean, std, meta
 
 
 def _error(err: BaseException) -> None:
@@ -530,8 +544,12 @@ class ExportArgs:
     run: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN")]
     """A run directory (latest checkpoint) or ``<run>/checkpoints/<epoch>``."""
     out: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="OUT")]
-    """The .npz file to write (``mecanum_policy.py``, NumPy inference, is copied beside it);
-    with ``--model``, the directory to create."""
+    """The file to write: ``.npz`` (``mecanum_policy.py``, NumPy inference, is copied beside
+    it) or, with ``--format onnx``, ``.onnx``; with ``--model``, the directory to create."""
+    format: Literal["npz", "onnx"] = "npz"
+    """``npz``: weights and normalizer for the NumPy module; ``onnx``: one ONNX graph from
+    raw observations to actions and wheel-rate setpoints (normalizer, clip and the
+    baseline inside; needs the ``onnx`` extra)."""
     seed: int | None = None
     """Which of the run's training seeds (default: the first)."""
     epoch: int | None = None
@@ -550,8 +568,14 @@ def export_main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     args = _parse(argv, "mecanum-export", ExportArgs)
     try:
-        if not args.model and not args.out.endswith(".npz"):
-            raise ConfigError(f"out = {args.out!r}: expected a .npz file name (or --model)")
+        suffix = "." + args.format
+        if args.model and args.format != "npz":
+            raise ConfigError(f"--format = {args.format!r}: --model writes its own npz export")
+        if not args.model and not args.out.endswith(suffix):
+            raise ConfigError(
+                f"out = {args.out!r}: expected a {suffix} file name for --format {args.format}"
+                + (" (or --model)" if args.format == "npz" else "")
+            )
         if Path(args.out).exists():
             raise ConfigError(f"out = {args.out!r}: already exists; never overwritten")
         extra = {}
@@ -570,6 +594,18 @@ def export_main(argv: list[str] | None = None) -> int:
         export_policy(restored, out / "policy.npz")
         console.log(f"wrote model directory {out}")
         return 0
+    if args.format == "onnx":
+        try:
+            path = export_onnx(restored, Path(args.out))
+        except ImportError as err:
+            _error(
+                ConfigError(
+                    f"--format onnx: {err}; install the extra: pip install 'mecanum-jax[onnx]'"
+                )
+            )
+            return 2
+        console.log(f"wrote {path}")
+        return 0
     path = export_policy(restored, Path(args.out))
     console.log(f"wrote {path} and {path.with_name('mecanum_policy.py')}")
     return 0
@@ -580,6 +616,7 @@ __all__ = [
     "comparison_table",
     "evaluate",
     "export_main",
+    "export_onnx",
     "export_policy",
     "main",
     "results_table",
