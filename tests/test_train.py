@@ -5,6 +5,7 @@ with gradient averaging is exercised) and share one compiled :class:`Learner`.
 """
 
 import dataclasses
+import importlib.util
 import json
 
 import jax
@@ -104,6 +105,67 @@ def test_interrupted_run_resumes_exactly(full_run, tiny, learner, tmp_path, monk
         np.testing.assert_array_equal(x, y)  # optimizer, params, normalizer, keys: identical
     lines = [json.loads(x) for x in (run.dir / "metrics.jsonl").read_text().splitlines()]
     assert [x["epoch"] for x in lines] == [1, 2, 3]
+
+
+def test_metric_loggers_get_every_epoch_and_wandb_is_optional(tiny, learner, tmp_path, monkeypatch):
+    """A user's logger and W&B (``run.wandb_project``) receive each epoch's numeric rows,
+    the same figures as metrics.jsonl; without wandb installed the option fails early."""
+    import sys
+    import types
+
+    class Recorder:
+        def __init__(self):
+            self.calls, self.closed = [], False
+
+        def log(self, steps, rows):
+            self.calls.append((steps, rows))
+
+        def close(self):
+            self.closed = True
+
+    fake_runs = []
+
+    def init(**kw):
+        run = types.SimpleNamespace(kw=kw, logged=[], finished=False)
+        run.log = lambda data, step: run.logged.append((step, data))
+        run.finish = lambda: setattr(run, "finished", True)
+        fake_runs.append(run)
+        return run
+
+    monkeypatch.setitem(sys.modules, "wandb", types.SimpleNamespace(init=init))
+    monkeypatch.setattr("importlib.util.find_spec", lambda name, *a: object())
+    cfg = dataclasses.replace(tiny, run=dataclasses.replace(tiny.run, wandb_project="mecanum"))
+    user = Recorder()
+    run = Run.create(cfg, tmp_path / "run", loggers=[user])
+    run.train(learner=learner)
+    lines = [json.loads(x) for x in (run.dir / "metrics.jsonl").read_text().splitlines()]
+    assert [steps for steps, _ in user.calls] == [x["env_steps"] for x in lines]
+    steps, rows = user.calls[-1]
+    seed = tiny.run.seeds[0]
+    last = {k: v for k, v in _flat(lines[-1]).items() if isinstance(v, float) and k != "walltime"}
+    assert len(last) > 10
+    key = next(k for k in last if "rmse" in k)  # an evaluation figure
+    for k, v in last.items():
+        assert rows[seed][k] == pytest.approx(v, rel=1e-6)
+    assert user.closed
+    (wb,) = fake_runs
+    assert wb.kw["project"] == "mecanum"
+    assert wb.kw["config"]["run"]["wandb_project"] == "mecanum"
+    assert wb.finished
+    assert wb.logged[-1][0] == steps
+    assert wb.logged[-1][1][f"seed_{seed}/{key}"] == rows[seed][key]
+    monkeypatch.undo()
+    if importlib.util.find_spec("wandb") is None:
+        with pytest.raises(ConfigError, match=r"run\.wandb_project = 'mecanum': needs the wandb"):
+            cfg.validate()
+
+
+def _flat(d, prefix=""):
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}/{k}" if prefix else k
+        out |= _flat(v, key) if isinstance(v, dict) else {key: v}
+    return out
 
 
 @pytest.mark.full

@@ -16,6 +16,7 @@ from typing import Any, Literal
 from mecanum_jax.config import ConfigError, from_mapping, invalid, load_toml, require
 from mecanum_jax.description import CONFIG_DIR
 from mecanum_jax.env import EnvConfig
+from train.loggers import check_wandb
 
 TRAIN_CONFIG_DIR = CONFIG_DIR / "train"
 
@@ -107,6 +108,8 @@ class RunConfig:
     max_devices: int = 0
     matmul_precision: Literal["default", "high", "highest"] = "highest"
     parallel: Literal["auto", "pmap", "sharded"] = "auto"
+    wandb_project: str = ""
+    """Also log to this Weights & Biases project (needs ``pip install wandb``; empty: off)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,6 +163,7 @@ class TrainConfig:
                 f"must divide batch_size * num_minibatches = {p.batch_size * p.num_minibatches}",
             )
         r = self.run
+        check_wandb(r.wandb_project)
         if not r.seeds:
             raise invalid("run.seeds", [], "need at least one seed")
         if len(set(r.seeds)) != len(r.seeds):

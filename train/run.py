@@ -39,6 +39,7 @@ from mecanum_jax.description import fingerprint
 from train import checkpoint
 from train.config import TrainConfig, config_diff, load_train_config
 from train.distributed import barrier
+from train.loggers import MetricLogger, TensorBoardLogger, WandbLogger
 from train.ppo import Learner, first_device, to_host
 
 # Fields a resumed run may change: its length and its logging/evaluation cadence.
@@ -47,6 +48,7 @@ RESUMABLE_CHANGES = {
     "run.eval_every",
     "run.checkpoint_every",
     "run.max_checkpoints",
+    "run.wandb_project",
 }
 
 
@@ -88,13 +90,22 @@ def beats(policy: dict[str, Any], baseline: dict[str, Any], factor: float = 1.0)
 class Run:
     """A training run bound to its directory. ``Run.create`` or ``Run.resume``, then ``train``."""
 
-    def __init__(self, cfg: TrainConfig, run_dir: Path, console: Console | None = None):
+    def __init__(
+        self,
+        cfg: TrainConfig,
+        run_dir: Path,
+        console: Console | None = None,
+        loggers: list[MetricLogger] | None = None,
+    ):
+        """``loggers``: extra metric sinks (:class:`train.loggers.MetricLogger`), called with
+        every epoch's flat rows beside metrics.jsonl, TensorBoard and W&B."""
         self.cfg = cfg
         self.dir = run_dir
         self.console = console or Console(stderr=True)
         self.is_writer = jax.process_index() == 0
         self.learner: Learner | None = None
-        self._writers: list[Any] = []
+        self._extra_loggers = list(loggers or [])
+        self._writers: list[MetricLogger] = []
 
     # --- directories ------------------------------------------------------------------------
 
@@ -150,11 +161,11 @@ class Run:
     def _open_logs(self) -> None:
         if not self.is_writer:
             return
-        from tensorboardX import SummaryWriter
-
-        self._writers = [
-            SummaryWriter(str(self.dir / "tb" / f"seed_{s}")) for s in self.cfg.run.seeds
-        ]
+        self._writers = [TensorBoardLogger(self.dir, self.cfg.run.seeds), *self._extra_loggers]
+        if self.cfg.run.wandb_project:
+            self._writers.append(
+                WandbLogger(self.cfg.run.wandb_project, self.dir, self.cfg.to_dict())
+            )
 
     def _log(self, epoch: int, steps: int, walltime: float, rows: list[dict[str, Any]]) -> None:
         if not self.is_writer:
@@ -163,11 +174,16 @@ class Run:
             for row in rows:
                 line = {"epoch": epoch, "env_steps": steps, "walltime": walltime, **row}
                 f.write(json.dumps(_jsonable(line)) + "\n")
-        for writer, row in zip(self._writers, rows, strict=True):
-            for key, value in _flatten(row).items():
-                if isinstance(value, int | float) and key != "seed":
-                    writer.add_scalar(key, value, steps)
-            writer.flush()
+        numbers = {
+            seed: {
+                k: v
+                for k, v in _flatten(row).items()
+                if isinstance(v, int | float) and not isinstance(v, bool) and k != "seed"
+            }
+            for seed, row in zip(self.cfg.run.seeds, rows, strict=True)
+        }
+        for writer in self._writers:
+            writer.log(steps, numbers)
 
     # --- training ---------------------------------------------------------------------------
 
@@ -189,10 +205,13 @@ class Run:
         if cfg.run.matmul_precision != "default":
             jax.config.update("jax_default_matmul_precision", cfg.run.matmul_precision)
         t_start = time.time()
-        if learner is not None and config_diff(learner.cfg, cfg):
-            raise ValueError(
-                f"learner was built for another config: {config_diff(learner.cfg, cfg)}"
-            )
+        differs = (
+            [f for f in config_diff(learner.cfg, cfg) if f != "run.wandb_project"]
+            if (learner is not None)
+            else []
+        )
+        if differs:
+            raise ValueError(f"learner was built for another config: {differs}")
         learner = self.learner = learner or Learner(cfg)
         seeds = list(cfg.run.seeds)
         meta_base = {

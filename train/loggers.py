@@ -1,0 +1,79 @@
+"""Where a run's per-epoch metrics go besides ``metrics.jsonl``: TensorBoard always, and
+Weights & Biases when ``run.wandb_project`` names a project (optional; ``pip install
+wandb``). Each sink takes one flat ``{name: number}`` row per training seed, at the run's
+env-step count; a user can add their own through ``Run(..., loggers=[...])``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+from pathlib import Path
+from typing import Any, Protocol
+
+from mecanum_jax.config import ConfigError
+
+
+class MetricLogger(Protocol):
+    """A metrics sink: ``log`` once per epoch, ``close`` at the end of training."""
+
+    def log(self, steps: int, rows: dict[int, dict[str, float]]) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class TensorBoardLogger:
+    """TensorBoard event files, one folder per seed: ``<run>/tb/seed_<s>``."""
+
+    def __init__(self, run_dir: Path, seeds: tuple[int, ...]):
+        from tensorboardX import SummaryWriter
+
+        self._writers = {s: SummaryWriter(str(run_dir / "tb" / f"seed_{s}")) for s in seeds}
+
+    def log(self, steps: int, rows: dict[int, dict[str, float]]) -> None:
+        for seed, row in rows.items():
+            writer = self._writers[seed]
+            for key, value in row.items():
+                writer.add_scalar(key, value, steps)
+            writer.flush()
+
+    def close(self) -> None:
+        for writer in self._writers.values():
+            writer.close()
+
+
+def check_wandb(project: str) -> None:
+    """Fail before training when ``run.wandb_project`` is set and wandb is missing."""
+    if project and importlib.util.find_spec("wandb") is None:
+        raise ConfigError(
+            f"run.wandb_project = {project!r}: needs the wandb package (pip install wandb); "
+            "leave it empty to log to metrics.jsonl and TensorBoard only"
+        )
+
+
+class WandbLogger:
+    """One W&B run per run directory (its id derived from the directory, so a resumed run
+    continues the same W&B run); each seed's metrics under ``seed_<s>/``."""
+
+    def __init__(self, project: str, run_dir: Path, config: dict[str, Any]):
+        import wandb
+
+        run_id = hashlib.sha1(str(run_dir.resolve()).encode()).hexdigest()[:16]
+        self._run = wandb.init(
+            project=project,
+            name=run_dir.name,
+            id=run_id,
+            resume="allow",
+            dir=str(run_dir),
+            config=config,
+        )
+
+    def log(self, steps: int, rows: dict[int, dict[str, float]]) -> None:
+        flat = {f"seed_{seed}/{k}": v for seed, row in rows.items() for k, v in row.items()}
+        self._run.log(flat, step=steps)
+
+    def close(self) -> None:
+        self._run.finish()
+
+
+__all__ = ["MetricLogger", "TensorBoardLogger", "WandbLogger", "check_wandb"]
