@@ -6,13 +6,12 @@ Public surface::
     geom = geometry.o_rectangle(radius=0.05, half_wheelbase=0.10, half_track=0.125)
     rates = kinematics.inverse(geom, twists)      # (..., 3) -> (..., 4) rad/s
     twists = kinematics.forward(geom, rates)      # (..., 4) -> (..., 3)
+
+Importing it changes nothing outside the package: the JAX shim Brax's trainer needs
+(:mod:`mecanum_jax.compat`) is installed by the trainer (:mod:`train`), not here.
 """
 
-from mecanum_jax import compat as _compat
-
-_compat.install()
-
-from mecanum_jax import (  # noqa: E402
+from mecanum_jax import (
     calibration,
     efficiency,
     geometry,
@@ -22,16 +21,16 @@ from mecanum_jax import (  # noqa: E402
     odometry,
     singularity,
 )
-from mecanum_jax._checks import InputError  # noqa: E402
-from mecanum_jax.config import ConfigError  # noqa: E402
-from mecanum_jax.description import RobotDescription, builtin_description, load_description  # noqa: E402
-from mecanum_jax.geometry import (  # noqa: E402
+from mecanum_jax._checks import InputError
+from mecanum_jax.config import ConfigError
+from mecanum_jax.description import RobotDescription, builtin_description, load_description
+from mecanum_jax.geometry import (
     GeometryError,
     SingularLayoutError,
     SingularLayoutWarning,
     WheelGeometry,
 )
-from mecanum_jax.kinematics import forward, inverse, jacobian  # noqa: E402
+from mecanum_jax.kinematics import forward, inverse, jacobian
 
 __all__ = [
     "ConfigError",

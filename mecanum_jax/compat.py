@@ -9,7 +9,8 @@ stacked along a new leading axis of size ``len(devices)`` and placed with a
 ``devices[k]`` exactly as before, and ``jax.pmap`` consumes it unchanged.
 
 The replacement is installed only when JAX lacks the function; on a JAX that still has it
-nothing is touched. Importing :mod:`mecanum_jax` calls :func:`install`.
+nothing is touched. Importing the trainer (:mod:`train`) calls :func:`install`;
+importing :mod:`mecanum_jax` does not.
 """
 
 from __future__ import annotations

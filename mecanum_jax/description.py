@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib.resources
 import json
 import math
 from pathlib import Path
@@ -367,7 +368,15 @@ def load_description(path: str | Path) -> RobotDescription:
     return parse_description(load_toml(path), source=str(path))
 
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+def _config_dir() -> Path:
+    """The built-in configs (robots, run configs, scenarios): inside the installed package
+    (a wheel ships ``configs/`` as ``mecanum_jax/configs``), else the clone's ``configs/``
+    (a checkout, or an editable install of one)."""
+    packaged = Path(str(importlib.resources.files("mecanum_jax"))) / "configs"
+    return packaged if packaged.is_dir() else Path(__file__).resolve().parent.parent / "configs"
+
+
+CONFIG_DIR = _config_dir()
 
 
 def builtin_description(name: str) -> RobotDescription:

@@ -52,6 +52,7 @@ import numpy as np
 
 from mecanum_jax import limits, singularity
 from mecanum_jax.config import ConfigError, from_mapping, invalid, load_toml, require
+from mecanum_jax.description import CONFIG_DIR
 from mecanum_jax.env import (
     CommandConfig,
     EnvConfig,
@@ -62,7 +63,7 @@ from mecanum_jax.env import (
 from mecanum_jax.modes import SIX_MODES
 from mecanum_jax.physics import RobotParams
 
-EVAL_DIR = Path(__file__).resolve().parent.parent / "configs" / "eval"
+EVAL_DIR = CONFIG_DIR / "eval"
 # Domain tag of evaluation rng streams (training uses others; see train.ppo).
 SCENARIO_STREAM = 0x5CE7
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")

@@ -35,7 +35,7 @@ settings.register_profile(
 )
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
-import mecanum_jax  # noqa: E402,F401  (installs the compat shim)
+import train  # noqa: E402,F401  (installs the compat shim Brax's trainer needs)
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

@@ -1,5 +1,9 @@
 """The jax.device_put_replicated compatibility shim (mecanum_jax.compat)."""
 
+import subprocess
+import sys
+import textwrap
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -8,8 +12,34 @@ import pytest
 from mecanum_jax import compat
 
 
+def test_importing_the_library_leaves_jax_untouched():
+    """``import mecanum_jax`` (and its physics, task and evaluation modules) changes no
+    attribute of the ``jax`` module; only the trainer installs the shim."""
+    script = textwrap.dedent(
+        """
+        import types
+        import jax
+        before = dict(vars(jax))
+        import mecanum_jax, mecanum_jax.env, mecanum_jax.evaluation, mecanum_jax.physics
+        after = dict(vars(jax))
+        # submodules that other packages import (jax.extend) are not patches
+        changed = sorted(k for k in set(before) | set(after) if before.get(k) is not after.get(k)
+                         and not isinstance(after.get(k), types.ModuleType))
+        assert not changed, changed
+        import train
+        from mecanum_jax import compat
+        assert compat.has_native_device_put_replicated() or (
+            vars(jax)["device_put_replicated"] is compat.device_put_replicated)
+        print("ok")
+        """
+    )
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip().endswith("ok")
+
+
 def test_installed_when_missing():
-    # importing mecanum_jax installed it (jax >= 0.10 lacks it) or jax still has its own
+    # importing the trainer installed it (jax >= 0.10 lacks it) or jax still has its own
     fn = jax.device_put_replicated
     assert callable(fn)
     if not compat.has_native_device_put_replicated():
