@@ -13,7 +13,7 @@ from rich.console import Console
 from rich.table import Table
 
 from mecanum_jax import kinematics, motors
-from mecanum_jax.description import builtin_description, load_description
+from mecanum_jax.description import resolve_description
 from mecanum_jax.modes import SIX_MODES
 
 
@@ -31,11 +31,7 @@ def main(argv: list[str] | None = None) -> None:
     args = tyro.cli(DemoArgs, args=argv)
     if not args.speed > 0:
         raise SystemExit(f"--speed = {args.speed!r}: must be > 0")
-    desc = (
-        load_description(args.robot)
-        if args.robot.endswith(".toml")
-        else builtin_description(args.robot)
-    )
+    desc = resolve_description(args.robot)
     geom = desc.build_geometry()
     twists = jnp.asarray([t for _, t, _ in SIX_MODES.values()]) * args.speed
     rates = kinematics.inverse(geom, twists)

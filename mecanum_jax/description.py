@@ -388,6 +388,20 @@ def builtin_description(name: str) -> RobotDescription:
     return load_description(path)
 
 
+def resolve_description(robot: str, where: str = "") -> RobotDescription:
+    """A description file by path (``robot`` ends in ``.toml`` or holds a ``/``) or a
+    built-in one by name; errors name the field ``<where>.robot`` and the value."""
+    field = f"{where}.robot" if where else "robot"
+    if robot.endswith(".toml") or "/" in robot:
+        if not Path(robot).exists():
+            raise ConfigError(f"{field} = {robot!r}: no such file")
+        return load_description(robot)
+    try:
+        return builtin_description(robot)
+    except ConfigError as err:
+        raise ConfigError(f"{where}.{err}" if where else str(err)) from None
+
+
 def fingerprint(desc: RobotDescription) -> str:
     """A short hash of everything in a description (geometry, motors, body, actuators,
     simulation): two descriptions with the same fingerprint build the same robot."""

@@ -50,8 +50,8 @@ import numpy as np
 from brax.envs.base import Env, State, Wrapper
 
 from mecanum_jax import kinematics, limits
-from mecanum_jax.config import ConfigError, from_mapping, invalid, load_toml, require
-from mecanum_jax.description import RobotDescription, builtin_description, load_description
+from mecanum_jax.config import from_mapping, invalid, load_toml, require
+from mecanum_jax.description import RobotDescription, resolve_description
 from mecanum_jax.physics import GRAVITY, Robot, RobotParams, Sensors
 
 Policy = Callable[[Any, jax.Array], tuple[jax.Array, dict[str, Any]]]
@@ -340,15 +340,7 @@ class EnvConfig:
 
     def description(self, where: str = "env") -> RobotDescription:
         """The robot description, with this task's physics timestep and contact time constant."""
-        if self.robot.endswith(".toml") or "/" in self.robot:
-            if not Path(self.robot).exists():
-                raise ConfigError(f"{where}.robot = {self.robot!r}: no such file")
-            desc = load_description(self.robot)
-        else:
-            try:
-                desc = builtin_description(self.robot)
-            except ConfigError as err:
-                raise ConfigError(f"{where}.{err}") from None
+        desc = resolve_description(self.robot, where)
         sim = dataclasses.replace(
             desc.sim,
             timestep=self.physics_timestep,

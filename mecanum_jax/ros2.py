@@ -36,7 +36,7 @@ from typing import Annotated, Any
 import tyro
 
 from mecanum_jax.config import ConfigError
-from mecanum_jax.description import RobotDescription, parse_description
+from mecanum_jax.description import RobotDescription, parse_description, resolve_description
 
 # (this project's wheel order) -> the controller's joint-name parameters
 JOINT_PARAMETERS = (
@@ -217,10 +217,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.to_ros:
             import yaml
 
-            from mecanum_jax.description import builtin_description, load_description
-
-            src = args.source
-            desc = load_description(src) if src.endswith(".toml") else builtin_description(src)
+            if args.out is not None:
+                raise ConfigError(f"out = {args.out!r}: --to-ros writes to standard output")
+            desc = resolve_description(args.source)
             params = {
                 "mecanum_drive_controller": {"ros__parameters": to_controller_parameters(desc)}
             }
@@ -241,7 +240,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    if args.out is None or args.to_ros:
+    if args.out is None:
         sys.stdout.write(text)
     else:
         Path(args.out).write_text(text)

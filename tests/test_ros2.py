@@ -96,6 +96,9 @@ def test_cli_writes_a_description_and_never_overwrites(tmp_path, capsys):
     assert ros2.main([str(src), str(out)]) == 2
     assert "already exists" in capsys.readouterr().err
     assert out.read_text() == before
+    assert ros2.main(["o_rectangle", "--to-ros", str(tmp_path / "x.toml")]) == 2
+    assert "--to-ros writes to standard output" in capsys.readouterr().err
+    assert not (tmp_path / "x.toml").exists()
     assert ros2.main(["o_rectangle", "--to-ros"]) == 0
     back = yaml.safe_load(capsys.readouterr().out)
     assert (

@@ -50,6 +50,8 @@ RESUMABLE_CHANGES = {
     "run.max_checkpoints",
     "run.wandb_project",
 }
+# Fields the compiled learner never reads: a learner built without them serves the run.
+LOGGING_ONLY = {"run.wandb_project"}
 
 
 class TrainingDiverged(RuntimeError):  # noqa: N818 (reads as the event it reports)
@@ -176,9 +178,7 @@ class Run:
                 f.write(json.dumps(_jsonable(line)) + "\n")
         numbers = {
             seed: {
-                k: v
-                for k, v in _flatten(row).items()
-                if isinstance(v, int | float) and not isinstance(v, bool) and k != "seed"
+                k: v for k, v in _flatten(row).items() if isinstance(v, int | float) and k != "seed"
             }
             for seed, row in zip(self.cfg.run.seeds, rows, strict=True)
         }
@@ -205,13 +205,10 @@ class Run:
         if cfg.run.matmul_precision != "default":
             jax.config.update("jax_default_matmul_precision", cfg.run.matmul_precision)
         t_start = time.time()
-        differs = (
-            [f for f in config_diff(learner.cfg, cfg) if f != "run.wandb_project"]
-            if (learner is not None)
-            else []
-        )
-        if differs:
-            raise ValueError(f"learner was built for another config: {differs}")
+        if learner is not None:
+            differs = [f for f in config_diff(learner.cfg, cfg) if f not in LOGGING_ONLY]
+            if differs:
+                raise ValueError(f"learner was built for another config: {differs}")
         learner = self.learner = learner or Learner(cfg)
         seeds = list(cfg.run.seeds)
         meta_base = {
