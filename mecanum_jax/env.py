@@ -21,9 +21,9 @@ drive it unchanged.
   accelerometer, the wheel-odometry body twist, and the last action, with sensor noise
   and an observation latency of whole control steps. The critic's
   ``obs["privileged_state"]`` adds the true twist and the randomized physical parameters.
-- **Reward:** ``w_lin·exp(-|v_err|²/σ_lin) + w_ang·exp(-ω_err²/σ_ang)``, optional
-  quadratic error penalties (:class:`RewardConfig`), minus small action-rate and energy
-  penalties; every term is reported in ``state.metrics``.
+- **Reward:** ``Σ scale · term`` over named terms (:func:`reward_terms`): exp tracking
+  kernels of the linear and yaw-rate errors, quadratic error penalties, and small
+  action-rate and energy penalties; the scaled terms are reported in ``state.metrics``.
 - **Domain randomization** per robot at every reset (ranges in the config): floor friction
   and per-wheel spread, payload mass and position, wheel-radius error (the baseline keeps
   the nominal geometry), torque limit, servo gains, sensor noise and latency.
@@ -69,16 +69,27 @@ class CommandConfig:
     """
 
     p_zero: float = 0.1
+    """Relative weight of the zero command (standing still) (>= 0)."""
     p_translation: float = 0.3
+    """Relative weight of pure translations in a uniform direction (>= 0)."""
     p_spin: float = 0.15
+    """Relative weight of pure spins (>= 0)."""
     p_combined: float = 0.35
+    """Relative weight of translation and spin together (>= 0)."""
     p_beyond: float = 0.1
+    """Relative weight of commands beyond the wheels' reach (>= 0)."""
     min_fraction: float = 0.1
+    """Smallest reachable command, as a fraction of the feasible radius (0 <= min <= max)."""
     max_fraction: float = 0.8
+    """Largest reachable command, as a fraction of the feasible radius."""
     beyond_min_fraction: float = 1.1
+    """Smallest out-of-reach command, as a fraction of the feasible radius (>= 1)."""
     beyond_max_fraction: float = 1.5
+    """Largest out-of-reach command, as a fraction of the feasible radius."""
     resample_min_s: float = 1.0
+    """Shortest time a command is held before a new one is drawn, s (> 0)."""
     resample_max_s: float = 4.0
+    """Longest time a command is held, s (>= resample_min_s)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,17 +102,29 @@ class RandomizationConfig:
     """
 
     enabled: bool = True
+    """Randomize at all (false: the nominal robot, no payload, no latency)."""
     friction: tuple[float, float] = (0.1, 1.2)
+    """Floor friction coefficient range [lo, hi] (> 0)."""
     wheel_friction_spread: float = 0.1
+    """Per-wheel relative friction spread around the floor's, ± fraction in [0, 1)."""
     payload_mass: tuple[float, float] = (0.0, 3.0)
+    """Payload mass range, kg (>= 0)."""
     payload_com_xy: float = 0.08
+    """Payload centre of mass: uniform ± this in x and y, m, in [0, 1)."""
     payload_com_z: tuple[float, float] = (0.0, 0.06)
+    """Payload centre of mass z range in the body frame, m."""
     payload_com_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Fixed payload centre-of-mass offset (x, y, z) added to the draw, m (|x| < 1)."""
     radius_scale: tuple[float, float] = (0.95, 1.05)
+    """True wheel radius / nominal radius, range (> 0); the controller keeps the nominal."""
     wheel_radius_spread: float = 0.01
+    """Per-wheel relative radius spread around the draw, ± fraction in [0, 1)."""
     torque_scale: tuple[float, float] = (0.5, 1.0)
+    """Motor torque limit / nominal limit, range (> 0)."""
     gain_scale: tuple[float, float] = (0.7, 1.3)
+    """Wheel servo gain / nominal gain, range (> 0)."""
     latency_steps: tuple[int, int] = (0, 2)
+    """Observation latency in whole control steps, range (0 <= lo <= hi <= 10)."""
 
 
 # Both configs are pytrees, so evaluation can pass their values as traced arrays (one
@@ -118,42 +141,69 @@ class NoiseConfig:
     """Gaussian sensor noise (standard deviations); ``scale = 0`` turns it off."""
 
     scale: float = 1.0
+    """Multiplies every standard deviation below (>= 0; 0: noise off)."""
     wheel_rate: float = 0.3
+    """Encoder wheel-rate noise, rad/s (>= 0)."""
     gyro: float = 0.02
+    """Gyro z noise, rad/s (>= 0)."""
     accel: float = 0.3
+    """Accelerometer noise, m/s² (>= 0)."""
 
 
 @dataclasses.dataclass(frozen=True)
 class RewardConfig:
-    """Reward weights; ``sigma_*`` are in (m/s)² and (rad/s)².
-
-    ``error_lin`` and ``error_ang`` weigh *quadratic* penalties ``−|v_err|²`` and
-    ``−ω_err²``. The exp kernels saturate: an error of 2 rad/s and one of 5 earn the same
-    nothing, so they ignore exactly the large errors that dominate the RMSE a policy is
-    judged by (scripts/feedback_headroom.py: gyro feedback that cuts the randomized RMSE ω
-    from 2.8 to 1.4 rad/s *lowers* the kernel reward). 0 turns a term off. With the
-    defaults (1 per (m/s)², 0.1 per (rad/s)²: ω errors run ~3x v errors) the learned
-    policy stopped degrading nominal ω (+15% → +1% against the baseline, H100, 105 M
-    steps; docs/training.md).
-
-    ``error_cap`` > 0 bounds their sum ``q`` softly, ``cap·tanh(q / cap)``: quadratic for
-    small errors, at most ``cap`` per step (``0``, the default: no cap). Unbounded, a robot
-    spinning out on a slippery floor earns −39 in one step, and those few returns dominate
-    the critic's loss. But the cap also undoes what the quadratic terms are for: with
-    ``cap = 2`` the reward again ranks the gyro I controller of
-    scripts/feedback_headroom.py *below* the baseline (0.71 against 0.84, randomized),
-    uncapped above it (0.51 against −0.09), as the RMSE does (1.45 against 2.83 rad/s).
-    """
+    """The reward's scales: it is ``Σ scale · term`` over :data:`REWARD_TERMS`
+    (:func:`reward_terms`), and each scaled term is logged as ``reward/<term>``."""
 
     tracking_lin: float = 1.0
+    """Scale of ``exp(−|v_err|²/sigma_lin)`` (>= 0)."""
     tracking_ang: float = 0.5
+    """Scale of ``exp(−ω_err²/sigma_ang)`` (>= 0)."""
     sigma_lin: float = 0.25
+    """Width of the linear tracking kernel, (m/s)² (> 0)."""
     sigma_ang: float = 1.0
+    """Width of the yaw-rate tracking kernel, (rad/s)² (> 0)."""
     error_lin: float = 1.0
+    """Scale of the quadratic penalty ``−|v_err|²``, per (m/s)² (>= 0; 0: off)."""
     error_ang: float = 0.1
-    error_cap: float = 0.0
+    """Scale of the quadratic penalty ``−ω_err²``, per (rad/s)² (>= 0; 0: off)."""
     action_rate: float = 0.01
+    """Scale of ``−|a_t − a_(t−1)|²``, actions in [-1, 1] (>= 0)."""
     energy: float = 0.0005
+    """Scale of ``−Σ|τ·ω|``, the wheels' mechanical power in W (>= 0)."""
+
+
+REWARD_TERMS = ("tracking_lin", "tracking_ang", "error_lin", "error_ang", "action_rate", "energy")
+"""The reward's terms, each scaled by the :class:`RewardConfig` field of the same name."""
+
+
+def reward_terms(
+    twist_error: jax.Array,
+    action: jax.Array,
+    last_action: jax.Array,
+    power: jax.Array,
+    cfg: RewardConfig,
+) -> dict[str, jax.Array]:
+    """The unscaled reward terms of one step (:data:`REWARD_TERMS`).
+
+    ``twist_error`` is the true twist minus the command (vx, vy, ωz); ``power`` the wheels'
+    mechanical power Σ|τ·ω| in W. Tracking terms are in (0, 1], penalties are <= 0.
+    """
+    lin2 = twist_error[..., 0] ** 2 + twist_error[..., 1] ** 2
+    ang2 = twist_error[..., 2] ** 2
+    return {
+        "tracking_lin": jnp.exp(-lin2 / cfg.sigma_lin),
+        "tracking_ang": jnp.exp(-ang2 / cfg.sigma_ang),
+        "error_lin": -lin2,
+        "error_ang": -ang2,
+        "action_rate": -jnp.sum((action - last_action) ** 2, axis=-1),
+        "energy": -power,
+    }
+
+
+def scaled_reward_terms(terms: dict[str, jax.Array], cfg: RewardConfig) -> dict[str, jax.Array]:
+    """Each term times its scale; the reward is their sum."""
+    return {name: getattr(cfg, name) * terms[name] for name in REWARD_TERMS}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -210,20 +260,35 @@ class EnvConfig:
     """
 
     robot: str = "o_rectangle"
+    """A built-in robot description (configs/robots) or a path to a description TOML."""
     control_dt: float = 0.02
+    """Control period, s (> 0, a whole multiple of physics_timestep)."""
     physics_timestep: float = 0.005
+    """MJX physics step, s (> 0)."""
     contact_timeconst: float = 0.01
+    """Contact solver time constant, s (> 0; about 2 physics steps or more)."""
     solver_iterations: int = 0
+    """Newton iterations of the physics solver (>= 0; 0: the description's)."""
     episode_length: int = 500
+    """Control steps per training episode (>= 1)."""
     residual: bool = True
+    """Actions correct the analytic baseline's setpoints (false: actions are setpoints)."""
     residual_scale: float = 0.1
+    """Largest residual correction, as a fraction of the largest wheel rate or twist (> 0)."""
     residual_space: str = "wheel"
+    """Where the residual acts: "wheel" (one per wheel) or "twist" (vx, vy, ωz)."""
     yaw_integral_tau: float = 0.0
+    """Time constant of the observed leaky yaw-rate error integral, s (>= 0; 0: off)."""
     commands: CommandConfig = CommandConfig()
+    """How commands are drawn."""
     randomization: RandomizationConfig = RandomizationConfig()
+    """Per-robot domain randomization."""
     noise: NoiseConfig = NoiseConfig()
+    """Sensor noise."""
     reward: RewardConfig = RewardConfig()
+    """Reward scales."""
     feedback: FeedbackConfig = FeedbackConfig()
+    """The feedback reference controller's gains."""
 
     def validate(self, where: str = "env") -> EnvConfig:
         """Check values (not only types); raise :class:`ConfigError` naming the field."""
@@ -325,7 +390,6 @@ class EnvConfig:
                 "tracking_ang",
                 "error_lin",
                 "error_ang",
-                "error_cap",
                 "action_rate",
                 "energy",
             ),
@@ -516,37 +580,20 @@ class MecanumEnv(Env):
         rng, k_noise, k_cmd, k_time = jax.random.split(info["rng"], 4)
 
         err = sens.twist - command
-        cfg = self.config.reward
-        lin_err2 = err[0] ** 2 + err[1] ** 2
-        ang_err2 = err[2] ** 2
-        tracking_lin = jnp.exp(-lin_err2 / cfg.sigma_lin)
-        tracking_ang = jnp.exp(-ang_err2 / cfg.sigma_ang)
-        action_rate = jnp.sum((action - info["last_action"]) ** 2)
         power = jnp.sum(jnp.abs(sens.wheel_torque * sens.wheel_rate))
-        error = cfg.error_lin * lin_err2 + cfg.error_ang * ang_err2
-        if cfg.error_cap > 0:
-            error = cfg.error_cap * jnp.tanh(error / cfg.error_cap)
-        reward = (
-            cfg.tracking_lin * tracking_lin
-            + cfg.tracking_ang * tracking_ang
-            - error
-            - cfg.action_rate * action_rate
-            - cfg.energy * power
+        scaled = scaled_reward_terms(
+            reward_terms(err, action, info["last_action"], power, self.config.reward),
+            self.config.reward,
         )
+        reward = sum(scaled.values(), jnp.asarray(0.0))
         saturated = jnp.mean(
             (jnp.abs(sens.wheel_torque) >= 0.99 * params.torque_limit).astype(jnp.float32)
         )
         metrics = {
-            "reward/tracking_lin": tracking_lin,
-            "reward/tracking_ang": tracking_ang,
-            "reward/error_lin": -lin_err2,
-            "reward/error_ang": -ang_err2,
-            "reward/error_penalty": -error,
-            "reward/action_rate": -action_rate,
-            "reward/energy": -power,
+            **{f"reward/{name}": value for name, value in scaled.items()},
             "error/vx2": err[0] ** 2,
             "error/vy2": err[1] ** 2,
-            "error/wz2": ang_err2,
+            "error/wz2": err[2] ** 2,
             "energy_j": power * self.config.control_dt,
             "saturated": saturated,
             "unstable": sim.unstable.astype(jnp.float32),
@@ -574,13 +621,7 @@ class MecanumEnv(Env):
         return state.replace(pipeline_state=sim, obs=obs, reward=reward, metrics=metrics, info=info)
 
     metric_names = (
-        "reward/tracking_lin",
-        "reward/tracking_ang",
-        "reward/error_lin",
-        "reward/error_ang",
-        "reward/error_penalty",
-        "reward/action_rate",
-        "reward/energy",
+        *(f"reward/{name}" for name in REWARD_TERMS),
         "error/vx2",
         "error/vy2",
         "error/wz2",
@@ -868,6 +909,7 @@ def baseline_policy(env: MecanumEnv) -> Policy:
 
 
 __all__ = [
+    "REWARD_TERMS",
     "CommandConfig",
     "EnvConfig",
     "MecanumEnv",
@@ -877,4 +919,6 @@ __all__ = [
     "TrainingEnv",
     "baseline_policy",
     "load_env_config",
+    "reward_terms",
+    "scaled_reward_terms",
 ]

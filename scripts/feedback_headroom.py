@@ -5,7 +5,7 @@ and the same noisy, delayed observations a learned policy sees, against the open
 analytic baseline on identical episodes (same robots, commands and noise draws), and
 prints the tracking RMSE and the mean tracking reward ``R[w_lin,σ_lin;w_ang,σ_ang]``
 under several kernels and the task's own reward (``env reward``, with its quadratic terms
-and their cap): does the reward rank them as the RMSE does? If a two-line
+): does the reward rank them as the RMSE does? If a two-line
 controller beats the baseline, the headroom is there, and a learned policy that does not
 find it has a learning problem, not a physics one.
 
@@ -15,7 +15,7 @@ find it has a learning problem, not a physics one.
   policy has).
 
     .venv/bin/python scripts/feedback_headroom.py [--robots 64] [--steps 250] [--gains 0.5 1 2]
-        [--igains 2 5 10] [--residual-scale 0.1] [--error-cap 2]
+        [--igains 2 5 10] [--residual-scale 0.1]
 """
 
 import argparse
@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mecanum_jax.env import EnvConfig, MecanumEnv, RewardConfig, TrainingEnv
+from mecanum_jax.env import EnvConfig, MecanumEnv, TrainingEnv
 
 # tracking terms (w_lin, σ_lin; w_ang, σ_ang) to score: the default and wider kernels
 REWARDS = ((1.0, 0.25, 0.5, 1.0), (1.0, 0.25, 1.0, 4.0), (1.0, 1.0, 1.0, 4.0))
@@ -60,14 +60,11 @@ def main() -> None:
     ap.add_argument("--gains", type=float, nargs="+", default=[0.5, 1.0, 2.0])
     ap.add_argument("--igains", type=float, nargs="+", default=[2.0, 5.0, 10.0])
     ap.add_argument("--residual-scale", type=float, default=EnvConfig.residual_scale)
-    ap.add_argument("--error-cap", type=float, default=RewardConfig.error_cap)
     args = ap.parse_args()
     variants = [("baseline", 0.0)]
     variants += [("p", g) for g in args.gains] + [("i", g) for g in args.igains]
     for scenario in ("randomized", "nominal"):
-        cfg = EnvConfig(
-            residual_scale=args.residual_scale, reward=RewardConfig(error_cap=args.error_cap)
-        )
+        cfg = EnvConfig(residual_scale=args.residual_scale)
         cfg = cfg if scenario == "randomized" else cfg.nominal()
         env = MecanumEnv(cfg)
         tenv = TrainingEnv(env, args.steps)

@@ -10,13 +10,21 @@ import pytest
 from mecanum_jax import kinematics, limits
 from mecanum_jax.config import ConfigError, from_mapping
 from mecanum_jax.description import builtin_description
-from mecanum_jax.env import EnvConfig, MecanumEnv, RewardConfig, TrainingEnv, baseline_policy
+from mecanum_jax.env import (
+    REWARD_TERMS,
+    EnvConfig,
+    MecanumEnv,
+    RewardConfig,
+    TrainingEnv,
+    baseline_policy,
+    reward_terms,
+)
 
 
 @pytest.fixture(scope="session")
 def env():
-    # non-zero quadratic error weights and a cap, so the reward test checks those terms too
-    reward = RewardConfig(error_lin=0.5, error_ang=0.05, error_cap=0.5)
+    # scales unlike the defaults, so the reward test sees each scale applied
+    reward = RewardConfig(error_lin=0.5, error_ang=0.05, action_rate=0.2)
     return MecanumEnv(EnvConfig(episode_length=6, reward=reward))
 
 
@@ -126,33 +134,38 @@ def test_rollout_resets_episodes_with_fresh_robots(env, rollout):
     assert np.all(np.asarray(states.info["step"][6]) == 1)
 
 
+def test_reward_terms_on_known_errors():
+    cfg = RewardConfig(sigma_lin=0.25, sigma_ang=1.0)
+    err = jnp.array([[0.0, 0.0, 0.0], [0.3, 0.4, 2.0]])  # |v_err| = 0.5 m/s, ω_err = 2 rad/s
+    action = jnp.array([[0.5, 0.5, 0.0, 0.0], [1.0, -1.0, 0.0, 0.0]])
+    last = jnp.array([[0.5, 0.5, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]])
+    t = reward_terms(err, action, last, jnp.array([0.0, 40.0]), cfg)
+    assert set(t) == set(REWARD_TERMS)
+    # a perfect step earns the full tracking kernels and no penalty
+    assert [float(t[k][0]) for k in REWARD_TERMS] == [1.0, 1.0, 0.0, 0.0, 0.0, 0.0]
+    np.testing.assert_allclose(t["tracking_lin"][1], np.exp(-1.0), rtol=1e-6)  # 0.25 / 0.25
+    np.testing.assert_allclose(t["tracking_ang"][1], np.exp(-4.0), rtol=1e-6)
+    np.testing.assert_allclose([t["error_lin"][1], t["error_ang"][1]], [-0.25, -4.0], rtol=1e-6)
+    np.testing.assert_allclose(t["action_rate"][1], -2.0)
+    np.testing.assert_allclose(t["energy"][1], -40.0)
+
+
 def test_rewards_and_metrics_are_consistent(env, rollout):
     _, (_, (states, _)) = rollout
     m = {k: np.asarray(v) for k, v in states.metrics.items()}
     r = env.config.reward
-    expected = (
-        r.tracking_lin * m["reward/tracking_lin"]
-        + r.tracking_ang * m["reward/tracking_ang"]
-        + m["reward/error_penalty"]
-        + r.action_rate * m["reward/action_rate"]
-        + r.energy * m["reward/energy"]
-    )
-    np.testing.assert_allclose(np.asarray(states.reward), expected, rtol=1e-5, atol=1e-6)
+    # the logged terms are scaled, and the reward is their sum
+    total = sum(m[f"reward/{name}"] for name in REWARD_TERMS)
+    np.testing.assert_allclose(np.asarray(states.reward), total, rtol=1e-5, atol=1e-6)
+    lin2, ang2 = m["error/vx2"] + m["error/vy2"], m["error/wz2"]
+    np.testing.assert_allclose(m["reward/error_lin"], -r.error_lin * lin2, rtol=1e-5, atol=1e-8)
+    np.testing.assert_allclose(m["reward/error_ang"], -r.error_ang * ang2, rtol=1e-5, atol=1e-8)
     np.testing.assert_allclose(
-        m["reward/tracking_lin"],
-        np.exp(-(m["error/vx2"] + m["error/vy2"]) / r.sigma_lin),
-        rtol=1e-5,
+        m["reward/tracking_lin"], r.tracking_lin * np.exp(-lin2 / r.sigma_lin), rtol=1e-5
     )
-    np.testing.assert_allclose(-m["reward/error_lin"], m["error/vx2"] + m["error/vy2"], rtol=1e-6)
-    np.testing.assert_allclose(-m["reward/error_ang"], m["error/wz2"], rtol=1e-6)
-    # the quadratic penalty, softly capped: cap·tanh(q / cap), never below -cap
-    q = -(r.error_lin * m["reward/error_lin"] + r.error_ang * m["reward/error_ang"])
-    assert r.error_cap > 0
-    assert q.max() > r.error_cap  # the episodes' starts reach the capped regime
-    np.testing.assert_allclose(
-        -m["reward/error_penalty"], r.error_cap * np.tanh(q / r.error_cap), rtol=1e-5, atol=1e-7
-    )
-    assert np.all(m["reward/error_penalty"] >= -r.error_cap)
+    power = m["energy_j"] / env.config.control_dt
+    np.testing.assert_allclose(m["reward/energy"], -r.energy * power, rtol=1e-5, atol=1e-8)
+    np.testing.assert_array_equal(m["reward/action_rate"], 0.0)  # the baseline's action is 0
     assert np.all(m["energy_j"] >= 0)
     assert np.all((m["saturated"] >= 0) & (m["saturated"] <= 1))
     assert np.all(np.isfinite(np.asarray(states.obs["state"])))
@@ -195,7 +208,7 @@ def test_nominal_scenario_is_deterministic_and_unrandomized():
         ({"randomization": {"friction": [0.0, 0.5]}}, "must be > 0"),
         ({"commands": {"p_zero": -1}}, "env.commands.p_zero = -1"),
         ({"reward": {"sigma_lin": 0}}, "env.reward.sigma_lin = 0"),
-        ({"reward": {"error_cap": -1}}, "env.reward.error_cap = -1"),
+        ({"reward": {"energy": -1}}, "env.reward.energy = -1"),
         ({"robot": "no_such_robot"}, "env.robot = 'no_such_robot'"),
         ({"noise": {"gyro": "big"}}, "env.noise.gyro = 'big'"),
         ({"colour": "red"}, "env.colour = 'red': unknown key"),

@@ -4,9 +4,14 @@ All runs use ``configs/train/tiny.toml`` on the suite's two CPU devices (so the 
 with gradient averaging is exercised) and share one compiled :class:`Learner`.
 """
 
+import ast
 import dataclasses
 import importlib.util
+import inspect
+import itertools
 import json
+import textwrap
+import tomllib
 
 import jax
 import numpy as np
@@ -15,8 +20,15 @@ import pytest
 from brax.training.agents.ppo.losses import PPONetworkParams
 
 from mecanum_jax.config import ConfigError
+from mecanum_jax.env import EnvConfig
 from train import checkpoint, cli
-from train.config import PPOConfig, TrainConfig, load_train_config, parse_train_config
+from train.config import (
+    TRAIN_CONFIG_DIR,
+    PPOConfig,
+    TrainConfig,
+    load_train_config,
+    parse_train_config,
+)
 from train.ppo import Learner, gradient_clip, make_optimizer, to_host
 from train.run import Run, RunDirError, TrainingDiverged, beats
 
@@ -327,10 +339,67 @@ def test_bad_config_files(tmp_path):
     assert TrainConfig().validate().num_iterations >= 1
 
 
-def test_shipped_configs_validate():
+def _nested_keys(cls, where=""):
+    """Dotted paths of every leaf field of a config dataclass."""
+    out = []
+    for f in dataclasses.fields(cls):
+        default = getattr(cls(), f.name)
+        path = f"{where}.{f.name}" if where else f.name
+        out += _nested_keys(type(default), path) if dataclasses.is_dataclass(default) else [path]
+    return out
+
+
+def test_shipped_configs_validate_and_spell_out_the_task():
+    """Each shipped config states every task setting: the file a user reads is what runs."""
+    task_keys = _nested_keys(EnvConfig)
     for name in ("quick", "tiny", "gpu"):
         cfg = load_train_config(name)
         assert cfg.name == name
+        raw = tomllib.loads((TRAIN_CONFIG_DIR / f"{name}.toml").read_text())
+        for key in task_keys:
+            table = raw["env"]
+            for part in key.split("."):
+                assert part in table, f"{name}.toml: env.{key} is not spelled out"
+                table = table[part]
+
+
+def _field_docs(cls):
+    """Attribute docstrings of a dataclass's fields (what tyro shows in --help)."""
+    tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+    body = tree.body[0].body
+    docs = {}
+    for node, nxt in itertools.pairwise(body):
+        is_doc = isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant)
+        if isinstance(node, ast.AnnAssign) and is_doc and isinstance(nxt.value.value, str):
+            docs[node.target.id] = nxt.value.value
+    return docs
+
+
+def test_every_config_field_has_help_text(capsys):
+    classes, todo = [], [TrainConfig]
+    while todo:
+        cls = todo.pop()
+        classes.append(cls)
+        for f in dataclasses.fields(cls):
+            value = getattr(cls(), f.name)
+            if dataclasses.is_dataclass(value):
+                todo.append(type(value))
+    assert len(classes) == 10  # train, env (and its 5 sections), network, ppo, run
+    for cls in classes:
+        missing = {f.name for f in dataclasses.fields(cls)} - set(_field_docs(cls))
+        assert not missing, f"{cls.__name__}: fields without a docstring: {sorted(missing)}"
+    with pytest.raises(SystemExit):
+        cli.main(["--help"])
+    assert "Width of the linear tracking kernel" in capsys.readouterr().out
+
+
+def test_saved_configs_with_the_retired_error_cap_still_load():
+    data = TrainConfig().to_dict()
+    data["env"]["reward"]["error_cap"] = 0.0
+    assert parse_train_config(data, "old run") == TrainConfig()
+    data["env"]["reward"]["error_cap"] = 2.0
+    with pytest.raises(ConfigError, match=r"env\.reward\.error_cap = 2\.0: unknown key"):
+        parse_train_config(data, "old run")
 
 
 def test_untrained_policy_is_the_baseline(learner):

@@ -23,19 +23,20 @@ TRAIN_CONFIG_DIR = CONFIG_DIR / "train"
 
 @dataclasses.dataclass(frozen=True)
 class NetworkConfig:
-    """Policy and value MLPs (Brax's ``make_ppo_networks``).
-
-    ``zero_init_mean``: the policy's output layer starts with zero weights for the action
-    mean, so the untrained deterministic policy outputs 0, which with residual actions is
-    exactly the analytic baseline; learning starts from the baseline, not from noise.
-    """
+    """Policy and value MLPs (Brax's ``make_ppo_networks``)."""
 
     policy_hidden: tuple[int, ...] = (128, 128, 128)
+    """Hidden layer sizes of the policy MLP (at least one, each >= 1)."""
     value_hidden: tuple[int, ...] = (256, 256, 256)
+    """Hidden layer sizes of the value MLP (at least one, each >= 1)."""
     activation: Literal["swish", "tanh", "relu", "elu"] = "swish"
+    """Hidden-layer activation of both networks."""
     init_noise_std: float = 0.5
+    """Initial exploration standard deviation of the policy's actions (> 0)."""
     privileged_critic: bool = True
+    """The value function also sees the true twist and the randomized parameters."""
     zero_init_mean: bool = True
+    """Start the policy's mean output at 0 (with residual actions: exactly the baseline)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,39 +46,42 @@ class PPOConfig:
     One training iteration collects ``batch_size · num_minibatches`` trajectories of
     ``unroll_length`` steps from ``num_envs`` environments, then runs
     ``num_updates_per_batch`` passes of ``num_minibatches`` gradient steps.
-
-    ``clip_observations`` > 0 clips normalized observations to ± that many standard
-    deviations (Brax's ``max_abs_value``; 0: off). The accelerometer, finite-differenced
-    over wheel hops, reaches 40σ under exploration (scripts/observation_outliers.py);
-    unclipped, such samples drove the policy's pre-tanh means to ±28 and PPO's mean KL
-    per update to 100s; clipped at 5σ both stay tame (H100, docs/training.md).
-
-    ``clip_per_network``: clip the policy's and the value function's gradients at
-    ``max_grad_norm`` each, not together (:func:`train.ppo.make_optimizer`).
-
-    ``policy_warmup_steps`` > 0 ramps the policy's updates linearly from zero over that
-    many environment steps while the value function learns at the full rate: the
-    untrained critic's advantages are noise, and early policy steps on them moved a
-    residual policy away from the baseline it starts at (docs/training.md, session 8).
     """
 
     num_timesteps: int = 400_000
+    """Environment steps to train for, over all environments (>= 1)."""
     num_envs: int = 64
+    """Parallel environments (>= 1; divides batch_size · num_minibatches)."""
     unroll_length: int = 20
+    """Control steps per collected trajectory (>= 1)."""
     batch_size: int = 64
+    """Trajectories per minibatch (>= 1)."""
     num_minibatches: int = 4
+    """Minibatches per pass over the collected data (>= 1)."""
     num_updates_per_batch: int = 4
+    """Passes over the collected data per iteration (>= 1)."""
     learning_rate: float = 3e-4
+    """Adam learning rate (> 0)."""
     entropy_cost: float = 1e-3
+    """Weight of the policy entropy bonus (>= 0)."""
     discounting: float = 0.97
+    """Discount factor per control step, in (0, 1]."""
     gae_lambda: float = 0.95
+    """GAE λ, in (0, 1]."""
     clipping_epsilon: float = 0.2
+    """PPO ratio clip (> 0)."""
     max_grad_norm: float = 1.0
+    """Gradient norm clip (> 0)."""
     reward_scaling: float = 1.0
+    """Multiplies rewards before the loss (> 0)."""
     normalize_observations: bool = True
+    """Normalize observations with running mean and standard deviation."""
     clip_observations: float = 5.0
+    """Clip normalized observations to ± this many standard deviations (>= 0; 0: off)."""
     clip_per_network: bool = True
+    """Clip the policy's and the value function's gradients separately, not together."""
     policy_warmup_steps: int = 0
+    """Ramp the policy's updates from zero over this many env steps (>= 0; 0: off)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,26 +92,35 @@ class RunConfig:
     ``parallel`` spreads that program over the devices: ``"pmap"`` (Brax's path) or
     ``"sharded"`` (``jit`` with the device axis sharded over a mesh; the collectives are
     those of a named ``vmap``). With jax 0.11.2 on 2 GPUs, ``pmap`` (and ``shard_map``)
-    of any MJX step crashes XLA's compiler, while sharded ``jit`` compiles
-    (``scripts/device/diag_2gpu_narrow.py``); ``"auto"`` therefore picks ``"sharded"``
-    for several GPUs or several processes (``--distributed``), ``"pmap"`` otherwise (one
-    GPU, CPUs of one process: the path measured there).
+    of any MJX step crashes XLA's compiler, while sharded ``jit`` compiles; ``"auto"``
+    therefore picks ``"sharded"`` for several GPUs or several processes
+    (``--distributed``), ``"pmap"`` otherwise.
     ``epoch_iterations`` training iterations run per compiled call; logging, the NaN
-    check and Ctrl-C checkpoints happen between calls. Evaluation and periodic
-    checkpoints happen every ``eval_every`` / ``checkpoint_every`` epochs and at the end.
+    check and Ctrl-C checkpoints happen between calls.
     """
 
     seeds: tuple[int, ...] = (0,)
+    """Training seeds, trained side by side in one program (distinct, >= 0)."""
     epoch_iterations: int = 10
+    """Training iterations per compiled call; logging happens between calls (>= 1)."""
     eval_every: int = 1
+    """Evaluate every this many epochs, and at the end (>= 1)."""
     checkpoint_every: int = 1
+    """Checkpoint every this many epochs, and at the end (>= 1)."""
     max_checkpoints: int = 3
+    """Checkpoints kept in the run directory (>= 1)."""
     eval_seed: int = 20_261_122
+    """Seed of the held-out evaluation episodes (not one of the training seeds)."""
     num_eval_envs: int = 32
+    """Episodes per periodic evaluation scenario (>= 1)."""
     eval_episode_length: int = 250
+    """Control steps per evaluation episode (>= 1)."""
     max_devices: int = 0
+    """Use at most this many local devices (>= 0; 0: all)."""
     matmul_precision: Literal["default", "high", "highest"] = "highest"
+    """jax's default matmul precision for the run."""
     parallel: Literal["auto", "pmap", "sharded"] = "auto"
+    """How the program spreads over devices: "pmap", "sharded", or "auto"."""
     wandb_project: str = ""
     """Also log to this Weights & Biases project (needs ``pip install wandb``; empty: off)."""
 
@@ -117,10 +130,15 @@ class TrainConfig:
     """A whole training run."""
 
     name: str = "run"
+    """The run's name: its directory under runs/ (no slashes or spaces)."""
     env: EnvConfig = EnvConfig()
+    """The task."""
     network: NetworkConfig = NetworkConfig()
+    """The networks."""
     ppo: PPOConfig = PPOConfig()
+    """PPO."""
     run: RunConfig = RunConfig()
+    """Seeds, evaluation, checkpoints, devices."""
 
     def validate(self) -> TrainConfig:
         """Value checks (types were checked on load); raise :class:`ConfigError`."""
@@ -214,7 +232,18 @@ class TrainConfig:
         return dataclasses.asdict(self)
 
 
+def _drop_retired_keys(data: Any) -> Any:
+    """Saved configs may hold ``env.reward.error_cap = 0`` (a retired option that was off);
+    drop it. Any other value is kept, and rejected as an unknown key."""
+    reward = data.get("env", {}).get("reward") if isinstance(data, dict) else None
+    if isinstance(reward, dict) and reward.get("error_cap", None) == 0:
+        reward = {k: v for k, v in reward.items() if k != "error_cap"}
+        data = {**data, "env": {**data["env"], "reward": reward}}
+    return data
+
+
 def parse_train_config(data: Any, source: str) -> TrainConfig:
+    data = _drop_retired_keys(data)
     try:
         return from_mapping(TrainConfig, data).validate()
     except ConfigError as err:
