@@ -147,6 +147,25 @@ def from_mapping(cls: type[T], data: Any, where: str = "") -> T:
     return cls(**kwargs)
 
 
+def find_config(value: str | Path, folder: Path, field: str, what: str) -> Path:
+    """The file a config setting names: a path (``value`` has a suffix such as ``.toml``
+    or holds a ``/``) or the name of a built-in file ``folder/<value>.toml``.
+
+    Errors name ``field`` and ``value``; for a name, they list the built-in ones (``what``
+    says what they are, e.g. ``"built-in description"``).
+    """
+    text = str(value)
+    if Path(text).suffix or "/" in text:
+        if not Path(text).is_file():
+            raise ConfigError(f"{field} = {text!r}: no such file")
+        return Path(text)
+    path = folder / f"{text}.toml"
+    if not path.is_file():
+        known = sorted(p.stem for p in folder.glob("*.toml"))
+        raise ConfigError(f"{field} = {text!r}: no such {what}; known: {known}")
+    return path
+
+
 def load_toml(path: str | Path) -> dict[str, Any]:
     """Read a TOML file, turning I/O and syntax errors into :class:`ConfigError`."""
     path = Path(path)

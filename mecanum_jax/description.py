@@ -21,7 +21,7 @@ import jax.numpy as jnp
 
 from mecanum_jax import geometry as geo
 from mecanum_jax import motors
-from mecanum_jax.config import ConfigError, from_mapping, load_toml
+from mecanum_jax.config import ConfigError, find_config, from_mapping, load_toml
 
 Layout = Literal["O-square", "O-rectangle", "X-square", "X-rectangle", "centripetal", "custom"]
 
@@ -381,25 +381,17 @@ CONFIG_DIR = _config_dir()
 
 def builtin_description(name: str) -> RobotDescription:
     """A description shipped in ``configs/robots/`` by file stem, e.g. ``"o_rectangle"``."""
-    path = CONFIG_DIR / "robots" / f"{name}.toml"
-    if not path.exists():
-        known = sorted(p.stem for p in (CONFIG_DIR / "robots").glob("*.toml"))
-        raise ConfigError(f"robot = {name!r}: no such built-in description; known: {known}")
-    return load_description(path)
+    if Path(name).suffix or "/" in name:
+        raise ConfigError(f"robot = {name!r}: not a built-in description's name")
+    return resolve_description(name)
 
 
 def resolve_description(robot: str, where: str = "") -> RobotDescription:
     """A description file by path (``robot`` ends in ``.toml`` or holds a ``/``) or a
     built-in one by name; errors name the field ``<where>.robot`` and the value."""
     field = f"{where}.robot" if where else "robot"
-    if robot.endswith(".toml") or "/" in robot:
-        if not Path(robot).exists():
-            raise ConfigError(f"{field} = {robot!r}: no such file")
-        return load_description(robot)
-    try:
-        return builtin_description(robot)
-    except ConfigError as err:
-        raise ConfigError(f"{where}.{err}" if where else str(err)) from None
+    robots = CONFIG_DIR / "robots"
+    return load_description(find_config(robot, robots, field, "built-in description"))
 
 
 def fingerprint(desc: RobotDescription) -> str:

@@ -51,7 +51,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from mecanum_jax import limits, singularity
-from mecanum_jax.config import ConfigError, from_mapping, invalid, load_toml, require
+from mecanum_jax.config import (
+    ConfigError,
+    find_config,
+    from_mapping,
+    invalid,
+    load_toml,
+    require,
+)
 from mecanum_jax.description import CONFIG_DIR
 from mecanum_jax.env import (
     CommandConfig,
@@ -287,15 +294,7 @@ class ScenarioSet:
 
 def load_scenarios(path_or_name: str | Path = "default") -> ScenarioSet:
     """A scenario file: a path, or the name of one in ``configs/eval/`` (``default``)."""
-    path = Path(path_or_name)
-    if path.suffix != ".toml" and "/" not in str(path_or_name):
-        path = EVAL_DIR / f"{path_or_name}.toml"
-        if not path.exists():
-            shipped = sorted(p.stem for p in EVAL_DIR.glob("*.toml"))
-            raise ConfigError(
-                f"scenarios = {str(path_or_name)!r}: no such scenario file; "
-                f"give a .toml path or one of {shipped}"
-            )
+    path = find_config(path_or_name, EVAL_DIR, "scenarios", "scenario file")
     data = load_toml(path)
     _check_keys(data, f"{path}", ["defaults", "scenarios"])
     defaults = from_mapping(Defaults, data.get("defaults", {}), "defaults")

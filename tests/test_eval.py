@@ -487,7 +487,7 @@ def test_run_many_chunks_and_pads_like_single_runs(env, shipped, baseline_evalua
         (["--fps", 0], "--fps = 0: must be in [1, 50]"),
         (["--export"], "--export: the baseline has no weights"),
         (["--seed", 1], "--seed = 1: only for a checkpoint"),
-        (["--scenarios", "missing.toml"], "config file 'missing.toml': no such file"),
+        (["--scenarios", "missing.toml"], "scenarios = 'missing.toml': no such file"),
     ],
 )
 def test_eval_cli_rejects_bad_arguments(extra, message, tmp_path, capsys):

@@ -334,7 +334,7 @@ def test_bad_config_files(tmp_path):
         load_train_config(bad)
     with pytest.raises(ConfigError, match="no such file"):
         load_train_config(tmp_path / "missing.toml")
-    with pytest.raises(ConfigError, match="built-in configs"):
+    with pytest.raises(ConfigError, match="no such built-in config; known"):
         load_train_config("no_such_config")
     assert TrainConfig().validate().num_iterations >= 1
 
@@ -482,3 +482,26 @@ def test_policy_warmup_ramps_only_the_policy():
         dataclasses.replace(
             base, ppo=dataclasses.replace(base.ppo, policy_warmup_steps=-1)
         ).validate()
+
+
+def test_restoring_a_policy_builds_no_learner(full_run, monkeypatch):
+    """A checkpoint restores into a template built from shapes alone, not a Learner."""
+    run, _ = full_run
+
+    def no_learner(*args, **kwargs):
+        raise AssertionError("restore_policy built a Learner")
+
+    monkeypatch.setattr(Learner, "__init__", no_learner)
+    restored = checkpoint.restore_policy(run.dir)
+    assert restored.epoch == 3
+    assert np.all(np.isfinite(np.asarray(jax.tree.leaves(restored.params)[0])))
+
+
+def test_bench_variants_take_the_trainers_flags(capsys):
+    from train import bench
+
+    with pytest.raises(SystemExit):
+        bench.main(["--config", "tiny", "--variant", "x --ppo.num-envz 3"])
+    assert "--ppo.num-envz" in capsys.readouterr().err
+    assert bench.main(["--config", "tiny", "--variant", "x --ppo.num-envs 3"]) == 2
+    assert "ppo.num_envs = 3: must divide" in capsys.readouterr().out

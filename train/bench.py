@@ -6,9 +6,11 @@ compiled training program, times the first epoch (compilation included) and then
 updates; evaluation and checkpointing excluded), summed over vectorized seeds::
 
     python -m train.bench --config gpu --epochs 3 \\
-        --variant base= \\
-        --variant tf32=run.matmul_precision=default \\
-        --variant envs16k=ppo.num_envs=16384,ppo.batch_size=2048
+        --variant base \\
+        --variant "tf32 --run.matmul-precision default" \\
+        --variant "envs16k --ppo.num-envs 16384 --ppo.batch-size 2048"
+
+A variant is a name followed by ``mecanum-train``'s flags over the config's fields.
 
 Prints a table and writes JSON (``--json-out``).
 """
@@ -17,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 import time
 from typing import Any
@@ -26,40 +29,10 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from mecanum_jax.config import ConfigError, from_mapping
-from train.config import TrainConfig, load_train_config
+from mecanum_jax.config import ConfigError
+from train.config import TrainConfig, apply_flags, load_train_config
 from train.distributed import init_distributed
 from train.ppo import Learner, to_host
-
-
-def apply_overrides(cfg: TrainConfig, spec: str) -> TrainConfig:
-    """``a.b=1,c.d=x`` (TOML-ish scalars; ``|`` separates list items) onto ``cfg``."""
-    data = cfg.to_dict()
-    for item in filter(None, spec.split(",")):
-        if "=" not in item:
-            raise ConfigError(f"--variant override {item!r}: expected key=value")
-        key, raw = item.split("=", 1)
-        node = data
-        *parents, leaf = key.split(".")
-        for part in parents:
-            if part not in node or not isinstance(node[part], dict):
-                raise ConfigError(f"{key} = {raw!r}: no such config field")
-            node = node[part]
-        if leaf not in node:
-            raise ConfigError(f"{key} = {raw!r}: no such config field")
-        node[leaf] = _parse(raw)
-    return from_mapping(TrainConfig, data).validate()
-
-
-def _parse(raw: str) -> Any:
-    if "|" in raw:
-        return [_parse(x) for x in raw.split("|")]
-    for conv in (int, float):
-        try:
-            return conv(raw)
-        except ValueError:
-            pass
-    return {"true": True, "false": False}.get(raw, raw)
 
 
 def measure(cfg: TrainConfig, epochs: int) -> dict[str, Any]:
@@ -104,7 +77,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m train.bench", description=__doc__)
     parser.add_argument("--config", default="gpu")
     parser.add_argument("--epochs", type=int, default=3)
-    parser.add_argument("--variant", action="append", default=None, help="name=overrides")
+    parser.add_argument(
+        "--variant",
+        action="append",
+        default=None,
+        help='"NAME [--field value ...]": a name and mecanum-train flags (default: "base")',
+    )
     parser.add_argument("--json-out", default=None)
     parser.add_argument(
         "--distributed", action="store_true", help="join a jax.distributed run (process 0 reports)"
@@ -117,9 +95,9 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError(f"--epochs = {args.epochs}: must be >= 1")
         base = load_train_config(args.config)
         variants = []
-        for v in args.variant or ["base="]:
-            name, _, spec = v.partition("=")
-            variants.append((name, apply_overrides(base, spec)))
+        for v in args.variant or ["base"]:
+            name, *flags = shlex.split(v)
+            variants.append((name, apply_flags(base, flags, f"--variant {name}")))
     except ConfigError as err:
         console.print(f"[red]error:[/] {err}")
         return 2
@@ -171,4 +149,4 @@ if __name__ == "__main__":
     sys.exit(main())
 
 
-__all__ = ["apply_overrides", "main", "measure"]
+__all__ = ["main", "measure"]

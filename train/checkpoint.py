@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import shutil
 import sys
@@ -24,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
@@ -72,26 +74,33 @@ def manager(run_dir: Path, max_to_keep: int = 3, create: bool = True) -> ocp.Che
     return ocp.CheckpointManager(root, options=options)
 
 
-def pack(tree: Any) -> dict[str, np.ndarray]:
-    """A pytree as a flat ``{leaf index: array}`` dict (orbax refuses zero-size arrays,
-    which MJX data has; they are rebuilt from the template on restore)."""
-    leaves = jax.tree.leaves(tree)
-    return {f"{i:05d}": np.asarray(x) for i, x in enumerate(leaves) if np.size(x)}
+def pack(tree: Any) -> dict[str, Any]:
+    """A pytree as a flat ``{leaf index: array}`` dict without its zero-size leaves.
+
+    MJX state has several; orbax refuses them, and inside ``pmap`` on 2 GPUs they crashed
+    XLA's compiler (jax 0.11.2). :func:`unpack` rebuilds them from a template.
+    """
+    return {f"{i:05d}": x for i, x in enumerate(jax.tree.leaves(tree)) if math.prod(np.shape(x))}
 
 
-def unpack(template: Any, flat: dict[str, Any]) -> Any:
-    """Inverse of :func:`pack`, shaped like ``template``."""
+def unpack(template: Any, flat: dict[str, Any], host: bool = True) -> Any:
+    """Inverse of :func:`pack`, shaped like ``template`` (arrays or shape structs).
+
+    ``host``: numpy leaves, each checked against the template's shape
+    (:class:`CheckpointError` for a checkpoint of another config); ``False``: inside a
+    compiled program, where the shapes are the program's own.
+    """
     leaves, treedef = jax.tree.flatten(template)
     out = []
     for i, x in enumerate(leaves):
         key = f"{i:05d}"
-        if np.size(x) == 0:
-            out.append(np.zeros(np.shape(x), np.asarray(x).dtype))
+        if math.prod(np.shape(x)) == 0:
+            out.append(np.zeros(x.shape, x.dtype) if host else jnp.zeros(x.shape, x.dtype))
             continue
-        value = np.asarray(flat[key])
-        if value.shape != np.shape(x):
+        value = np.asarray(flat[key]) if host else flat[key]
+        if host and np.shape(value) != np.shape(x):
             raise CheckpointError(
-                f"checkpoint leaf {key}: shape {value.shape}, expected {np.shape(x)} "
+                f"checkpoint leaf {key}: shape {np.shape(value)}, expected {np.shape(x)} "
                 "(saved with another config or device count?)"
             )
         out.append(value)
@@ -105,8 +114,8 @@ def save(
     mgr.save(
         epoch,
         args=ocp.args.Composite(
-            train=ocp.args.StandardSave(pack(train)),
-            env=ocp.args.StandardSave(pack(env)),
+            train=ocp.args.StandardSave(pack(jax.tree.map(np.asarray, train))),
+            env=ocp.args.StandardSave(pack(jax.tree.map(np.asarray, env))),
             meta=ocp.args.JsonSave(meta),
         ),
         force=True,
@@ -129,7 +138,7 @@ def save_process(run_dir: Path, epoch: int, keys: Any, env: Any, keep: int) -> P
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{epoch}.npz"
     tmp = folder / f".{epoch}.tmp.npz"
-    arrays: dict[str, Any] = {f"env_{k}": v for k, v in pack(env).items()}
+    arrays: dict[str, Any] = {f"env_{k}": np.asarray(v) for k, v in pack(env).items()}
     arrays["key"] = np.asarray(keys)
     np.savez(tmp, **arrays)
     os.replace(tmp, path)
@@ -312,15 +321,13 @@ def restore_policy(
     seed = seeds[0] if seed is None else seed
     if seed not in seeds:
         raise CheckpointError(f"seed = {seed}: this run trained seeds {seeds}")
-    from train.ppo import Learner
+    from mecanum_jax.env import MecanumEnv
+    from train.ppo import make_networks, state_template
 
-    learner = Learner(cfg, devices=jax.local_devices()[:1])
-    env, networks = learner.env, learner.networks
+    env = MecanumEnv(cfg.env)
+    networks = make_networks(env, cfg)
     check_compatible(meta, env, f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r}")
-    # the template of the saved training state: (devices, seeds, ...)
-    template, _ = learner.init_training()
-    d = int(meta["devices"])
-    train_like = jax.tree.map(lambda x: np.zeros((d, *x.shape[1:]), x.dtype), template)
+    train_like = state_template(cfg, env, int(meta["devices"]))
     _, saved = _read_checked(run_dir, epoch, ("train",))
     train = unpack(train_like, saved["train"])
     one = jax.tree.map(lambda x: x[0, seeds.index(seed)], train)

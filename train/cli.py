@@ -22,13 +22,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-import tyro
 from rich.console import Console
 from rich.table import Table
 
 from mecanum_jax.config import ConfigError
 from train import checkpoint
-from train.config import TrainConfig, load_train_config
+from train.config import TrainConfig, apply_flags, load_train_config
 from train.distributed import init_distributed
 from train.run import Run, RunDirError, TrainingDiverged, write_json
 
@@ -48,18 +47,6 @@ def _meta_parser(prog: str, batch: bool) -> argparse.ArgumentParser:
     p.add_argument("--max-minutes", type=float, default=None)
     p.add_argument("--distributed", action="store_true")
     return p
-
-
-def _overrides(base: TrainConfig, args: list[str], prog: str, description: str) -> TrainConfig:
-    cfg = tyro.cli(
-        TrainConfig,
-        default=base,
-        args=args,
-        prog=prog,
-        description=description,
-        config=(tyro.conf.FlagConversionOff,),
-    )
-    return cfg.validate()
 
 
 def results_table(summary: dict[str, Any], title: str) -> Table:
@@ -109,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         if meta.resume:
             saved = Path(meta.resume) / "config.json"
             base = load_train_config(saved) if saved.exists() else TrainConfig()
-            cfg = _overrides(base, rest, prog, description)
+            cfg = apply_flags(base, rest, prog, description)
             run = Run.resume(meta.resume, overrides=cfg, console=console)
             done = checkpoint.latest_epoch(run.dir)
             if done is not None and done >= run.cfg.num_epochs:
@@ -123,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
                 return 0
         else:
             base = load_train_config(meta.config or "quick")
-            cfg = _overrides(base, rest, prog, description)
+            cfg = apply_flags(base, rest, prog, description)
             if meta.distributed and not meta.run_dir:
                 raise ConfigError(
                     "--distributed: give --run-dir (a default name from the clock could "
@@ -166,7 +153,7 @@ def batch_main(argv: list[str] | None = None) -> int:
             )
         variants = []
         for name in meta.configs:
-            cfg = _overrides(load_train_config(name), rest, prog, description)
+            cfg = apply_flags(load_train_config(name), rest, prog, description)
             if meta.seeds:
                 cfg = dataclasses.replace(
                     cfg, run=dataclasses.replace(cfg.run, seeds=tuple(meta.seeds))

@@ -13,7 +13,14 @@ import json
 from pathlib import Path
 from typing import Any, Literal
 
-from mecanum_jax.config import ConfigError, from_mapping, invalid, load_toml, require
+from mecanum_jax.config import (
+    ConfigError,
+    find_config,
+    from_mapping,
+    invalid,
+    load_toml,
+    require,
+)
 from mecanum_jax.description import CONFIG_DIR
 from mecanum_jax.env import EnvConfig
 from train.loggers import check_wandb
@@ -255,22 +262,33 @@ def load_train_config(path: str | Path) -> TrainConfig:
 
     A bare name (``quick``) means ``configs/train/<name>.toml``.
     """
-    p = Path(path)
-    if not p.suffix and not p.exists() and (TRAIN_CONFIG_DIR / f"{path}.toml").exists():
-        p = TRAIN_CONFIG_DIR / f"{path}.toml"
+    p = find_config(path, TRAIN_CONFIG_DIR, "config", "built-in config")
     if p.suffix == ".json":
         try:
             data = json.loads(p.read_text())
-        except FileNotFoundError:
-            raise ConfigError(f"config file {str(p)!r}: no such file") from None
         except json.JSONDecodeError as err:
             raise ConfigError(f"config file {str(p)!r}: invalid JSON: {err}") from None
     else:
-        if not p.exists():
-            known = sorted(q.stem for q in TRAIN_CONFIG_DIR.glob("*.toml"))
-            raise ConfigError(f"config = {str(path)!r}: no such file; built-in configs: {known}")
         data = load_toml(p)
     return parse_train_config(data, str(p))
+
+
+def apply_flags(
+    base: TrainConfig, flags: list[str], prog: str = "mecanum-train", description: str = ""
+) -> TrainConfig:
+    """``base`` with command-line flags over its fields (``--ppo.learning-rate 1e-3``),
+    parsed by tyro as ``mecanum-train`` parses them, then validated."""
+    import tyro
+
+    cfg = tyro.cli(
+        TrainConfig,
+        default=base,
+        args=flags,
+        prog=prog,
+        description=description,
+        config=(tyro.conf.FlagConversionOff,),
+    )
+    return cfg.validate()
 
 
 def config_diff(a: Any, b: Any, where: str = "") -> list[str]:
@@ -290,6 +308,7 @@ __all__ = [
     "PPOConfig",
     "RunConfig",
     "TrainConfig",
+    "apply_flags",
     "config_diff",
     "load_train_config",
     "parse_train_config",

@@ -42,6 +42,7 @@ from flax import linen
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from mecanum_jax.env import MecanumEnv, TrainingEnv, baseline_policy
+from train import checkpoint
 from train.config import TrainConfig
 
 AXIS = "devices"
@@ -152,6 +153,72 @@ def all_finite(tree: Any) -> jax.Array:
     return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
 
 
+def initial_policy(
+    networks: ppo_networks.PPONetworks, key: jax.Array, action_size: int, cfg: TrainConfig
+) -> Any:
+    """Brax's policy initialisation, with the exploration noise ``init_noise_std``.
+
+    Brax's tanh-normal policy MLP outputs the action means ``[0, a)`` and the scales
+    ``[a, 2a)``, ``std = softplus(out) + 0.001``, and ignores ``init_noise_std``: its
+    random output layer starts the std anywhere in 0.25–2 (mean ≈ 0.7) per state. Here
+    the scale outputs start state-independent at ``init_noise_std`` (zero kernel, bias
+    ``softplus⁻¹(init_noise_std − 0.001)``); they stay learnable and state-dependent.
+    ``zero_init_mean`` also zeroes the mean outputs (the untrained policy is then the
+    baseline, with residual actions).
+    """
+    params = networks.policy_network.init(key)
+    layers = params["params"]
+    last = max(layers, key=lambda name: int(name.rsplit("_", 1)[-1]))
+    a = action_size
+    out = dict(layers[last])
+    kernel, bias = out["kernel"], out["bias"]
+    std = max(cfg.network.init_noise_std - 0.001, 1e-6)
+    kernel = kernel.at[:, a:].set(0.0)
+    bias = bias.at[a:].set(math.log(math.expm1(std)))  # softplus⁻¹
+    if cfg.network.zero_init_mean:
+        kernel = kernel.at[:, :a].set(0.0)
+        bias = bias.at[:a].set(0.0)
+    out["kernel"], out["bias"] = kernel, bias
+    return {**params, "params": {**layers, last: out}}
+
+
+def fresh_state(
+    cfg: TrainConfig,
+    env: MecanumEnv,
+    networks: ppo_networks.PPONetworks,
+    optimizer: optax.GradientTransformation,
+    seed: int,
+) -> tuple[TrainingState, jax.Array]:
+    """One seed's initial training state, and the key its environments are drawn from."""
+    root = jax.random.fold_in(jax.random.PRNGKey(seed), TRAIN_STREAM)
+    k_policy, k_value, k_env, k_loop = jax.random.split(root, 4)
+    params = ppo_losses.PPONetworkParams(
+        policy=initial_policy(networks, k_policy, env.action_size, cfg),
+        value=networks.value_network.init(k_value),
+    )
+    obs_spec = {
+        k: specs.Array(shape, jnp.dtype("float32")) for k, shape in env.observation_size.items()
+    }
+    state = TrainingState(
+        optimizer_state=optimizer.init(params),
+        params=params,
+        normalizer_params=running_statistics.init_state(obs_spec),
+        key=k_loop,
+    )
+    return state, k_env
+
+
+def state_template(cfg: TrainConfig, env: MecanumEnv, devices: int) -> TrainingState:
+    """Zero arrays shaped like a saved training state ``(devices, seeds, ...)``, built from
+    shapes alone (nothing is initialised or compiled): what a checkpoint restores into."""
+    networks = make_networks(env, cfg)
+    one, _ = jax.eval_shape(
+        lambda: fresh_state(cfg, env, networks, make_optimizer(cfg), cfg.run.seeds[0])
+    )
+    lead = (devices, len(cfg.run.seeds))
+    return jax.tree.map(lambda x: np.zeros((*lead, *x.shape), x.dtype), one)
+
+
 class Learner:
     """The compiled pieces of a run: init, the per-epoch training program, evaluation."""
 
@@ -229,26 +296,11 @@ class Learner:
 
     def init_training(self) -> tuple[TrainingState, np.ndarray]:
         """Fresh host training state ``(D, S, ...)`` and environment keys ``(D, S, E/D, 2)``."""
-        obs_spec = {
-            k: specs.Array(shape, jnp.dtype("float32"))
-            for k, shape in self.env.observation_size.items()
-        }
         seeds = self.cfg.run.seeds
         D, E = self.n_devices, self.envs_per_device
         states, env_keys = [], []
         for seed in seeds:
-            root = jax.random.fold_in(jax.random.PRNGKey(seed), TRAIN_STREAM)
-            k_policy, k_value, k_env, k_loop = jax.random.split(root, 4)
-            params = ppo_losses.PPONetworkParams(
-                policy=self._initial_policy(k_policy),
-                value=self.networks.value_network.init(k_value),
-            )
-            state = TrainingState(
-                optimizer_state=self.optimizer.init(params),
-                params=params,
-                normalizer_params=running_statistics.init_state(obs_spec),
-                key=k_loop,
-            )
+            state, k_env = fresh_state(self.cfg, self.env, self.networks, self.optimizer, seed)
             states.append(state)
             k_env = jax.random.fold_in(k_env, jax.process_index())
             env_keys.append(jax.random.split(k_env, D * E).reshape(D, E, -1))
@@ -265,32 +317,6 @@ class Learner:
         )
         per_device = per_device.replace(key=loop_keys)
         return per_device, np.stack(env_keys, axis=1)
-
-    def _initial_policy(self, key: jax.Array) -> Any:
-        """Brax's policy initialisation, with the exploration noise ``init_noise_std``.
-
-        Brax's tanh-normal policy MLP outputs the action means ``[0, a)`` and the scales
-        ``[a, 2a)``, ``std = softplus(out) + 0.001``, and ignores ``init_noise_std``: its
-        random output layer starts the std anywhere in 0.25–2 (mean ≈ 0.7) per state. Here
-        the scale outputs start state-independent at ``init_noise_std`` (zero kernel, bias
-        ``softplus⁻¹(init_noise_std − 0.001)``); they stay learnable and state-dependent.
-        ``zero_init_mean`` also zeroes the mean outputs (the untrained policy is then the
-        baseline, with residual actions).
-        """
-        params = self.networks.policy_network.init(key)
-        layers = params["params"]
-        last = max(layers, key=lambda name: int(name.rsplit("_", 1)[-1]))
-        a = self.env.action_size
-        out = dict(layers[last])
-        kernel, bias = out["kernel"], out["bias"]
-        std = max(self.cfg.network.init_noise_std - 0.001, 1e-6)
-        kernel = kernel.at[:, a:].set(0.0)
-        bias = bias.at[a:].set(math.log(math.expm1(std)))  # softplus⁻¹
-        if self.cfg.network.zero_init_mean:
-            kernel = kernel.at[:, :a].set(0.0)
-            bias = bias.at[:a].set(0.0)
-        out["kernel"], out["bias"] = kernel, bias
-        return {**params, "params": {**layers, last: out}}
 
     # --- training ---------------------------------------------------------------------------
 
@@ -309,23 +335,13 @@ class Learner:
         self._compiled_epoch = self._parallel_epoch.lower(ts, env_state).compile()
 
     def pack_env(self, env_state: Any) -> dict[str, Any]:
-        """The environment state without its zero-size leaves (MJX has several).
-
-        Zero-size arrays crashed XLA's compiler inside ``pmap`` on 2 GPUs (jax 0.11.2), so
-        the state crosses device programs packed; :meth:`unpack_env` rebuilds it inside.
-        """
-        leaves = jax.tree.leaves(env_state)
-        return {f"{i:05d}": x for i, x in enumerate(leaves) if math.prod(jnp.shape(x))}
+        """The environment state without its zero-size leaves (MJX has several), as it
+        crosses device programs (:func:`train.checkpoint.pack`)."""
+        return checkpoint.pack(env_state)
 
     def unpack_env(self, packed: dict[str, Any]) -> Any:
         """Inverse of :meth:`pack_env` for one seed's per-device batch (inside the program)."""
-        template = self._env_template
-        leaves, treedef = jax.tree.flatten(template)
-        out = [
-            packed[f"{i:05d}"] if math.prod(x.shape) else jnp.zeros(x.shape, x.dtype)
-            for i, x in enumerate(leaves)
-        ]
-        return jax.tree.unflatten(treedef, out)
+        return checkpoint.unpack(self._env_template, packed, host=False)
 
     def place(self, ts: TrainingState, env_state: Any) -> tuple[TrainingState, Any]:
         """Put host ``(D, ...)`` states on the devices exactly as :meth:`epoch` returns them

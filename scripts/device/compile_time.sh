@@ -10,7 +10,7 @@ O="${OUT:-/tmp}"
 for fl in "" "--xla_gpu_autotune_level=0"; do
   echo "== XLA_FLAGS=$fl"
   n="a$((${#fl} > 0))"
-  XLA_FLAGS="$fl" python3 -m train.bench --config gpu --epochs 2 --variant "$n=" \
+  XLA_FLAGS="$fl" python3 -m train.bench --config gpu --epochs 2 --variant "$n" \
     --json-out "$O/compile_${n#a}.json" 2>&1 | grep -v -i warp \
     | grep -E "│ a|Finished .* in [0-9.]+ sec" \
     | awk '{ if ($0 ~ /│/) print; else { for (i = 1; i <= NF; i++) if ($i == "in") t = $(i + 1); if (t + 0 > 0.5) print } }' \

@@ -11,4 +11,4 @@ print(jax.devices())
 print(jax.pmap(lambda x: x*2)(jnp.arange(2.)))
 print(jax.pmap(lambda x: jax.lax.psum(x, 'i'), axis_name='i')(jnp.arange(2.)))
 " 2>&1 | grep -v -i warp | tail -5
-python3 -X faulthandler -m train.bench --config tiny --epochs 2 --variant 2gpu= 2>&1 | grep -v -i warp | grep -v '^\s*"' | grep -v "^Extension" | tail -25
+python3 -X faulthandler -m train.bench --config tiny --epochs 2 --variant 2gpu 2>&1 | grep -v -i warp | grep -v '^\s*"' | grep -v "^Extension" | tail -25

@@ -16,7 +16,7 @@ python3 scripts/physics_speed_sweep.py --sizes 65536 --variants strip newton8 ne
   --json-out "$O/iterations_physics.json" 2>&1 | grep -v -i warp
 echo "== PPO training steps/s (gpu config)"
 python3 -m train.bench --config gpu --epochs 2 --json-out "$O/iterations_train.json" \
-  --variant it12= --variant it8=env.solver_iterations=8 --variant it4=env.solver_iterations=4 \
+  --variant it12 --variant "it8 --env.solver-iterations 8" --variant "it4 --env.solver-iterations 4" \
   2>&1 | grep -v -i warp | grep -v '^\s*"' | tail -12
 echo "== tipped robots, 4096 randomized baseline episodes x 10 s"
 for it in 12 8 4; do

@@ -15,10 +15,10 @@ O="${OUT:-/tmp}"; EPOCHS="${1:-1}"
 {
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
 date -u
-T667=env.physics_timestep=0.006666666666666667,env.contact_timeconst=0.013333333333333334
-for v in "ts5=" "ts5_64k=ppo.num_envs=65536" "ts6.67=$T667" "ts6.67_64k=$T667,ppo.num_envs=65536" \
-         "ts10=env.physics_timestep=0.01,env.contact_timeconst=0.02"; do
+T667="--env.physics-timestep 0.006666666666666667 --env.contact-timeconst 0.013333333333333334"
+for v in "ts5" "ts5_64k --ppo.num-envs 65536" "ts6.67 $T667" "ts6.67_64k $T667 --ppo.num-envs 65536" \
+         "ts10 --env.physics-timestep 0.01 --env.contact-timeconst 0.02"; do
   python3 -m train.bench --config gpu --epochs "$EPOCHS" --variant "$v" \
-    --json-out "$O/substeps_${v%%=*}.json" 2>&1 | grep -v -i warp | grep -E '│ ts' || echo "variant ${v%%=*} failed"
+    --json-out "$O/substeps_${v%% *}.json" 2>&1 | grep -v -i warp | grep -E '│ ts' || echo "variant ${v%% *} failed"
 done
 } 2>&1 | tee "$O/log.txt"

@@ -6,9 +6,9 @@ python3 -m pip install -q --no-index --no-deps --no-compile --upgrade --target /
 export PYTHONPATH=/tmp/site:$PWD XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUFFERED=1; unset MUJOCO_GL
 O="${OUT:-/tmp}"
 python3 -m train.bench --config gpu --epochs 3 --json-out "$O/gpu_train_bench.json" \
-  --variant base= \
-  --variant tf32=run.matmul_precision=default \
-  --variant envs16k=ppo.num_envs=16384,ppo.batch_size=2048 \
-  --variant envs32k=ppo.num_envs=32768,ppo.batch_size=4096 \
-  --variant seeds4x4k="run.seeds=0|1|2|3,ppo.num_envs=4096,ppo.batch_size=512" \
+  --variant base \
+  --variant "tf32 --run.matmul-precision default" \
+  --variant "envs16k --ppo.num-envs 16384 --ppo.batch-size 2048" \
+  --variant "envs32k --ppo.num-envs 32768 --ppo.batch-size 4096" \
+  --variant "seeds4x4k --run.seeds 0 1 2 3 --ppo.num-envs 4096 --ppo.batch-size 512" \
   "$@" 2>&1 | grep -v -i warp | grep -v '^\s*"' | tail -20

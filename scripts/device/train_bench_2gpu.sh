@@ -15,16 +15,16 @@ export PYTHONPATH=/tmp/site:$PWD XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUF
 O="${OUT:-/tmp}"; EPOCHS="${1:-2}"; shift || true
 WANT="${*:-sh1gpu sh2gpu sh2gpu_64k mp2gpu pmap2gpu}"
 declare -A SPEC=(
-  [sh1gpu]="run.parallel=sharded,run.max_devices=1"
-  [sh2gpu]="run.parallel=sharded"
-  [sh2gpu_64k]="run.parallel=sharded,ppo.num_envs=65536,ppo.batch_size=8192"
-  [mp2gpu]="run.parallel=sharded"
-  [pmap2gpu]="run.parallel=pmap"
+  [sh1gpu]="--run.parallel sharded --run.max-devices 1"
+  [sh2gpu]="--run.parallel sharded"
+  [sh2gpu_64k]="--run.parallel sharded --ppo.num-envs 65536 --ppo.batch-size 8192"
+  [mp2gpu]="--run.parallel sharded"
+  [pmap2gpu]="--run.parallel pmap"
 )
 bench() {  # NAME [extra args]: one variant, its table row and any crash line
   local name=$1; shift
   python3 -X faulthandler -m train.bench --config gpu --epochs "$EPOCHS" \
-    --variant "$name=${SPEC[$name]}" --json-out "$O/gpu2_$name.json" "$@"
+    --variant "$name ${SPEC[$name]}" --json-out "$O/gpu2_$name.json" "$@"
 }
 {
 nvidia-smi --query-gpu=name --format=csv,noheader
