@@ -258,10 +258,13 @@ def summarize(
     scripted: bool,
     jacobian: Any,
     cfg: metrics.MetricConfig | None = None,
+    parts: dict[str, metrics.Part] | None = None,
 ) -> dict[str, float | None]:
-    """The report's metrics of one rollout (see the module docstring)."""
+    """The report's metrics of one rollout (see the module docstring); ``parts``: its
+    :func:`trace_parts` if already computed."""
     err = trace.twist - trace.command
-    out: dict[str, float | None] = metrics.summary(trace_parts(trace, jacobian, dt, cfg))
+    parts = trace_parts(trace, jacobian, dt, cfg) if parts is None else parts
+    out: dict[str, float | None] = metrics.summary(parts)
     out |= {
         "worst_rmse_lin": float(np.max(np.sqrt(np.mean(err[..., 0] ** 2 + err[..., 1] ** 2, 1)))),
         "worst_rmse_wz": float(np.max(np.sqrt(np.mean(err[..., 2] ** 2, axis=1)))),

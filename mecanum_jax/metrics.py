@@ -225,21 +225,31 @@ class Comparison(NamedTuple):
         return {"ratio": self.ratio, "lo": self.lo, "hi": self.hi, "verdict": verdict(self)}
 
 
+def bootstrap_weights(episodes: int, n_boot: int = 2000, seed: int = 0) -> np.ndarray:
+    """(n_boot, episodes) counts of each episode in each bootstrap resample."""
+    rng = np.random.default_rng(seed)
+    return rng.multinomial(episodes, np.full(episodes, 1.0 / episodes), size=n_boot).astype(float)
+
+
 def paired_ratio(
-    a: Part, b: Part, n_boot: int = 2000, level: float = 0.95, seed: int = 0
+    a: Part,
+    b: Part,
+    n_boot: int = 2000,
+    level: float = 0.95,
+    seed: int = 0,
+    weights: np.ndarray | None = None,
 ) -> Comparison | None:
     """Ratio of ``a``'s pooled metric to ``b``'s, both measured on the *same* episodes,
     with a percentile bootstrap interval: episodes are resampled with replacement, the same
     draw for both (a paired design). ``None`` where either is undefined (no steps counted,
-    or a zero reference)."""
+    or a zero reference). ``weights``: :func:`bootstrap_weights` to reuse (then ``n_boot``
+    and ``seed`` are theirs)."""
     if len(a.num) != len(b.num):
         raise ValueError(f"paired_ratio: {len(a.num)} episodes against {len(b.num)}")
     va, vb = a.value(), b.value()
     if va is None or vb is None or vb == 0:
         return None
-    E = len(a.num)
-    rng = np.random.default_rng(seed)
-    W = rng.multinomial(E, np.full(E, 1.0 / E), size=n_boot).astype(float)  # (B, E)
+    W = bootstrap_weights(len(a.num), n_boot, seed) if weights is None else weights  # (B, E)
 
     def pooled(p: Part) -> np.ndarray:
         den = W @ p.den
@@ -276,6 +286,7 @@ __all__ = [
     "Comparison",
     "MetricConfig",
     "Part",
+    "bootstrap_weights",
     "episode_parts",
     "null_space_projector",
     "paired_ratio",

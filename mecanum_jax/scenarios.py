@@ -292,6 +292,33 @@ class ScenarioSet:
         return ScenarioSet(self.source, tuple(out))
 
 
+def task_scenarios(task: EnvConfig, episodes: int, seconds: float, seed: int) -> ScenarioSet:
+    """The training task's own held-out scenarios, built from its config: ``randomized``
+    (its robots, floors, sensors and command mix) and ``nominal`` (the nominal robot, no
+    sensor noise or latency, the same command mix)."""
+    r = task.randomization
+    rand = {f.name: getattr(r, f.name) for f in dataclasses.fields(r)} if r.enabled else {}
+    randomized = Scenario(
+        name="randomized",
+        description="the training distribution",
+        episodes=episodes,
+        seconds=seconds,
+        seed=seed,
+        commands=ScenarioCommands(),
+        mix={},
+        randomization=rand,
+        noise=task.noise,
+    )
+    nominal = dataclasses.replace(
+        randomized,
+        name="nominal",
+        description="the nominal robot, no sensor noise or latency",
+        randomization={},
+        noise=dataclasses.replace(task.noise, scale=0.0),
+    )
+    return ScenarioSet("the training task", (randomized, nominal))
+
+
 def load_scenarios(path_or_name: str | Path = "default") -> ScenarioSet:
     """A scenario file: a path, or the name of one in ``configs/eval/`` (``default``)."""
     path = find_config(path_or_name, EVAL_DIR, "scenarios", "scenario file")
@@ -452,4 +479,5 @@ __all__ = [
     "parse_scenario",
     "prepare",
     "scripted_commands",
+    "task_scenarios",
 ]

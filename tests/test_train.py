@@ -21,6 +21,7 @@ from brax.training.agents.ppo.losses import PPONetworkParams
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.env import EnvConfig
+from mecanum_jax.metrics import Part
 from train import checkpoint, cli
 from train.config import (
     TRAIN_CONFIG_DIR,
@@ -29,8 +30,9 @@ from train.config import (
     load_train_config,
     parse_train_config,
 )
+from train.periodic import COMPARED, Result, beats, compare
 from train.ppo import Learner, gradient_clip, make_optimizer, to_host
-from train.run import Run, RunDirError, TrainingDiverged, beats
+from train.run import Run, RunDirError, TrainingDiverged
 
 
 def _final_train_state(run, learner):
@@ -300,15 +302,35 @@ def test_evaluation_is_paired_and_held_out(learner):
     one = jax.tree.map(lambda x: x[0], ts)
     a = learner.evaluate_baseline(one)
     b = learner.evaluate_baseline(one)
-    assert a == b  # same fixed episodes every time
+    assert a.values == b.values  # same fixed episodes every time
+    assert set(a.values) == {"randomized", "nominal"}
     assert learner.cfg.run.eval_seed not in learner.cfg.run.seeds
+    batches = learner.evaluation.batches()
+    assert len(batches["randomized"].keys) == learner.cfg.run.num_eval_envs
+    # the nominal scenario: nominal physics, no noise or latency
+    assert np.all(np.asarray(batches["nominal"].noise_std) == 0)
+    assert np.all(np.asarray(batches["nominal"].latency) == 0)
+    assert np.ptp(np.asarray(batches["randomized"].params.friction)) > 0
 
 
-def test_beats():
-    base = {"rmse_lin": 0.2, "rmse_wz": 0.5}
-    assert beats({"rmse_lin": 0.1, "rmse_wz": 0.4}, base)
-    assert not beats({"rmse_lin": 0.1, "rmse_wz": 0.6}, base)
-    assert beats({"rmse_lin": 0.09, "rmse_wz": 0.2}, base, factor=0.5)
+def _result(ss_lin, ss_wz):
+    """A periodic-evaluation result with per-episode steady-state errors."""
+    parts = {}
+    for key, err in (("ss_lin", ss_lin), ("ss_wz", ss_wz)):
+        parts[key] = Part(np.asarray(err, float) ** 2, np.ones(len(err)), "rms")
+    for key in set(COMPARED) - set(parts):
+        parts[key] = Part(np.ones(len(ss_lin)), np.ones(len(ss_lin)), "mean")
+    return Result({"randomized": {}}, {"randomized": parts})
+
+
+def test_beating_the_baseline_takes_a_paired_interval_below_one():
+    rng = np.random.default_rng(0)
+    base = rng.uniform(0.5, 1.5, 200)
+    baseline = _result(base, base)
+    assert beats(compare(_result(0.8 * base, 0.9 * base), baseline))  # both clearly lower
+    assert not beats(compare(_result(0.8 * base, 1.1 * base), baseline))  # one worse
+    noisy = base * rng.choice([0.7, 1.3], 200)  # lower or higher by episode: a tie
+    assert not beats(compare(_result(noisy, 0.8 * base), baseline))
 
 
 @pytest.mark.parametrize(

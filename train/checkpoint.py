@@ -283,8 +283,9 @@ class RestoredPolicy:
 
     def apply(self, params: Any, obs: dict[str, Any]) -> jax.Array:
         """The deterministic action for ``params = (normalizer, policy params)``."""
-        logits = self.networks.policy_network.apply(params[0], params[1], obs)
-        return self.networks.parametric_action_distribution.mode(logits)
+        from train.periodic import deterministic_apply
+
+        return deterministic_apply(self.networks)(params, obs)
 
 
 def split_target(path: str | Path) -> tuple[Path, int | None]:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 import time
 from pathlib import Path
@@ -49,10 +50,16 @@ def _meta_parser(prog: str, batch: bool) -> argparse.ArgumentParser:
     return p
 
 
+def _f(x: Any) -> str:
+    """A figure for a table: four decimals, "-" where undefined."""
+    return "-" if x is None or not math.isfinite(float(x)) else f"{float(x):.4f}"
+
+
 def results_table(summary: dict[str, Any], title: str) -> Table:
-    """Policy against baseline per scenario and seed (final evaluation)."""
+    """Policy against baseline per scenario and seed (final evaluation): steady-state error
+    against the nearest feasible twist (train.periodic)."""
     table = Table(title=title)
-    for col in ("seed", "scenario", "RMSE v (m/s)", "base", "RMSE ω (rad/s)", "base", "beat at"):
+    for col in ("seed", "scenario", "ss v (m/s)", "base", "ss ω (rad/s)", "base", "beat at"):
         table.add_column(col)
     for entry in summary["seeds"]:
         beat = entry.get("beat_baseline")
@@ -62,10 +69,10 @@ def results_table(summary: dict[str, Any], title: str) -> Table:
             table.add_row(
                 str(entry["seed"]),
                 name,
-                f"{ev['rmse_lin']:.4f}",
-                f"{b['rmse_lin']:.4f}",
-                f"{ev['rmse_wz']:.4f}",
-                f"{b['rmse_wz']:.4f}",
+                _f(ev["ss_lin"]),
+                _f(b["ss_lin"]),
+                _f(ev["ss_wz"]),
+                _f(b["ss_wz"]),
                 beat_s if name == "randomized" else "",
             )
     return table
@@ -186,8 +193,8 @@ def batch_main(argv: list[str] | None = None) -> int:
 
 
 def batch_table(summaries: list[dict[str, Any]]) -> Table:
-    table = Table(title="batch: final tracking error (randomized eval) and time to beat baseline")
-    for col in ("variant", "seed", "RMSE v", "base v", "RMSE ω", "base ω", "beat baseline at"):
+    table = Table(title="batch: final steady-state error (randomized eval), time to beat baseline")
+    for col in ("variant", "seed", "ss v", "base v", "ss ω", "base ω", "beat baseline at"):
         table.add_column(col)
     for s in summaries:
         if "diverged" in s:
@@ -200,10 +207,10 @@ def batch_table(summaries: list[dict[str, Any]]) -> Table:
             table.add_row(
                 s["name"],
                 str(entry["seed"]),
-                f"{ev['rmse_lin']:.4f}" if ev else "-",
-                f"{b['rmse_lin']:.4f}",
-                f"{ev['rmse_wz']:.4f}" if ev else "-",
-                f"{b['rmse_wz']:.4f}",
+                _f(ev["ss_lin"]) if ev else "-",
+                _f(b["ss_lin"]),
+                _f(ev["ss_wz"]) if ev else "-",
+                _f(b["ss_wz"]),
                 f"{beat['walltime']:.0f} s ({beat['env_steps']:,} steps)" if beat else "never",
             )
     return table

@@ -41,9 +41,10 @@ from brax.training.agents.ppo import networks as ppo_networks
 from flax import linen
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from mecanum_jax.env import MecanumEnv, TrainingEnv, baseline_policy
+from mecanum_jax.env import MecanumEnv, TrainingEnv
 from train import checkpoint
 from train.config import TrainConfig
+from train.periodic import PeriodicEvaluation, Result
 
 AXIS = "devices"
 MESH_AXIS = "d"  # the device mesh axis of run.parallel = "sharded"
@@ -54,7 +55,7 @@ ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
     "elu": linen.elu,
 }
 # Domain tags: training and evaluation rng streams never meet, whatever the seeds are.
-TRAIN_STREAM, EVAL_STREAM = 0x7A1, 0xE7A1
+TRAIN_STREAM = 0x7A1
 
 
 def allow_rank_promotion(fn: Callable[..., Any]) -> Callable[..., Any]:
@@ -276,16 +277,8 @@ class Learner:
         self._env_template = jax.eval_shape(
             self.train_env.reset, jax.ShapeDtypeStruct((self.envs_per_device, 2), jnp.uint32)
         )
-        self.eval_envs = {
-            "randomized": TrainingEnv(self.env, cfg.run.eval_episode_length),
-            "nominal": TrainingEnv(MecanumEnv(cfg.env.nominal()), cfg.run.eval_episode_length),
-        }
-        self._eval = {
-            name: jax.jit(
-                jax.vmap(functools.partial(self._evaluate, scenario=name), in_axes=(0, None))
-            )
-            for name in self.eval_envs
-        }
+        on_gpu = all(d.platform == "gpu" for d in self.devices)
+        self.evaluation = PeriodicEvaluation(cfg, self.env, self.networks, on_gpu)
 
     # --- state ------------------------------------------------------------------------------
 
@@ -460,63 +453,15 @@ class Learner:
 
     # --- evaluation -------------------------------------------------------------------------
 
-    def eval_keys(self) -> jax.Array:
-        root = jax.random.fold_in(jax.random.PRNGKey(self.cfg.run.eval_seed), EVAL_STREAM)
-        return jax.random.split(root, self.cfg.run.num_eval_envs)
+    def evaluate(self, ts: TrainingState) -> list[Result]:
+        """Each seed's deterministic policy on the held-out episodes (``ts``: ``(S, ...)``)."""
+        return self.evaluation.policies((ts.normalizer_params, ts.params.policy), self.n_seeds)
 
-    def _rollout(self, policy: Any, scenario: str) -> dict[str, jax.Array]:
-        env = self.eval_envs[scenario]
-        keys = self.eval_keys()
-        state = env.reset(keys)
-
-        def step(s: Any, k: jax.Array) -> tuple[Any, Any]:
-            a, _ = policy(s.obs, k)
-            ns = env.step(s, a)
-            return ns, (ns.metrics, ns.reward)
-
-        act_keys = jax.random.split(jax.random.fold_in(keys[0], 1), env.episode_length)
-        _, (metrics, reward) = jax.lax.scan(step, state, act_keys)
-        out = {f"rmse_{c}": jnp.sqrt(jnp.mean(metrics[f"error/{c}2"])) for c in ("vx", "vy", "wz")}
-        lin2 = metrics["error/vx2"] + metrics["error/vy2"]  # (T, episodes)
-        out["rmse_lin"] = jnp.sqrt(jnp.mean(lin2))
-        # the worst single episode: one robot that spins away hides in the mean
-        out["worst_rmse_lin"] = jnp.max(jnp.sqrt(jnp.mean(lin2, axis=0)))
-        out["worst_rmse_wz"] = jnp.max(jnp.sqrt(jnp.mean(metrics["error/wz2"], axis=0)))
-        out["reward"] = jnp.mean(reward)
-        out["energy_j"] = jnp.mean(jnp.sum(metrics["energy_j"], axis=0))
-        out["saturated"] = jnp.mean(metrics["saturated"])
-        return out
-
-    @allow_rank_promotion
-    def _evaluate(
-        self, params: Any, use_baseline: jax.Array, scenario: str
-    ) -> dict[str, jax.Array]:
-        learned = self.make_policy(params, deterministic=True)
-        baseline = baseline_policy(self.eval_envs[scenario].menv)
-
-        def policy(obs: Any, key: jax.Array) -> tuple[jax.Array, dict[str, Any]]:
-            # one compiled program serves both: the baseline is selected at run time
-            a, _ = learned(obs, key)
-            b, _ = baseline(obs, key)
-            return jnp.where(use_baseline, b, a), {}
-
-        return self._rollout(policy, scenario)
-
-    def evaluate(self, ts: TrainingState) -> dict[str, dict[str, np.ndarray]]:
-        """Per scenario, per-seed metrics (S,) of the deterministic policy."""
-        params = (ts.normalizer_params, ts.params.policy, ts.params.value)
-        return {
-            name: {k: np.asarray(v) for k, v in fn(params, jnp.asarray(False)).items()}
-            for name, fn in self._eval.items()
-        }
-
-    def evaluate_baseline(self, ts: TrainingState) -> dict[str, dict[str, float]]:
-        """The analytic baseline on the same episodes (``ts`` only fixes shapes)."""
-        params = (ts.normalizer_params, ts.params.policy, ts.params.value)
-        return {
-            name: {k: float(np.asarray(v)[0]) for k, v in fn(params, jnp.asarray(True)).items()}
-            for name, fn in self._eval.items()
-        }
+    def evaluate_baseline(self, ts: TrainingState) -> Result:
+        """The analytic baseline on the same episodes, in the same compiled program (``ts``
+        only gives the policy's parameter shapes)."""
+        params = (ts.normalizer_params, ts.params.policy)
+        return self.evaluation.play("analytic", jax.tree.map(lambda x: x[0], params))
 
 
 def strip_weak_types(tree: Any) -> Any:

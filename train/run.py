@@ -40,6 +40,7 @@ from train import checkpoint
 from train.config import TrainConfig, config_diff, load_train_config
 from train.distributed import barrier
 from train.loggers import MetricLogger, TensorBoardLogger, WandbLogger
+from train.periodic import Result, beats, compare
 from train.ppo import Learner, first_device, to_host
 
 # Fields a resumed run may change: its length and its logging/evaluation cadence.
@@ -81,12 +82,22 @@ def write_json(path: Path, data: Any) -> None:
     os.replace(tmp, path)
 
 
-def beats(policy: dict[str, Any], baseline: dict[str, Any], factor: float = 1.0) -> bool:
-    """Policy's linear and angular RMSE both below ``factor`` × the baseline's."""
-    return bool(
-        policy["rmse_lin"] < factor * baseline["rmse_lin"]
-        and policy["rmse_wz"] < factor * baseline["rmse_wz"]
-    )
+def stacked(results: list[Result]) -> dict[str, dict[str, np.ndarray]]:
+    """Per scenario and metric, the seeds' values ``(S,)`` (NaN where undefined)."""
+    first = results[0].values
+
+    def value(r: Result, name: str, k: str) -> float:
+        v = r.values[name][k]
+        return np.nan if v is None else v
+
+    return {  # metrics undefined for every seed (drift, on unscripted episodes) are left out
+        name: {
+            k: np.array([value(r, name, k) for r in results])
+            for k in first[name]
+            if any(r.values[name][k] is not None for r in results)
+        }
+        for name in first
+    }
 
 
 class Run:
@@ -178,7 +189,9 @@ class Run:
                 f.write(json.dumps(_jsonable(line)) + "\n")
         numbers = {
             seed: {
-                k: v for k, v in _flatten(row).items() if isinstance(v, int | float) and k != "seed"
+                k: v
+                for k, v in _flatten(row).items()
+                if isinstance(v, int | float) and math.isfinite(v) and k != "seed"
             }
             for seed, row in zip(self.cfg.run.seeds, rows, strict=True)
         }
@@ -269,7 +282,9 @@ class Run:
         )
         saved_epoch = epoch
         baseline: dict[str, Any] | None = None
+        baseline_result: Result | None = None
         last_eval: dict[str, Any] = {}
+        last_compare: list[dict[str, Any]] = []
         # Wall time counts everything from this call on (model, compilation, the baseline's
         # evaluation), across resumes.
         t0 = t_start - walltime_before
@@ -314,8 +329,8 @@ class Run:
         )
         if self.is_writer:
             self.console.log(
-                "progress: steps, env steps/s, time left | RMSE v (m/s) and ω (rad/s) of "
-                "the policy/baseline on held-out randomized episodes"
+                "progress: steps, env steps/s, time left | steady-state error of v (m/s) and "
+                "ω (rad/s), policy/baseline, on held-out randomized episodes"
             )
         shown = ""  # the last evaluation's figures, kept on the progress line
         try:
@@ -331,7 +346,8 @@ class Run:
                         self._status("interrupted", epoch=epoch)
                         raise
                     if baseline is None:
-                        baseline = baseline_job.result()
+                        baseline_result = baseline_job.result()
+                        baseline = baseline_result.values
                         self.console.log(
                             f"set-up {setup_s:.0f} s; first epoch, with the baseline's "
                             f"evaluation alongside: {time.time() - t_epoch:.0f} s"
@@ -356,26 +372,24 @@ class Run:
                     sps = steps_per_epoch * len(seeds) / (time.time() - t_epoch)
                     is_last = epoch == total_epochs
                     evals: dict[str, Any] = {}
+                    comps: list[dict[str, Any]] = []
                     if epoch % cfg.run.eval_every == 0 or is_last:
-                        evals = learner.evaluate(first_device(state))
-                        last_eval = evals
-                        for i, seed in enumerate(seeds):
-                            pol = {k: float(v[i]) for k, v in evals["randomized"].items()}
-                            if str(seed) not in beat_at and beats(pol, baseline["randomized"]):
+                        assert baseline_result is not None  # awaited after the first epoch
+                        results = learner.evaluate(first_device(state))
+                        comps = [compare(r, baseline_result) for r in results]
+                        evals, last_eval, last_compare = stacked(results), stacked(results), comps
+                        for seed, comp in zip(seeds, comps, strict=True):
+                            if str(seed) not in beat_at and beats(comp):
                                 beat_at[str(seed)] = {
                                     "epoch": epoch,
                                     "env_steps": epoch * steps_per_epoch,
                                     "walltime": time.time() - t0,
                                 }
                     walltime = time.time() - t0
-                    rows = self._rows(metrics, evals, baseline, sps)
+                    rows = self._rows(metrics, evals, baseline, sps, comps)
                     self._log(epoch, epoch * steps_per_epoch, walltime, rows)
                     if evals:
-                        r, b = evals["randomized"], baseline["randomized"]
-                        shown = (
-                            f"v {np.mean(r['rmse_lin']):.2f}/{b['rmse_lin']:.2f} "
-                            f"ω {np.mean(r['rmse_wz']):.2f}/{b['rmse_wz']:.2f}"
-                        )
+                        shown = _shown(evals["randomized"], baseline["randomized"])
                     progress.update(
                         task,
                         completed=epoch * steps_per_epoch,
@@ -388,7 +402,10 @@ class Run:
                         save(epoch, state, env_state)
                     if out_of_time and not is_last:
                         if not evals:
-                            last_eval = learner.evaluate(first_device(state))
+                            assert baseline_result is not None
+                            results = learner.evaluate(first_device(state))
+                            last_eval = stacked(results)
+                            last_compare = [compare(r, baseline_result) for r in results]
                         self.console.log(f"time limit reached after epoch {epoch}")
                         break
         finally:
@@ -396,9 +413,11 @@ class Run:
                 w.close()
         save(epoch, state, env_state)
         if baseline is None:  # no epoch ran (a finished run resumed)
-            baseline = baseline_job.result()
+            baseline = baseline_job.result().values
         done = epoch >= total_epochs
-        summary = self._summary(epoch, time.time() - t0, last_eval, baseline, beat_at, t_start)
+        summary = self._summary(
+            epoch, time.time() - t0, last_eval, last_compare, baseline, beat_at, t_start
+        )
         if self.is_writer:
             write_json(self.dir / "summary.json", summary)
         self._status("finished" if done else "stopped", epoch=epoch)
@@ -410,6 +429,7 @@ class Run:
         evals: dict[str, Any],
         baseline: dict[str, Any],
         sps: float | None = None,
+        comps: list[dict[str, Any]] | None = None,
     ) -> list[dict[str, Any]]:
         rows = []
         for i, seed in enumerate(self.cfg.run.seeds):
@@ -422,6 +442,8 @@ class Run:
                     name: {k: float(v[i]) for k, v in res.items()} for name, res in evals.items()
                 }
                 row["baseline"] = baseline
+            if comps:
+                row["compare"] = comps[i]
             rows.append(row)
         return rows
 
@@ -430,6 +452,7 @@ class Run:
         epoch: int,
         walltime: float,
         evals: dict[str, Any],
+        comps: list[dict[str, Any]],
         baseline: dict[str, Any],
         beat_at: dict[str, Any],
         t_start: float,
@@ -441,6 +464,8 @@ class Run:
                 entry["eval"] = {
                     name: {k: float(v[i]) for k, v in res.items()} for name, res in evals.items()
                 }
+            if comps:
+                entry["compare"] = comps[i]
             per_seed.append(entry)
         return {
             "name": self.cfg.name,
@@ -457,6 +482,17 @@ class Run:
             "baseline": baseline,
             "seeds": per_seed,
         }
+
+
+def _shown(policy: dict[str, np.ndarray], baseline: dict[str, Any]) -> str:
+    """The progress line's figures: steady-state error of the policy / the baseline."""
+
+    def pair(key: str) -> str:
+        if key not in policy or baseline.get(key) is None:
+            return "-"
+        return f"{float(np.nanmean(policy[key])):.2f}/{baseline[key]:.2f}"
+
+    return f"ss v {pair('ss_lin')} ω {pair('ss_wz')}"
 
 
 def _si(x: float) -> str:
@@ -484,4 +520,4 @@ def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
-__all__ = ["Run", "RunDirError", "TrainingDiverged", "beats", "write_json"]
+__all__ = ["Run", "RunDirError", "TrainingDiverged", "stacked", "write_json"]

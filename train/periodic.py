@@ -1,0 +1,119 @@
+"""The trainer's periodic evaluation, on :mod:`mecanum_jax.evaluation`.
+
+Each seed's deterministic policy and the analytic baseline play the same held-out episodes
+of the training task (:func:`mecanum_jax.scenarios.task_scenarios`: ``randomized`` and
+``nominal``, from ``run.eval_seed``), through the rollout, the metrics and the paired
+intervals that ``mecanum-eval`` uses. A policy *beats* the baseline when, on
+``randomized``, the paired 95% interval of its steady-state error ratio lies below 1 for
+the velocity and for the yaw rate (:data:`BEAT_METRICS`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import numpy as np
+
+from mecanum_jax import evaluation, kinematics, metrics, scenarios
+from mecanum_jax.env import MecanumEnv
+from train.config import TrainConfig
+
+BEAT_SCENARIO = "randomized"
+BEAT_METRICS = ("ss_lin", "ss_wz")
+COMPARED = ("rmse_lin", "rmse_wz", "ss_lin", "ss_wz", "settle_wz_s", "energy_j")
+"""Metrics logged as policy / baseline ratios with their paired intervals."""
+N_BOOT = 1000
+
+
+def deterministic_apply(networks: Any) -> evaluation.PolicyApply:
+    """``apply((normalizer, policy params), obs) -> action``: the policy's mode."""
+
+    def apply(params: Any, obs: dict[str, jax.Array]) -> jax.Array:
+        logits = networks.policy_network.apply(params[0], params[1], obs)
+        return networks.parametric_action_distribution.mode(logits)
+
+    return apply
+
+
+@dataclasses.dataclass
+class Result:
+    """One controller's evaluation: per scenario, the metrics and their per-episode parts."""
+
+    values: dict[str, dict[str, float | None]]
+    parts: dict[str, dict[str, metrics.Part]]
+
+
+class PeriodicEvaluation:
+    """The held-out evaluation a training run repeats (see the module docstring)."""
+
+    def __init__(self, cfg: TrainConfig, env: MecanumEnv, networks: Any, on_gpu: bool):
+        r = cfg.run
+        seconds = r.eval_episode_length * cfg.env.control_dt
+        self.scenarios = scenarios.task_scenarios(cfg.env, r.num_eval_envs, seconds, r.eval_seed)
+        # the training environment serves unless the scenarios need more latency history
+        eval_cfg = scenarios.eval_env_config(cfg.env, self.scenarios)
+        self.env = env if eval_cfg == env.config else MecanumEnv(eval_cfg)
+        # one chunk on a GPU; 64 robots on CPU (larger MJX batches deadlock its backend)
+        max_batch = 2 * r.num_eval_envs if on_gpu else 64
+        self.evaluator = evaluation.Evaluator(self.env, deterministic_apply(networks), max_batch)
+        self._jacobian = np.asarray(kinematics.jacobian(self.env.geometry))
+        self._batches: dict[str, scenarios.EpisodeBatch] | None = None
+
+    def batches(self) -> dict[str, scenarios.EpisodeBatch]:
+        """The episodes, drawn once (the same for every evaluation of the run)."""
+        if self._batches is None:
+            self._batches = {
+                s.name: scenarios.prepare(self.env, s) for s in self.scenarios.scenarios
+            }
+        return self._batches
+
+    def play(self, who: str, params: Any = None) -> Result:
+        """``who`` (``"policy"`` with ``params = (normalizer, policy params)``, or a
+        reference's name) on every scenario."""
+        batches = self.batches()
+        traces = self.evaluator.run_many([(b, who) for b in batches.values()], params)
+        dt = self.env.config.control_dt
+        values, parts = {}, {}
+        for name, trace in zip(batches, traces, strict=True):
+            parts[name] = evaluation.trace_parts(trace, self._jacobian, dt)
+            values[name] = evaluation.summarize(trace, dt, False, self._jacobian, parts=parts[name])
+        return Result(values, parts)
+
+    def policies(self, params: Any, n_seeds: int) -> list[Result]:
+        """Each seed's deterministic policy; ``params`` has a leading seed axis."""
+        return [
+            self.play("policy", jax.tree.map(lambda x, i=i: x[i], params)) for i in range(n_seeds)
+        ]
+
+
+def compare(policy: Result, baseline: Result) -> dict[str, dict[str, Any]]:
+    """Per scenario, policy / baseline ratios of :data:`COMPARED` with paired intervals."""
+    out: dict[str, dict[str, Any]] = {}
+    for name, parts in policy.parts.items():
+        out[name] = {}
+        weights = metrics.bootstrap_weights(len(parts[COMPARED[0]].num), N_BOOT)
+        for key in COMPARED:
+            c = metrics.paired_ratio(parts[key], baseline.parts[name][key], weights=weights)
+            if c is not None:
+                out[name][key] = c.as_dict()
+    return out
+
+
+def beats(comparison: dict[str, dict[str, Any]]) -> bool:
+    """Whether the interval of every :data:`BEAT_METRICS` ratio on :data:`BEAT_SCENARIO`
+    lies entirely below 1 (a tie or an undefined ratio is no win)."""
+    scenario = comparison.get(BEAT_SCENARIO, {})
+    return all(scenario.get(k, {}).get("verdict") == "better" for k in BEAT_METRICS)
+
+
+__all__ = [
+    "BEAT_METRICS",
+    "COMPARED",
+    "PeriodicEvaluation",
+    "Result",
+    "beats",
+    "compare",
+    "deterministic_apply",
+]
