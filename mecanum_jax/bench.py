@@ -435,6 +435,53 @@ def _print_table(result: dict[str, Any], console: Console) -> None:
     console.print(table)
 
 
+@dataclasses.dataclass(frozen=True)
+class DrivesComparison:
+    """Compare the mecanum robot's velocity space with the other drives' (seed 000 §4)."""
+
+    robot: str = "o_rectangle"
+    """The mecanum robot (built-in name or TOML path); its wheel-rate limit applies to all."""
+    drives: tuple[str, ...] = ("differential", "tricycle", "synchronous", "ackermann")
+    """The other drives (built-in names from configs/robots/drives or TOML paths)."""
+    out: Path = Path("velocity_spaces")
+    """Directory for velocity_spaces.json and velocity_spaces.png."""
+
+
+def run_drives(args: DrivesComparison) -> list[dict[str, Any]]:
+    """Print the table, write the JSON and the plot."""
+    from mecanum_jax import velocity_space
+
+    console = Console()
+    with jax.enable_x64(True):
+        spaces, max_rate = velocity_space.compare(args.robot, args.drives)
+    table = Table(title=f"Velocity spaces at equal wheel-rate limits ({max_rate:.2f} rad/s)")
+    columns = {
+        "drive": "drive",
+        "max_vx": "vx m/s",
+        "max_vy": "vy m/s",
+        "max_wz": "ωz rad/s",
+        "max_diagonal": "diag m/s",
+        "area_v_wz": "(vx,ωz) area",
+        "area_vx_vy": "(vx,vy) area",
+        "volume": "volume",
+        "force_efficiency_forward": "eff fwd",
+        "force_efficiency_sideways": "eff side",
+    }
+    for title in ("robot", *columns.values()):
+        table.add_column(title)
+    rows = [dataclasses.asdict(sp) for sp in spaces]
+    for row in rows:
+        cells = [str(row[k]) if k == "drive" else f"{row[k]:.3g}" for k in columns]
+        table.add_row(row["name"], *cells)
+    console.print(table)
+    result = {"max_wheel_rate": max_rate, "mecanum": args.robot, "spaces": rows}
+    _write_json(result, args.out / "velocity_spaces.json", console)
+    with jax.enable_x64(True):
+        png = velocity_space.plot(args.robot, args.drives, args.out / "velocity_spaces.png")
+    console.print(f"wrote {png}")
+    return rows
+
+
 def _ensure_malloc_tuning(argv: list[str] | None) -> None:
     """Re-exec once with glibc's malloc backing large buffers by transparent huge pages.
 
@@ -461,9 +508,12 @@ def main(argv: list[str] | None = None) -> None:
     """Entry point of ``mecanum-bench``."""
     _ensure_malloc_tuning(argv)
     cmd = tyro.extras.subcommand_cli_from_dict(
-        {"kinematics": KinematicsBench, "physics": PhysicsBench}, args=argv
+        {"kinematics": KinematicsBench, "physics": PhysicsBench, "drives": DrivesComparison},
+        args=argv,
     )
-    if isinstance(cmd, KinematicsBench):
+    if isinstance(cmd, DrivesComparison):
+        run_drives(cmd)
+    elif isinstance(cmd, KinematicsBench):
         run_kinematics(cmd)
     elif isinstance(cmd, PhysicsBench):
         run_physics(cmd)
