@@ -71,8 +71,10 @@ from mecanum_jax.modes import SIX_MODES
 from mecanum_jax.physics import RobotParams
 
 EVAL_DIR = CONFIG_DIR / "eval"
-# Domain tag of evaluation rng streams (training uses others; see train.ppo).
+# Domain tags of evaluation rng streams: scenario files, and the trainer's periodic
+# evaluation (training uses others; see train.ppo), so no two ever replay each other.
 SCENARIO_STREAM = 0x5CE7
+TASK_STREAM = 0x7A5C
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 CommandKind = Literal["random", "sequence", "six_modes", "singular_pass"]
 
@@ -111,6 +113,7 @@ class Scenario:
     randomization: dict[str, Any]
     noise: NoiseConfig
     truncate: bool = False  # cut a scripted sequence at ``seconds`` (set by an override)
+    stream: int = SCENARIO_STREAM  # rng domain of its episodes (see scenario_key)
 
     @property
     def scripted(self) -> bool:
@@ -295,7 +298,9 @@ class ScenarioSet:
 def task_scenarios(task: EnvConfig, episodes: int, seconds: float, seed: int) -> ScenarioSet:
     """The training task's own held-out scenarios, built from its config: ``randomized``
     (its robots, floors, sensors and command mix) and ``nominal`` (the nominal robot, no
-    sensor noise or latency, the same command mix)."""
+    sensor noise or latency, the same command mix). Their episodes come from a stream of
+    their own (:data:`TASK_STREAM`): whatever ``seed``, they never replay a scenario
+    file's."""
     r = task.randomization
     rand = {f.name: getattr(r, f.name) for f in dataclasses.fields(r)} if r.enabled else {}
     randomized = Scenario(
@@ -308,6 +313,7 @@ def task_scenarios(task: EnvConfig, episodes: int, seconds: float, seed: int) ->
         mix={},
         randomization=rand,
         noise=task.noise,
+        stream=TASK_STREAM,
     )
     nominal = dataclasses.replace(
         randomized,
@@ -347,7 +353,7 @@ class EpisodeBatch(NamedTuple):
 
 def scenario_key(scenario: Scenario) -> jax.Array:
     """The root key of a scenario: its seed and name, in the evaluation domain."""
-    root = jax.random.fold_in(jax.random.PRNGKey(scenario.seed), SCENARIO_STREAM)
+    root = jax.random.fold_in(jax.random.PRNGKey(scenario.seed), scenario.stream)
     return jax.random.fold_in(root, zlib.crc32(scenario.name.encode()) & 0x7FFFFFFF)
 
 
