@@ -169,11 +169,21 @@ class RewardConfig:
     """Scale of the quadratic penalty ``−ω_err²``, per (rad/s)² (>= 0; 0: off)."""
     action_rate: float = 0.01
     """Scale of ``−|a_t − a_(t−1)|²``, actions in [-1, 1] (>= 0)."""
+    action: float = 0.0
+    """Scale of ``−|a_t|²``: with residual actions, the departure from the baseline (>= 0)."""
     energy: float = 0.0005
     """Scale of ``−Σ|τ·ω|``, the wheels' mechanical power in W (>= 0)."""
 
 
-REWARD_TERMS = ("tracking_lin", "tracking_ang", "error_lin", "error_ang", "action_rate", "energy")
+REWARD_TERMS = (
+    "tracking_lin",
+    "tracking_ang",
+    "error_lin",
+    "error_ang",
+    "action_rate",
+    "action",
+    "energy",
+)
 """The reward's terms, each scaled by the :class:`RewardConfig` field of the same name."""
 
 
@@ -197,6 +207,7 @@ def reward_terms(
         "error_lin": -lin2,
         "error_ang": -ang2,
         "action_rate": -jnp.sum((action - last_action) ** 2, axis=-1),
+        "action": -jnp.sum(action**2, axis=-1),
         "energy": -power,
     }
 
@@ -391,6 +402,7 @@ class EnvConfig:
                 "error_lin",
                 "error_ang",
                 "action_rate",
+                "action",
                 "energy",
             ),
             lambda v: v >= 0,
