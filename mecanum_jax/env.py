@@ -290,8 +290,6 @@ class EnvConfig:
     """Where the residual acts: "wheel" (one per wheel) or "twist" (vx, vy, ωz)."""
     yaw_integral_tau: float = 0.0
     """Time constant of the observed leaky yaw-rate error integral, s (>= 0; 0: off)."""
-    yaw_integral_reset: bool = False
-    """Restart that integral at each command change, so a step's transient does not wind it up."""
     commands: CommandConfig = CommandConfig()
     """How commands are drawn."""
     randomization: RandomizationConfig = RandomizationConfig()
@@ -564,15 +562,10 @@ class MecanumEnv(Env):
         """Impose ``command`` from now on (scripted sequences): it replaces the current
         command, in the observations too, and the environment stops resampling."""
         info = dict(state.info)
-        changed = jnp.any(command != info["command"])
         info["command"] = command
         info["next_resample"] = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
         scaled = command / self.command_scale
         obs = {k: v.at[:3].set(scaled) for k, v in state.obs.items()}  # command comes first
-        if self.config.yaw_integral_tau > 0 and self.config.yaw_integral_reset:
-            info["yaw_integral"] = jnp.where(changed, 0.0, info["yaw_integral"])
-            at = sum(size for _, size in self.layout) - 1  # the policy's last input
-            obs = {k: v.at[at].set(jnp.where(changed, 0.0, v[at])) for k, v in obs.items()}
         return state.replace(obs=obs, info=info)
 
     def step(self, state: State, action: jax.Array, reference: jax.Array | None = None) -> State:
@@ -633,10 +626,9 @@ class MecanumEnv(Env):
         if self.config.yaw_integral_tau > 0:  # against the command tracked in this step
             gyro = self._delayed(info)[self.n_wheels]
             err = command[2] - gyro * self.command_scale[2]
-            integral = self._yaw_decay * info["yaw_integral"] + err * self.config.control_dt
-            if self.config.yaw_integral_reset:  # the next step tracks a new command
-                integral = jnp.where(resample, 0.0, integral)
-            info["yaw_integral"] = integral
+            info["yaw_integral"] = (
+                self._yaw_decay * info["yaw_integral"] + err * self.config.control_dt
+            )
         obs = self._observe(sens, info)
         return state.replace(pipeline_state=sim, obs=obs, reward=reward, metrics=metrics, info=info)
 
