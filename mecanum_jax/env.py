@@ -169,8 +169,6 @@ class RewardConfig:
     """Scale of the quadratic penalty ``−ω_err²``, per (rad/s)² (>= 0; 0: off)."""
     action_rate: float = 0.01
     """Scale of ``−|a_t − a_(t−1)|²``, actions in [-1, 1] (>= 0)."""
-    action: float = 0.0
-    """Scale of ``−|a_t|²``: with residual actions, the departure from the baseline (>= 0)."""
     energy: float = 0.0005
     """Scale of ``−Σ|τ·ω|``, the wheels' mechanical power in W (>= 0)."""
 
@@ -181,7 +179,6 @@ REWARD_TERMS = (
     "error_lin",
     "error_ang",
     "action_rate",
-    "action",
     "energy",
 )
 """The reward's terms, each scaled by the :class:`RewardConfig` field of the same name."""
@@ -207,7 +204,6 @@ def reward_terms(
         "error_lin": -lin2,
         "error_ang": -ang2,
         "action_rate": -jnp.sum((action - last_action) ** 2, axis=-1),
-        "action": -jnp.sum(action**2, axis=-1),
         "energy": -power,
     }
 
@@ -402,7 +398,6 @@ class EnvConfig:
                 "error_lin",
                 "error_ang",
                 "action_rate",
-                "action",
                 "energy",
             ),
             lambda v: v >= 0,
