@@ -98,10 +98,13 @@ def time_physics(
 ) -> list[dict[str, Any]]:
     """Time ``robot`` (a :class:`physics.Robot`): one jitted, vmapped call of ``steps``
     physics steps per batch size, median of ``repeats`` after a compiling call."""
+    from mecanum_jax import physics
+
     params1 = robot.nominal_params()
     cmd1 = kinematics.inverse(robot.geometry, jnp.array([0.3, 0.1, 0.5]))
-    run = jax.jit(jax.vmap(functools.partial(robot.step, substeps=steps)))
-    reset = jax.jit(jax.vmap(robot.reset))
+    chunk = physics.cpu_chunk(robot.fidelity)  # on CPU: chunks (jaxlib's LAPACK deadlock)
+    run = jax.jit(physics.chunked_vmap(functools.partial(robot.step, substeps=steps), chunk))
+    reset = jax.jit(physics.chunked_vmap(robot.reset, chunk))
     rows = []
     for size in sizes:
         p = jax.tree_util.tree_map(lambda x, n=size: jnp.broadcast_to(x, (n, *x.shape)), params1)

@@ -52,7 +52,7 @@ from brax.envs.base import Env, State, Wrapper
 from mecanum_jax import kinematics, limits
 from mecanum_jax.config import from_mapping, invalid, load_toml, require
 from mecanum_jax.description import RobotDescription, resolve_description
-from mecanum_jax.physics import GRAVITY, Robot, RobotParams, Sensors
+from mecanum_jax.physics import GRAVITY, Robot, RobotParams, Sensors, chunked_vmap, cpu_chunk
 
 Policy = Callable[[Any, jax.Array], tuple[jax.Array, dict[str, Any]]]
 
@@ -869,13 +869,16 @@ class TrainingEnv(Wrapper):
     ``state.info["truncation"]`` is 1 on the step an episode hits ``episode_length``.
     """
 
-    def __init__(self, env: MecanumEnv, episode_length: int | None = None):
+    def __init__(
+        self, env: MecanumEnv, episode_length: int | None = None, chunk: int | None = None
+    ):
         super().__init__(env)
         self.menv = env
         self.episode_length = episode_length or env.config.episode_length
+        self.chunk = chunk if chunk is not None else cpu_chunk()
 
     def reset(self, rng: jax.Array) -> State:
-        return jax.vmap(self.env.reset)(rng)
+        return chunked_vmap(self.env.reset, self.chunk)(rng)
 
     def step(self, state: State, action: jax.Array) -> State:
         def one(s: State, a: jax.Array) -> State:
@@ -894,7 +897,7 @@ class TrainingEnv(Wrapper):
                 info=info,
             )
 
-        return jax.vmap(one)(state, action)
+        return chunked_vmap(one, self.chunk)(state, action)
 
 
 def baseline_policy(env: MecanumEnv) -> Policy:

@@ -26,6 +26,7 @@ its ``unstable`` counter incremented, so it never poisons the batch; see
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Any, Literal, NamedTuple
 
 # isort: split
@@ -406,11 +407,42 @@ class Robot:
     # --- batches ------------------------------------------------------------------------
 
     def batched(self, substeps: int = 1) -> tuple[Any, Any, Any]:
-        """Jitted, vmapped ``(reset, step, sensors)`` over a leading robot axis."""
-        reset = jax.jit(jax.vmap(self.reset))
-        step = jax.jit(jax.vmap(lambda s, c, p: self.step(s, c, p, substeps)))
+        """Jitted, vmapped ``(reset, step, sensors)`` over a leading robot axis (on CPU in
+        chunks, :func:`cpu_chunk`)."""
+        chunk = cpu_chunk(self.fidelity)
+        reset = jax.jit(chunked_vmap(self.reset, chunk))
+        step = jax.jit(chunked_vmap(lambda s, c, p: self.step(s, c, p, substeps), chunk))
         sensors = jax.jit(jax.vmap(self.sensors))
         return reset, step, sensors
+
+
+CPU_CHUNK = {"fast": 64, "reference": 16}
+"""Robots per vmapped physics call on CPU, per fidelity: jaxlib 0.10's batched LAPACK (the
+Cholesky of MJX's Newton solver) deadlocks the 2-core CPU's thread pool from a batch of
+256 fast robots on (34 reference ones): its batch tasks wait for pool threads that the
+batch itself holds. 64 fast robots run, and are the fastest chunk measured
+(docs/benchmarks.md)."""
+
+
+def cpu_chunk(fidelity: str = "fast") -> int:
+    """:data:`CPU_CHUNK` on the CPU backend; 0 (no chunking) on accelerators."""
+    return CPU_CHUNK[fidelity] if jax.default_backend() == "cpu" else 0
+
+
+def chunked_vmap(fn: Callable[..., Any], chunk: int) -> Callable[..., Any]:
+    """``jax.vmap(fn)``, but over at most ``chunk`` items at a time (a ``lax.map`` over
+    chunks; 0: one vmap). The chunk is the largest divisor of the batch up to ``chunk``."""
+
+    def mapped(*xs: Any) -> Any:
+        n = jax.tree.leaves(xs)[0].shape[0]
+        c = max(d for d in range(1, min(chunk, n) + 1) if n % d == 0) if chunk else n
+        if c == n:
+            return jax.vmap(fn)(*xs)
+        split = jax.tree.map(lambda x: x.reshape((n // c, c, *x.shape[1:])), xs)
+        out = jax.lax.map(lambda ys: jax.vmap(fn)(*ys), split)
+        return jax.tree.map(lambda x: x.reshape((n, *x.shape[2:])), out)
+
+    return mapped
 
 
 def _axle_inverse_inertia(m: Any, axle_dof: np.ndarray) -> np.ndarray:
@@ -459,11 +491,14 @@ def steady_twist(
 
 
 __all__ = [
+    "CPU_CHUNK",
     "TIPPED_UP_Z",
     "Robot",
     "RobotParams",
     "Sensors",
     "SimState",
+    "chunked_vmap",
+    "cpu_chunk",
     "stack_params",
     "steady_twist",
     "unstable_robots",

@@ -19,6 +19,7 @@ from mecanum_jax.env import (
     baseline_policy,
     reward_terms,
 )
+from mecanum_jax.physics import CPU_CHUNK, chunked_vmap, cpu_chunk
 
 
 @pytest.fixture(scope="session")
@@ -251,3 +252,20 @@ def test_twist_residual_needs_residual_actions():
         EnvConfig(residual=False, residual_space="twist").validate()
     with pytest.raises(ConfigError, match=r"env\.residual_space = 'joint'"):
         EnvConfig(residual_space="joint").validate()
+
+
+def test_chunked_vmap_equals_vmap():
+    """CPU batches run in chunks (jaxlib's batched LAPACK deadlocks from 256 robots on)."""
+    assert cpu_chunk() == CPU_CHUNK["fast"]  # the suite runs on CPU
+
+    def f(x, y):
+        return {"sum": x + y, "outer": jnp.outer(x, y)}
+
+    x = jnp.arange(36.0).reshape(12, 3)
+    y = jnp.ones((12, 3))
+    want = jax.vmap(f)(x, y)
+    for chunk in (0, 1, 5, 12, 64):  # 5: the largest divisor of 12 up to 5 is 4
+        got = jax.jit(chunked_vmap(f, chunk))(x, y)
+        jax.tree.map(np.testing.assert_array_equal, got, want)
+    jaxpr = str(jax.make_jaxpr(chunked_vmap(f, 5))(x, y))
+    assert "while" in jaxpr or "scan" in jaxpr  # a loop over 3 chunks of 4

@@ -527,3 +527,17 @@ def test_bench_variants_take_the_trainers_flags(capsys):
     assert "--ppo.num-envz" in capsys.readouterr().err
     assert bench.main(["--config", "tiny", "--variant", "x --ppo.num-envs 3"]) == 2
     assert "ppo.num_envs = 3: must divide" in capsys.readouterr().out
+
+
+@pytest.mark.full
+def test_cpu_trains_256_robots(tiny, tmp_path):
+    """256 robots on CPU used to hang (jaxlib's batched LAPACK deadlock); chunked, they
+    train. One epoch of the tiny config at 256 environments."""
+    cfg = dataclasses.replace(
+        tiny,
+        ppo=dataclasses.replace(tiny.ppo, num_envs=256, batch_size=128, num_timesteps=2560),
+        run=dataclasses.replace(tiny.run, epoch_iterations=1),
+    )
+    summary = Run.create(cfg, tmp_path / "r256").train()
+    assert summary["epochs"] == 1
+    assert summary["env_steps_per_seed"] == 2560
