@@ -9,7 +9,7 @@ drive it unchanged.
   substeps. The default 5 ms physics step (contact time constant 10 ms) tracks steady
   twists within 0.5% like the 2 ms step, at 4 instead of 10 substeps; with the 12 Newton
   iterations no robot tips over, under the baseline or random actions (docs/training.md,
-  scripts/physics_step_candidates.py).
+  experiments/physics_step_candidates.py).
 - **Actions** in [-1, 1] per wheel. ``residual = true``: wheel-rate setpoints are the
   analytic baseline's plus ``action · residual_scale · max_rate``, so the zero action *is*
   the baseline. ``residual = false``: setpoints are ``action · max_rate``.
@@ -263,7 +263,7 @@ class EnvConfig:
     integral of the yaw-rate error the robot *measures*, ``I ← e^(−dt/τ)·I + (ω_cmd −
     gyro)·dt`` (gyro as observed: noisy, delayed), in units of ``τ`` times the largest
     feasible ωz. It gives a feedforward policy the memory an integral controller needs
-    (scripts/feedback_headroom.py); ``0`` leaves it out.
+    (experiments/feedback_headroom.py); ``0`` leaves it out.
     """
 
     robot: str = "o_rectangle"

@@ -6,7 +6,7 @@
 # Fitting time per env step = a + b * substeps separates the physics from the rest.
 # (4 ms: 0.60 M env steps/s, session 6.) One train.bench process per variant, so that a
 # run cut short still leaves the variants it finished in $OUT.
-# scripts/physics_step_candidates.py measures what each step does to tracking and stability.
+# experiments/physics_step_candidates.py measures what each step does to tracking and stability.
 #   bash scripts/device/substeps_bench.sh [EPOCHS]
 set -euo pipefail
 python3 -m pip install -q --no-index --no-deps --no-compile --upgrade --target /tmp/site .whl/*.whl 2>&1 | grep -v "already exists" || true

@@ -12,9 +12,9 @@ s, Newton iterations) this prints, side by side:
   control step (PPO's exploration at its worst) on randomized robots: largest |qvel|,
   unstable resets, robots tipped;
 - **baseline on randomized robots:** yaw-rate RMSE and robots tipped, as
-  ``scripts/runaway_episodes.py`` counts them.
+  ``experiments/runaway_episodes.py`` counts them.
 
-    .venv/bin/python scripts/physics_step_candidates.py 0.002,0.004,12 0.004,0.008,12 \\
+    .venv/bin/python experiments/physics_step_candidates.py 0.002,0.004,12 0.004,0.008,12 \\
         0.01,0.02,12 [--robots 64] [--chunks 4] [--steps 500]
 """
 

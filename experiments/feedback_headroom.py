@@ -14,7 +14,7 @@ find it has a learning problem, not a physics one.
   carried through the ``last_action`` observation (the only memory a feedforward
   policy has).
 
-    .venv/bin/python scripts/feedback_headroom.py [--robots 64] [--steps 250] [--gains 0.5 1 2]
+    .venv/bin/python experiments/feedback_headroom.py [--robots 64] [--steps 250] [--gains 0.5 1 2]
         [--igains 2 5 10] [--residual-scale 0.1]
 """
 

@@ -10,7 +10,7 @@ A mecanum base cannot turn faster than its wheels allow (the largest feasible ω
 ``env.command_scale[2]``) unless something else drives it: an episode with |ωz| far
 beyond that is a physics artefact or a tipped robot, not a tracking error.
 
-    .venv/bin/python scripts/runaway_episodes.py [--episodes 512] [--steps 500] [--chunk 64]
+    .venv/bin/python experiments/runaway_episodes.py [--episodes 512] [--steps 500] [--chunk 64]
         [--seed 0] [--worst 10] [--physics-timestep 0.004] [--contact-timeconst 0.008]
 """
 

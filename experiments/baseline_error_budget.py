@@ -4,7 +4,7 @@ Runs the baseline on the nominal scenario (and optionally the randomized one) wi
 evaluation command mix, and splits the squared velocity error by time since the last
 command change and by whether the command is within the motors' reach. Usage:
 
-    .venv/bin/python scripts/baseline_error_budget.py [--robots 64] [--chunks 1] [--seed 7]
+    .venv/bin/python experiments/baseline_error_budget.py [--robots 64] [--chunks 1] [--seed 7]
         [--steps 250] [--randomized]
 
 ``--chunks`` batches of ``--robots`` run one after the other (MJX batches >= 256 deadlock

@@ -8,7 +8,7 @@ wheel-rate actions, so ``a ← a_prev + clip(a_baseline − a_prev, ±δ)``) on 
 task's randomized robots and on the nominal one, side by side with the unramped baseline
 (δ = inf), on the same episodes.
 
-    .venv/bin/python scripts/ramped_baseline.py [--deltas inf 0.2 0.1 0.05] [--robots 64]
+    .venv/bin/python experiments/ramped_baseline.py [--deltas inf 0.2 0.1 0.05] [--robots 64]
         [--chunks 4] [--steps 500]
 """
 

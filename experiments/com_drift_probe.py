@@ -7,7 +7,7 @@ kept as axle armature (``motors.rotor_inertia`` reflected through the gear). Bot
 validation's slip cases (fast fidelity, 2 s) and print the mean twist over the first
 0.5 s, the final pose and the robots reset as unstable.
 
-    .venv/bin/python scripts/com_drift_probe.py
+    .venv/bin/python experiments/com_drift_probe.py
 """
 
 import dataclasses

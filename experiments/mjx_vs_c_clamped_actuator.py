@@ -5,7 +5,7 @@ implicit integrator's damping (mjd_actuator_vel); MJX 3.x (impl="jax", derivativ
 deriv_smooth_vel) always adds -kv. Prints body ωz, the wheels' implied ωz and wheel 0's
 torque every 20 ms for both engines (docs/physics_model.md).
 
-    .venv/bin/python scripts/mjx_vs_c_clamped_actuator.py
+    .venv/bin/python experiments/mjx_vs_c_clamped_actuator.py
 """
 
 import dataclasses

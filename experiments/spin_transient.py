@@ -13,7 +13,7 @@ the hops are about 1 mm and there is no overshoot. See docs/physics_model.md.
 Those figures were taken with MJX's own servo; since session 4 the default chord servo
 (physics.Robot._chord_servo) removes the over-spin, the 3 N·m / 4 ms hop remains (3.5 mm).
 
-    .venv/bin/python scripts/spin_transient.py [--timesteps 0.002 0.004] [--wz -5.5]
+    .venv/bin/python experiments/spin_transient.py [--timesteps 0.002 0.004] [--wz -5.5]
 """
 
 from __future__ import annotations

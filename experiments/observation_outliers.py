@@ -5,7 +5,7 @@ N(0, 0.3) residuals), normalizes the critic's observations by their own mean and
 deviation (as Brax's running statistics do), and prints the features with the largest
 |z|, and the per-step reward's range.
 
-    .venv/bin/python scripts/observation_outliers.py [--robots 64] [--steps 250]
+    .venv/bin/python experiments/observation_outliers.py [--robots 64] [--steps 250]
 """
 
 import argparse

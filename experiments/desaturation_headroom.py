@@ -14,9 +14,9 @@ keeps the out-of-reach ones, and compares, kinematically (no dynamics, no slip):
 
 It prints the RMSE of v and ω over the out-of-reach commands for both. The difference is
 an upper bound on what a policy could gain on the beyond-reach share of the error
-budget (scripts/baseline_error_budget.py), before dynamics.
+budget (experiments/baseline_error_budget.py), before dynamics.
 
-    .venv/bin/python scripts/desaturation_headroom.py [--samples 4000] [--seed 0]
+    .venv/bin/python experiments/desaturation_headroom.py [--samples 4000] [--seed 0]
         [--omega-weights 1 0.1 0.03 0.01]
 """
 

@@ -6,7 +6,7 @@ vmapped scan of ``--steps`` physics steps, median of ``--repeats``) on the same 
 one run, so their ratios are comparable. ``unstable`` counts robots that went
 non-finite during the timed calls (a variant that is fast but unstable is no option).
 
-    python scripts/physics_speed_sweep.py [--sizes 65536] [--variants default strip ...]
+    python experiments/physics_speed_sweep.py [--sizes 65536] [--variants default strip ...]
         [--json-out FILE]
 
 Variants (``strip`` = the draw-only geoms removed, ``Robot(strip_visual=True)``):

@@ -15,7 +15,7 @@ Prints body ωz (or vx), the value the wheels imply without slip, every 20 ms, t
 difference from the converged run over the first 0.3 s, and the chassis' largest rise.
 All runs use the same contact time constant (8 ms, the training environment's).
 
-    .venv/bin/python scripts/servo_saturation.py [--limits 1 3] [--mode spin|forward]
+    .venv/bin/python experiments/servo_saturation.py [--limits 1 3] [--mode spin|forward]
 """
 
 from __future__ import annotations
