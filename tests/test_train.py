@@ -541,3 +541,13 @@ def test_cpu_trains_256_robots(tiny, tmp_path):
     summary = Run.create(cfg, tmp_path / "r256").train()
     assert summary["epochs"] == 1
     assert summary["env_steps_per_seed"] == 2560
+
+
+def test_checkpoints_hold_only_numpy_arrays(learner):
+    """Orbax refuses process-local jax.Arrays in multi-process runs; some optimizer states
+    rebuild their leaves as jax arrays, so the packing converts leaf by leaf."""
+    state, env_state = learner.init()
+    for tree in (to_host(state), to_host(env_state)):
+        packed = checkpoint._host_pack(tree)
+        assert packed
+        assert all(isinstance(v, np.ndarray) for v in packed.values())

@@ -107,6 +107,13 @@ def unpack(template: Any, flat: dict[str, Any], host: bool = True) -> Any:
     return jax.tree.unflatten(treedef, out)
 
 
+def _host_pack(tree: Any) -> dict[str, np.ndarray]:
+    """:func:`pack` with every leaf a numpy array (orbax refuses a process-local jax.Array in
+    a multi-process run). Converted leaf by leaf: some optimizer states turn leaves back into
+    jax arrays when rebuilt, so ``jax.tree.map(np.asarray, tree)`` would not do."""
+    return {k: np.asarray(v) for k, v in pack(tree).items()}
+
+
 def save(
     mgr: ocp.CheckpointManager, epoch: int, train: Any, env: Any, meta: dict[str, Any]
 ) -> None:
@@ -114,8 +121,8 @@ def save(
     mgr.save(
         epoch,
         args=ocp.args.Composite(
-            train=ocp.args.StandardSave(pack(jax.tree.map(np.asarray, train))),
-            env=ocp.args.StandardSave(pack(jax.tree.map(np.asarray, env))),
+            train=ocp.args.StandardSave(_host_pack(train)),
+            env=ocp.args.StandardSave(_host_pack(env)),
             meta=ocp.args.JsonSave(meta),
         ),
         force=True,
@@ -138,7 +145,7 @@ def save_process(run_dir: Path, epoch: int, keys: Any, env: Any, keep: int) -> P
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{epoch}.npz"
     tmp = folder / f".{epoch}.tmp.npz"
-    arrays: dict[str, Any] = {f"env_{k}": np.asarray(v) for k, v in pack(env).items()}
+    arrays: dict[str, Any] = {f"env_{k}": v for k, v in _host_pack(env).items()}
     arrays["key"] = np.asarray(keys)
     np.savez(tmp, **arrays)
     os.replace(tmp, path)

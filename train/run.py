@@ -16,6 +16,7 @@ checkpoint of the last completed epoch before exiting.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -98,6 +99,112 @@ def stacked(results: list[Result]) -> dict[str, dict[str, np.ndarray]]:
         }
         for name in first
     }
+
+
+@dataclasses.dataclass
+class _Loop:
+    """What one call of :meth:`Run.train` carries from epoch to epoch."""
+
+    run: Run
+    learner: Learner
+    t_start: float
+    state: Any
+    env_state: Any
+    epoch: int = 0
+    walltime_before: float = 0.0
+    beat_at: dict[str, Any] = dataclasses.field(default_factory=dict)
+    saved_epoch: int = 0
+    mgr: Any = None
+    baseline_job: Any = None
+    baseline: Result | None = None
+    setup_s: float = 0.0
+    results: list[Result] = dataclasses.field(default_factory=list)
+    comparisons: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    shown: str = ""  # the last evaluation's figures, kept on the progress line
+
+    def steps(self, epochs: int) -> int:
+        """Environment steps per seed in ``epochs`` epochs."""
+        cfg = self.run.cfg
+        return epochs * cfg.steps_per_iteration * cfg.run.epoch_iterations
+
+    def session_s(self) -> float:
+        return time.time() - self.t_start
+
+    def walltime(self) -> float:
+        """Wall time of the run: this session (model, compilation, the baseline's
+        evaluation included) plus the sessions before a resume."""
+        return self.walltime_before + self.session_s()
+
+    def eval_due(self, is_last: bool) -> bool:
+        return self.epoch % self.run.cfg.run.eval_every == 0 or is_last
+
+    def checkpoint_due(self, is_last: bool) -> bool:
+        return self.epoch % self.run.cfg.run.checkpoint_every == 0 or is_last
+
+    def meta(self) -> dict[str, Any]:
+        env = self.learner.env
+        return {
+            "config": self.run.cfg.to_dict(),
+            "robot": env.desc.robot.name,
+            "robot_fingerprint": fingerprint(env.desc),
+            "observation_layout": [list(x) for x in env.layout],
+            "privileged_layout": [list(x) for x in env.privileged_layout],
+            "action_size": env.action_size,
+            "devices": self.learner.n_devices,
+            "epoch": self.epoch,
+            "env_steps": self.steps(self.epoch),
+            "walltime": self.walltime(),
+            "beat_baseline": self.beat_at,
+        }
+
+    def save(self) -> None:
+        """Checkpoint the current epoch, unless it is saved already."""
+        if self.epoch != self.saved_epoch:
+            ts, es = self.state, self.env_state
+            if self.mgr is not None:
+                checkpoint.save(self.mgr, self.epoch, to_host(ts), to_host(es), self.meta())
+            elif jax.process_count() > 1:  # only its keys and robots are its own
+                keep = self.run.cfg.run.max_checkpoints
+                checkpoint.save_process(
+                    self.run.dir, self.epoch, to_host(ts.key), to_host(es), keep
+                )
+        self.saved_epoch = self.epoch
+
+
+class _Progress:
+    """The progress line: steps, env steps/s, time left, the last evaluation's figures."""
+
+    def __init__(self, run: Run, loop: _Loop):
+        self.total = loop.steps(run.cfg.num_epochs)
+        self.bar = Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(bar_width=8),
+            TextColumn("{task.fields[steps]}"),
+            TextColumn("{task.fields[sps]}/s"),
+            TimeRemainingColumn(),
+            TextColumn("{task.fields[info]}"),
+            console=run.console,
+            disable=not run.is_writer,
+        )
+        done = loop.steps(loop.epoch)
+        self.task = self.bar.add_task(
+            run.cfg.name[:12],
+            total=self.total,
+            completed=done,
+            steps=f"{_si(done)}/{_si(self.total)}",
+            sps="-",
+            info="compiling",
+        )
+        if run.is_writer:
+            run.console.log(
+                "progress: steps, env steps/s, time left | steady-state error of v (m/s) and "
+                "ω (rad/s), policy/baseline, on held-out randomized episodes"
+            )
+
+    def update(self, loop: _Loop, sps: float) -> None:
+        done = loop.steps(loop.epoch)
+        steps = f"{_si(done)}/{_si(self.total)}"
+        self.bar.update(self.task, completed=done, steps=steps, sps=_si(sps), info=loop.shown)
 
 
 class Run:
@@ -214,6 +321,37 @@ class Run:
         ``time_limit_s`` stops (resumably, with a checkpoint) after the first epoch that
         ends past that many seconds of this session.
         """
+        loop = self._set_up(learner)
+        total = self.cfg.num_epochs
+        last = total if stop_after_epochs is None else min(total, loop.epoch + stop_after_epochs)
+        progress = _Progress(self, loop)
+        try:
+            with progress.bar:
+                while loop.epoch < last:
+                    sps, metrics = self._train_epoch(loop)
+                    is_last = loop.epoch == total
+                    results = self._evaluate(loop) if loop.eval_due(is_last) else []
+                    self._log_epoch(loop, metrics, results, sps)
+                    progress.update(loop, sps)
+                    out_of_time = time_limit_s is not None and loop.session_s() > time_limit_s
+                    if loop.checkpoint_due(is_last) or out_of_time:
+                        loop.save()
+                    if out_of_time and not is_last:
+                        if not results:
+                            self._evaluate(loop)
+                        self.console.log(f"time limit reached after epoch {loop.epoch}")
+                        break
+        finally:
+            for w in self._writers:
+                w.close()
+        return self._finish(loop)
+
+    # --- the steps of train ------------------------------------------------------------------
+
+    def _set_up(self, learner: Learner | None) -> _Loop:
+        """The learner, fresh or restored state, the checkpoint manager, logs, and the
+        baseline's evaluation started in a thread (it compiles the evaluation programs while
+        the first epoch compiles)."""
         cfg = self.cfg
         if cfg.run.matmul_precision != "default":
             jax.config.update("jax_default_matmul_precision", cfg.run.matmul_precision)
@@ -223,204 +361,130 @@ class Run:
             if differs:
                 raise ValueError(f"learner was built for another config: {differs}")
         learner = self.learner = learner or Learner(cfg)
-        seeds = list(cfg.run.seeds)
-        meta_base = {
-            "config": cfg.to_dict(),
-            "robot": learner.env.desc.robot.name,
-            "robot_fingerprint": fingerprint(learner.env.desc),
-            "observation_layout": [list(x) for x in learner.env.layout],
-            "privileged_layout": [list(x) for x in learner.env.privileged_layout],
-            "action_size": learner.env.action_size,
-            "devices": learner.n_devices,
-        }
         state, env_state = learner.init()
-        epoch, walltime_before, beat_at = 0, 0.0, {}
+        loop = _Loop(self, learner, t_start, state, env_state)
         if checkpoint.latest_epoch(self.dir) is not None:
-            host_state, host_env, meta = checkpoint.restore(
-                self.dir, to_host(state), to_host(env_state), log=self.console.log
-            )
-            checkpoint.check_compatible(meta, learner.env, f"checkpoint in {str(self.dir)!r}")
-            if jax.process_index() != 0:
-                # the checkpoint holds process 0's robots and loop keys; the others saved
-                # theirs beside it (checkpoint.save_process)
-                own = checkpoint.restore_process(
-                    self.dir, int(meta["epoch"]), host_state.key, host_env
-                )
-                if own is None:  # lost: this process's fresh robots and loop keys
-                    self.console.log(
-                        f"[yellow]process {jax.process_index()}: no saved robots for epoch "
-                        f"{meta['epoch']}; they restart from fresh resets[/]"
-                    )
-                    own = to_host(state.key), to_host(env_state)
-                keys, host_env = own
-                host_state = host_state.replace(key=keys)
-            state, env_state = learner.place(host_state, host_env)
-            epoch, walltime_before = int(meta["epoch"]), float(meta["walltime"])
-            beat_at = meta.get("beat_baseline", {})
-            self.console.log(f"resumed {self.dir} at epoch {epoch} ({meta['env_steps']:,} steps)")
+            self._restore(loop)
+        loop.saved_epoch = loop.epoch
         # opened after the restore, which may move a corrupt newest checkpoint aside
-        mgr = checkpoint.manager(self.dir, cfg.run.max_checkpoints) if self.is_writer else None
+        loop.mgr = checkpoint.manager(self.dir, cfg.run.max_checkpoints) if self.is_writer else None
         if jax.process_count() > 1:
             # compile before any process runs the epoch's collectives (see barrier)
-            learner.compile_epoch(state, env_state)
+            learner.compile_epoch(loop.state, loop.env_state)
             barrier("epoch-compiled")
         self._open_logs()
-        self._status("running", epoch=epoch)
-
-        # The baseline's evaluation compiles the evaluation programs; it runs in a thread while
-        # the first epoch compiles, and is awaited before anything is logged.
+        self._status("running", epoch=loop.epoch)
         pool = ThreadPoolExecutor(1, thread_name_prefix="baseline-eval")
-        baseline_job = pool.submit(learner.evaluate_baseline, first_device(state))
+        loop.baseline_job = pool.submit(learner.evaluate_baseline, first_device(loop.state))
         pool.shutdown(wait=False)
-        setup_s = time.time() - t_start
-        steps_per_epoch = cfg.steps_per_iteration * cfg.run.epoch_iterations
-        total_epochs = cfg.num_epochs
-        last_epoch = (
-            total_epochs
-            if stop_after_epochs is None
-            else min(total_epochs, epoch + stop_after_epochs)
-        )
-        saved_epoch = epoch
-        baseline: dict[str, Any] | None = None
-        baseline_result: Result | None = None
-        last_eval: dict[str, Any] = {}
-        last_compare: list[dict[str, Any]] = []
-        # Wall time counts everything from this call on (model, compilation, the baseline's
-        # evaluation), across resumes.
-        t0 = t_start - walltime_before
+        loop.setup_s = time.time() - t_start
+        return loop
 
-        def meta_for(ep: int) -> dict[str, Any]:
-            return {
-                **meta_base,
-                "epoch": ep,
-                "env_steps": ep * steps_per_epoch,
-                "walltime": time.time() - t0,
-                "beat_baseline": beat_at,
-            }
-
-        def save(ep: int, ts: Any, es: Any) -> None:
-            nonlocal saved_epoch
-            if ep != saved_epoch:
-                if mgr is not None:
-                    checkpoint.save(mgr, ep, to_host(ts), to_host(es), meta_for(ep))
-                elif jax.process_count() > 1:  # only its keys and robots are its own
-                    keep = cfg.run.max_checkpoints
-                    checkpoint.save_process(self.dir, ep, to_host(ts.key), to_host(es), keep)
-            saved_epoch = ep
-
-        progress = Progress(
-            TextColumn("[bold]{task.description}"),
-            BarColumn(bar_width=8),
-            TextColumn("{task.fields[steps]}"),
-            TextColumn("{task.fields[sps]}/s"),
-            TimeRemainingColumn(),
-            TextColumn("{task.fields[info]}"),
-            console=self.console,
-            disable=not self.is_writer,
+    def _restore(self, loop: _Loop) -> None:
+        """Continue from the newest checkpoint: state, robots, epoch, wall time, "beat at"."""
+        learner = loop.learner
+        host_state, host_env, meta = checkpoint.restore(
+            self.dir, to_host(loop.state), to_host(loop.env_state), log=self.console.log
         )
-        total_steps = total_epochs * steps_per_epoch
-        task = progress.add_task(
-            cfg.name[:12],
-            total=total_steps,
-            completed=epoch * steps_per_epoch,
-            steps=f"{_si(epoch * steps_per_epoch)}/{_si(total_steps)}",
-            sps="-",
-            info="compiling",
-        )
-        if self.is_writer:
-            self.console.log(
-                "progress: steps, env steps/s, time left | steady-state error of v (m/s) and "
-                "ω (rad/s), policy/baseline, on held-out randomized episodes"
-            )
-        shown = ""  # the last evaluation's figures, kept on the progress line
+        checkpoint.check_compatible(meta, learner.env, f"checkpoint in {str(self.dir)!r}")
+        if jax.process_index() != 0:
+            # the checkpoint holds process 0's robots and loop keys; the others saved
+            # theirs beside it (checkpoint.save_process)
+            own = checkpoint.restore_process(self.dir, int(meta["epoch"]), host_state.key, host_env)
+            if own is None:  # lost: this process's fresh robots and loop keys
+                self.console.log(
+                    f"[yellow]process {jax.process_index()}: no saved robots for epoch "
+                    f"{meta['epoch']}; they restart from fresh resets[/]"
+                )
+                own = to_host(loop.state.key), to_host(loop.env_state)
+            keys, host_env = own
+            host_state = host_state.replace(key=keys)
+        loop.state, loop.env_state = learner.place(host_state, host_env)
+        loop.epoch, loop.walltime_before = int(meta["epoch"]), float(meta["walltime"])
+        loop.beat_at = meta.get("beat_baseline", {})
+        self.console.log(f"resumed {self.dir} at epoch {loop.epoch} ({meta['env_steps']:,} steps)")
+
+    def _train_epoch(self, loop: _Loop) -> tuple[float, dict[str, np.ndarray]]:
+        """One compiled epoch: ``(env steps/s, per-seed metrics)``. Ctrl-C saves the last
+        completed epoch; a non-finite loss or parameter saves it and stops the run."""
+        t_epoch = time.time()
         try:
-            with progress:
-                while epoch < last_epoch:
-                    t_epoch = time.time()
-                    try:
-                        new_state, new_env, metrics = learner.epoch(state, env_state)
-                        metrics = {k: v[0] for k, v in to_host(metrics).items()}  # (S,)
-                    except KeyboardInterrupt:
-                        self.console.log(f"interrupted: saving epoch {epoch}")
-                        save(epoch, state, env_state)
-                        self._status("interrupted", epoch=epoch)
-                        raise
-                    if baseline is None:
-                        baseline_result = baseline_job.result()
-                        baseline = baseline_result.values
-                        self.console.log(
-                            f"set-up {setup_s:.0f} s; first epoch, with the baseline's "
-                            f"evaluation alongside: {time.time() - t_epoch:.0f} s"
-                        )
-                    if not np.all(metrics["finite"] > 0):
-                        bad = [s for s, f in zip(seeds, metrics["finite"], strict=True) if not f]
-                        save(epoch, state, env_state)
-                        self._log(
-                            epoch + 1,
-                            (epoch + 1) * steps_per_epoch,
-                            time.time() - t0,
-                            self._rows(metrics, {}, baseline),
-                        )
-                        self._status("diverged", epoch=epoch, seeds=bad)
-                        raise TrainingDiverged(
-                            f"non-finite loss or parameters in epoch {epoch + 1} for seeds {bad}; "
-                            f"stopped, last good checkpoint: epoch {epoch} "
-                            f"in {self.dir / 'checkpoints'}"
-                        )
-                    state, env_state = new_state, new_env
-                    epoch += 1
-                    sps = steps_per_epoch * len(seeds) / (time.time() - t_epoch)
-                    is_last = epoch == total_epochs
-                    evals: dict[str, Any] = {}
-                    comps: list[dict[str, Any]] = []
-                    if epoch % cfg.run.eval_every == 0 or is_last:
-                        assert baseline_result is not None  # awaited after the first epoch
-                        results = learner.evaluate(first_device(state))
-                        comps = [compare(r, baseline_result) for r in results]
-                        evals, last_eval, last_compare = stacked(results), stacked(results), comps
-                        for seed, comp in zip(seeds, comps, strict=True):
-                            if str(seed) not in beat_at and beats(comp):
-                                beat_at[str(seed)] = {
-                                    "epoch": epoch,
-                                    "env_steps": epoch * steps_per_epoch,
-                                    "walltime": time.time() - t0,
-                                }
-                    walltime = time.time() - t0
-                    rows = self._rows(metrics, evals, baseline, sps, comps)
-                    self._log(epoch, epoch * steps_per_epoch, walltime, rows)
-                    if evals:
-                        shown = _shown(evals["randomized"], baseline["randomized"])
-                    progress.update(
-                        task,
-                        completed=epoch * steps_per_epoch,
-                        steps=f"{_si(epoch * steps_per_epoch)}/{_si(total_steps)}",
-                        sps=_si(sps),
-                        info=shown,
-                    )
-                    out_of_time = time_limit_s is not None and time.time() - t_start > time_limit_s
-                    if epoch % cfg.run.checkpoint_every == 0 or is_last or out_of_time:
-                        save(epoch, state, env_state)
-                    if out_of_time and not is_last:
-                        if not evals:
-                            assert baseline_result is not None
-                            results = learner.evaluate(first_device(state))
-                            last_eval = stacked(results)
-                            last_compare = [compare(r, baseline_result) for r in results]
-                        self.console.log(f"time limit reached after epoch {epoch}")
-                        break
-        finally:
-            for w in self._writers:
-                w.close()
-        save(epoch, state, env_state)
-        if baseline is None:  # no epoch ran (a finished run resumed)
-            baseline = baseline_job.result().values
-        done = epoch >= total_epochs
+            new_state, new_env, metrics = loop.learner.epoch(loop.state, loop.env_state)
+            metrics = {k: v[0] for k, v in to_host(metrics).items()}  # (S,)
+        except KeyboardInterrupt:
+            self.console.log(f"interrupted: saving epoch {loop.epoch}")
+            loop.save()
+            self._status("interrupted", epoch=loop.epoch)
+            raise
+        if loop.baseline is None:
+            loop.baseline = loop.baseline_job.result()
+            self.console.log(
+                f"set-up {loop.setup_s:.0f} s; first epoch, with the baseline's "
+                f"evaluation alongside: {time.time() - t_epoch:.0f} s"
+            )
+        if not np.all(metrics["finite"] > 0):
+            seeds = self.cfg.run.seeds
+            bad = [s for s, f in zip(seeds, metrics["finite"], strict=True) if not f]
+            loop.save()
+            rows = self._rows(metrics, {}, loop.baseline.values)
+            self._log(loop.epoch + 1, loop.steps(loop.epoch + 1), loop.walltime(), rows)
+            self._status("diverged", epoch=loop.epoch, seeds=bad)
+            raise TrainingDiverged(
+                f"non-finite loss or parameters in epoch {loop.epoch + 1} for seeds {bad}; "
+                f"stopped, last good checkpoint: epoch {loop.epoch} "
+                f"in {self.dir / 'checkpoints'}"
+            )
+        loop.state, loop.env_state = new_state, new_env
+        loop.epoch += 1
+        sps = loop.steps(1) * len(self.cfg.run.seeds) / (time.time() - t_epoch)
+        return sps, metrics
+
+    def _evaluate(self, loop: _Loop) -> list[Result]:
+        """Each seed's policy on the held-out episodes, compared with the baseline; records
+        the first epoch each seed beats it."""
+        assert loop.baseline is not None  # awaited after the first epoch
+        results = loop.learner.evaluate(first_device(loop.state))
+        loop.results = results
+        loop.comparisons = [compare(r, loop.baseline) for r in results]
+        for seed, comp in zip(self.cfg.run.seeds, loop.comparisons, strict=True):
+            if str(seed) not in loop.beat_at and beats(comp):
+                loop.beat_at[str(seed)] = {
+                    "epoch": loop.epoch,
+                    "env_steps": loop.steps(loop.epoch),
+                    "walltime": loop.walltime(),
+                }
+        return results
+
+    def _log_epoch(
+        self, loop: _Loop, metrics: dict[str, np.ndarray], results: list[Result], sps: float
+    ) -> None:
+        assert loop.baseline is not None
+        evals = stacked(results) if results else {}
+        comps = loop.comparisons if results else []
+        rows = self._rows(metrics, evals, loop.baseline.values, sps, comps)
+        self._log(loop.epoch, loop.steps(loop.epoch), loop.walltime(), rows)
+        if evals:
+            loop.shown = _shown(evals["randomized"], loop.baseline.values["randomized"])
+
+    def _finish(self, loop: _Loop) -> dict[str, Any]:
+        """The last checkpoint, the summary and the final status."""
+        loop.save()
+        if loop.baseline is None:  # no epoch ran (a finished run resumed)
+            loop.baseline = loop.baseline_job.result()
+        evals = stacked(loop.results) if loop.results else {}
         summary = self._summary(
-            epoch, time.time() - t0, last_eval, last_compare, baseline, beat_at, t_start
+            loop.epoch,
+            loop.walltime(),
+            evals,
+            loop.comparisons if loop.results else [],
+            loop.baseline.values,
+            loop.beat_at,
+            loop.t_start,
         )
         if self.is_writer:
             write_json(self.dir / "summary.json", summary)
-        self._status("finished" if done else "stopped", epoch=epoch)
+        done = loop.epoch >= self.cfg.num_epochs
+        self._status("finished" if done else "stopped", epoch=loop.epoch)
         return summary
 
     def _rows(
