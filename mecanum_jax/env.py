@@ -389,20 +389,7 @@ class EnvConfig:
         )
         w, ww = self.reward, f"{where}.reward"
         require(w, ww, ("sigma_lin", "sigma_ang"), lambda v: v > 0, "must be > 0")
-        require(
-            w,
-            ww,
-            (
-                "tracking_lin",
-                "tracking_ang",
-                "error_lin",
-                "error_ang",
-                "action_rate",
-                "energy",
-            ),
-            lambda v: v >= 0,
-            "must be >= 0 (a weight)",
-        )
+        require(w, ww, REWARD_TERMS, lambda v: v >= 0, "must be >= 0 (a weight)")
         fb = self.feedback
         require(fb, f"{where}.feedback", ("kp", "ki", "i_max"), lambda v: v >= 0, "must be >= 0")
         require(fb, f"{where}.feedback", ("omega_weight",), lambda v: v > 0, "must be > 0")

@@ -122,11 +122,34 @@ def _space(name: str, drive: str, speed: Any, volume: float, eff: list[float]) -
     )
 
 
+def _mecanum_speed(desc: RobotDescription) -> tuple[Any, Any, Any]:
+    """A mecanum robot's float64 geometry, its wheel-rate limits, and its feasible set's
+    radius ``speed(directions (N, 3)) -> (N,)``."""
+    g = desc.build_geometry(jnp.float64)
+    rates = desc.max_wheel_rates(g)
+    return g, rates, functools.partial(limits.max_speed, g, max_rates=rates)
+
+
+def _drive_speed(desc: drives.DriveDescription, max_rate: float) -> tuple[Any, Any]:
+    """A drive's float64 geometry, and its feasible set's radius at ``max_rate`` (rad/s)."""
+    g = desc.build(jnp.float64)
+    return g, functools.partial(drives.max_speed, g, max_rate=max_rate)
+
+
+def _load(
+    mecanum: str, others: tuple[str, ...]
+) -> tuple[RobotDescription, list[drives.DriveDescription], float]:
+    """The robots compared, and the wheel-rate limit they all share: the mecanum's."""
+    desc = resolve_description(mecanum)
+    g = desc.build_geometry(jnp.float64)
+    max_rate = float(np.min(np.asarray(desc.max_wheel_rates(g))))
+    return desc, [drives.load_drive(name) for name in others], max_rate
+
+
 def drive_space(desc: drives.DriveDescription, max_rate: float) -> Space:
     """A drive's space at the wheel-rate limit ``max_rate`` (rad/s)."""
-    g = desc.build(jnp.float64)
+    g, speed = _drive_speed(desc, max_rate)
     eff = [_force_efficiency(*_drive_wheels(g, h), h) for h in (0.0, math.pi / 2)]
-    speed = functools.partial(drives.max_speed, g, max_rate=max_rate)
     return _space(desc.robot.name, desc.robot.drive, speed, 0.0, eff)
 
 
@@ -134,12 +157,10 @@ def mecanum_space(desc: RobotDescription) -> Space:
     """A mecanum robot's space at its own wheel-rate limits."""
     from scipy.spatial import ConvexHull
 
-    g = desc.build_geometry(jnp.float64)
-    rates = desc.max_wheel_rates(g)
+    g, rates, speed = _mecanum_speed(desc)
     vertices = limits.feasible_vertices(g, rates)
     volume = float(ConvexHull(vertices).volume) if len(vertices) >= 4 else 0.0
     eff = efficiency.efficiency(g, jnp.asarray([0.0, math.pi / 2])).force_efficiency
-    speed = functools.partial(limits.max_speed, g, max_rates=rates)
     return _space(desc.robot.name, "mecanum", speed, volume, [float(x) for x in eff])
 
 
@@ -148,11 +169,8 @@ def compare(
 ) -> tuple[list[Space], float]:
     """The mecanum robot's space and each other drive's at its wheel-rate limit:
     ``(spaces, max_rate)``; the drives' own motor limits are replaced by the mecanum's."""
-    desc = resolve_description(mecanum)
-    g = desc.build_geometry(jnp.float64)
-    max_rate = float(np.min(np.asarray(desc.max_wheel_rates(g))))
-    spaces = [mecanum_space(desc)]
-    spaces += [drive_space(drives.load_drive(name), max_rate) for name in others]
+    desc, other_descs, max_rate = _load(mecanum, others)
+    spaces = [mecanum_space(desc)] + [drive_space(d, max_rate) for d in other_descs]
     return spaces, max_rate
 
 
@@ -165,14 +183,11 @@ def plot(mecanum: str, others: tuple[str, ...], out: Path) -> Path:
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
     from scipy.spatial import ConvexHull
 
-    desc = resolve_description(mecanum)
-    g = desc.build_geometry(jnp.float64)
-    rates = desc.max_wheel_rates(g)
-    max_rate = float(np.min(np.asarray(rates)))
-    sets: dict[str, Any] = {desc.robot.name: lambda d: limits.max_speed(g, d, rates)}
-    for name in others:
-        dg = drives.load_drive(name).build(jnp.float64)
-        sets[name] = lambda d, dg=dg: drives.max_speed(dg, d, max_rate)
+    desc, other_descs, max_rate = _load(mecanum, others)
+    g, rates, speed = _mecanum_speed(desc)
+    sets: dict[str, Any] = {desc.robot.name: speed}
+    for other in other_descs:
+        sets[other.robot.name] = _drive_speed(other, max_rate)[1]
     fig = plt.figure(figsize=(15, 5))
     ax3 = fig.add_subplot(1, 3, 1, projection="3d")
     vertices = limits.feasible_vertices(g, rates)

@@ -476,7 +476,7 @@ class Run:
             loop.epoch,
             loop.walltime(),
             evals,
-            loop.comparisons if loop.results else [],
+            loop.comparisons,
             loop.baseline.values,
             loop.beat_at,
             loop.t_start,
