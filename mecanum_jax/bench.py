@@ -41,6 +41,7 @@ from rich.console import Console
 from rich.table import Table
 
 from mecanum_jax import geometry, kinematics, odometry
+from mecanum_jax.config import ConfigError
 
 DEFAULT_SIZES = (1_000, 10_000, 100_000, 1_000_000, 10_000_000, 100_000_000)
 
@@ -89,6 +90,8 @@ class PhysicsBench:
     """Override the description's line-search iterations (to explore speed)."""
     servos: tuple[str, ...] = ("chord",)
     """Servo models to time side by side: chord (the default) and/or mjx (MJX's own)."""
+    impls: tuple[str, ...] = ("jax",)
+    """MJX implementations to time side by side: jax and/or warp (the warp extra)."""
     json_out: Path | None = None
     """Write the results as JSON here."""
 
@@ -102,7 +105,7 @@ def time_physics(
 
     params1 = robot.nominal_params()
     cmd1 = kinematics.inverse(robot.geometry, jnp.array([0.3, 0.1, 0.5]))
-    chunk = physics.cpu_chunk(robot.fidelity)  # on CPU: chunks (jaxlib's LAPACK deadlock)
+    chunk = physics.cpu_chunk(robot.fidelity, robot.impl)  # CPU: jaxlib's LAPACK deadlock
     run = jax.jit(physics.chunked_vmap(functools.partial(robot.step, substeps=steps), chunk))
     reset = jax.jit(physics.chunked_vmap(robot.reset, chunk))
     rows = []
@@ -129,7 +132,7 @@ def time_physics(
 def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str, Any]:
     """Physics steps per second (robots × steps / wall time) for each fidelity and batch."""
     from mecanum_jax import physics  # MJX import is slow: only when asked
-    from mecanum_jax.description import builtin_description
+    from mecanum_jax.description import IMPLS, builtin_description
 
     console = console or Console(width=max(Console().width, 110))
     bad = sorted(set(args.fidelities) - {"fast", "reference"})
@@ -138,6 +141,9 @@ def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str,
     bad = sorted(set(args.servos) - {"chord", "mjx"})
     if bad or not args.servos:
         raise SystemExit(f"--servos: {list(args.servos)}: expected chord and/or mjx")
+    bad = sorted(set(args.impls) - set(IMPLS))
+    if bad or not args.impls:
+        raise SystemExit(f"--impls: {list(args.impls)}: expected {' and/or '.join(IMPLS)}")
     if args.steps < 1 or args.repeats < 1 or any(n < 1 for n in args.sizes):
         raise SystemExit(
             f"--steps = {args.steps}, --repeats = {args.repeats}, "
@@ -149,13 +155,19 @@ def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str,
             desc, sim=dataclasses.replace(desc.sim, ls_iterations=args.ls_iterations)
         )
     rows: list[dict[str, Any]] = []
-    for fidelity, servo in itertools.product(args.fidelities, args.servos):
-        robot = physics.Robot(desc, fidelity, servo=servo)  # type: ignore[arg-type]
+    for fidelity, impl, servo in itertools.product(args.fidelities, args.impls, args.servos):
         sizes = [n for n in args.sizes if fidelity == "fast" or n <= args.max_reference_size]
+        sim = dataclasses.replace(desc.sim, impl=impl)
+        robot = physics.Robot(
+            dataclasses.replace(desc, sim=sim),
+            fidelity,  # type: ignore[arg-type]
+            servo=servo,  # type: ignore[arg-type]
+            robots=max(sizes, default=1),
+        )
         for row in time_physics(robot, sizes, args.steps, args.repeats):
-            rows.append({"fidelity": fidelity, "servo": servo, **row})
+            rows.append({"fidelity": fidelity, "impl": impl, "servo": servo, **row})
             console.print(
-                f"{fidelity:9s} {servo:5s} batch {row['size']:6d}: "
+                f"{fidelity:9s} {impl:4s} {servo:5s} batch {row['size']:6d}: "
                 f"{row['steps_per_s']:12.4g} steps/s"
             )
     device = jax.devices()[0]
@@ -172,6 +184,7 @@ def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str,
     table = Table(title=f"MJX physics on {result['device']} (jax {result['jax']})")
     for col in (
         "fidelity",
+        "impl",
         "servo",
         "batch",
         "physics steps/s",
@@ -182,7 +195,7 @@ def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str,
         table.add_column(col, justify="right")
     for r in rows:
         ms = 1e3 * r["seconds_per_call"] / args.steps
-        cells = (r["fidelity"], r["servo"], str(r["size"]), f"{r['steps_per_s']:.4g}")
+        cells = (r["fidelity"], r["impl"], r["servo"], str(r["size"]), f"{r['steps_per_s']:.4g}")
         table.add_row(*cells, f"{ms:.3f}", f"{r['compile_s']:.1f}", str(r["unstable"]))
     console.print(table)
     _write_json(result, args.json_out, console)
@@ -519,7 +532,10 @@ def main(argv: list[str] | None = None) -> None:
     elif isinstance(cmd, KinematicsBench):
         run_kinematics(cmd)
     elif isinstance(cmd, PhysicsBench):
-        run_physics(cmd)
+        try:
+            run_physics(cmd)
+        except ConfigError as err:
+            raise SystemExit(f"error: {err}") from None
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import importlib.resources
+import importlib.util
 import json
 import math
 from pathlib import Path
@@ -162,6 +163,9 @@ class SimSpec:
       contact_timeconst: contact stiffness as MuJoCo's solref time constant, s (≥ 2 steps);
         stiffer than MuJoCo's 0.02 s default, whose soft contacts let the wheels creep
         sideways under centripetal load (≈3% twist error at 2 rad/s with 0.02 s).
+      impl: MJX implementation, ``"jax"`` (default) or ``"warp"`` (MuJoCo Warp through
+        MJX: needs the ``warp`` extra, on a CUDA GPU or the CPU; docs/benchmarks.md
+        compares them).
     """
 
     timestep: float = 0.002
@@ -174,6 +178,7 @@ class SimSpec:
     roller_radius_ratio: float = 0.3
     roller_spheres: int = 5
     contact_timeconst: float = 0.005
+    impl: str = "jax"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -305,6 +310,7 @@ def parse_description(data: dict, source: str = "robot description") -> RobotDes
 
 # sim.solver values and their MJCF spellings
 SOLVERS = {"newton": "Newton", "cg": "CG"}
+IMPLS = ("jax", "warp")  # sim.impl values
 
 
 def check_physics(desc: RobotDescription, source: str) -> None:
@@ -351,6 +357,9 @@ def check_physics(desc: RobotDescription, source: str) -> None:
         raise ConfigError(
             f"{source}: sim.solver = {desc.sim.solver!r}: expected one of {list(SOLVERS)}"
         )
+    if desc.sim.impl not in IMPLS:
+        raise ConfigError(f"{source}: sim.impl = {desc.sim.impl!r}: expected one of {list(IMPLS)}")
+    require_impl(desc.sim.impl, f"{source}: sim.impl")
     if desc.sim.iterations < 1 or desc.sim.ls_iterations < 1:
         raise ConfigError(
             f"{source}: sim.iterations = {desc.sim.iterations}, sim.ls_iterations = "
@@ -360,6 +369,16 @@ def check_physics(desc: RobotDescription, source: str) -> None:
         raise ConfigError(
             f"{source}: sim.roller_radius_ratio = {desc.sim.roller_radius_ratio}: "
             "expected 0.05 to 0.6"
+        )
+
+
+def require_impl(impl: str, field: str = "sim.impl") -> None:
+    """Raise :class:`ConfigError` naming ``field`` if ``impl`` needs a package that is not
+    installed (``"warp"``: warp-lang, the project's ``warp`` extra)."""
+    if impl == "warp" and importlib.util.find_spec("warp") is None:
+        raise ConfigError(
+            f"{field} = 'warp': MJX's Warp implementation needs warp-lang, the project's "
+            "optional 'warp' extra (uv sync --extra warp)"
         )
 
 
@@ -396,6 +415,9 @@ def resolve_description(robot: str, where: str = "") -> RobotDescription:
 
 def fingerprint(desc: RobotDescription) -> str:
     """A short hash of everything in a description (geometry, motors, body, actuators,
-    simulation): two descriptions with the same fingerprint build the same robot."""
-    text = json.dumps(dataclasses.asdict(desc), sort_keys=True, default=str)
+    simulation): two descriptions with the same fingerprint build the same robot. The MJX
+    implementation (``sim.impl``) is left out: it simulates the same robot."""
+    fields = dataclasses.asdict(desc)
+    del fields["sim"]["impl"]
+    text = json.dumps(fields, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]

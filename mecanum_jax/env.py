@@ -51,8 +51,16 @@ from brax.envs.base import Env, State, Wrapper
 
 from mecanum_jax import kinematics, limits
 from mecanum_jax.config import from_mapping, invalid, load_toml, require
-from mecanum_jax.description import RobotDescription, resolve_description
-from mecanum_jax.physics import GRAVITY, Robot, RobotParams, Sensors, chunked_vmap, cpu_chunk
+from mecanum_jax.description import IMPLS, RobotDescription, require_impl, resolve_description
+from mecanum_jax.physics import (
+    GRAVITY,
+    Robot,
+    RobotParams,
+    Sensors,
+    chunked_vmap,
+    cpu_chunk,
+    select,
+)
 
 Policy = Callable[[Any, jax.Array], tuple[jax.Array, dict[str, Any]]]
 
@@ -276,6 +284,8 @@ class EnvConfig:
     """Contact solver time constant, s (> 0; about 2 physics steps or more)."""
     solver_iterations: int = 0
     """Newton iterations of the physics solver (>= 0; 0: the description's)."""
+    physics_impl: str = ""
+    """MJX implementation: "jax", "warp" (needs the warp extra), or "" (the robot's sim.impl)."""
     episode_length: int = 500
     """Control steps per training episode (>= 1)."""
     residual: bool = True
@@ -322,6 +332,11 @@ class EnvConfig:
             "must be >= 0 (0: the robot description's sim.iterations)",
         )
         require(self, where, ("yaw_integral_tau",), lambda v: v >= 0, "must be >= 0 (0: off)")
+        if self.physics_impl not in ("", *IMPLS):
+            raise invalid(
+                f"{where}.physics_impl", self.physics_impl, f"expected one of {['', *IMPLS]}"
+            )
+        require_impl(self.physics_impl, f"{where}.physics_impl")
         if self.residual_space not in RESIDUAL_SPACES:
             raise invalid(
                 f"{where}.residual_space", self.residual_space, f"expected one of {RESIDUAL_SPACES}"
@@ -404,6 +419,7 @@ class EnvConfig:
             timestep=self.physics_timestep,
             contact_timeconst=self.contact_timeconst,
             iterations=self.solver_iterations or desc.sim.iterations,
+            impl=self.physics_impl or desc.sim.impl,
         )
         return dataclasses.replace(desc, sim=sim)
 
@@ -429,10 +445,12 @@ _COMMAND_KINDS = ("zero", "translation", "spin", "combined", "beyond")
 class MecanumEnv(Env):
     """One robot tracking body-twist commands (Brax ``Env``); batch with :class:`TrainingEnv`."""
 
-    def __init__(self, config: EnvConfig | None = None):
+    def __init__(self, config: EnvConfig | None = None, robots: int = 1):
+        """``robots``: the most robots one batched call simulates (all vmapped axes
+        together), for MuJoCo Warp's shared contact buffer (:class:`Robot`)."""
         self.config = config = (config or EnvConfig()).validate()
         self.desc = config.description()
-        self.robot = Robot(self.desc, "fast")
+        self.robot = Robot(self.desc, "fast", robots=robots)
         self.geometry = self.robot.geometry
         self.n_wheels = n = self.geometry.n_wheels
         self.substeps = round(config.control_dt / config.physics_timestep)
@@ -862,7 +880,7 @@ class TrainingEnv(Wrapper):
         super().__init__(env)
         self.menv = env
         self.episode_length = episode_length or env.config.episode_length
-        self.chunk = chunk if chunk is not None else cpu_chunk()
+        self.chunk = chunk if chunk is not None else cpu_chunk("fast", env.robot.impl)
 
     def reset(self, rng: jax.Array) -> State:
         return chunked_vmap(self.env.reset, self.chunk)(rng)
@@ -874,7 +892,11 @@ class TrainingEnv(Wrapper):
             k_reset, k_next = jax.random.split(nxt.info["rng"])
             fresh = self.env.reset(k_reset)
             fresh.info["rng"] = k_next
-            merged = jax.tree.map(lambda f, x: jnp.where(done, f, x), fresh, nxt)
+            merged = jax.tree.map(
+                lambda f, x: jnp.where(done, f, x),
+                fresh.replace(pipeline_state=None),
+                nxt.replace(pipeline_state=None),
+            ).replace(pipeline_state=select(done, fresh.pipeline_state, nxt.pipeline_state))
             info = dict(merged.info)
             info["truncation"] = done.astype(jnp.float32)
             return merged.replace(

@@ -40,7 +40,7 @@ import numpy as np
 from mujoco import mjx
 
 from mecanum_jax import mjcf
-from mecanum_jax.description import RobotDescription
+from mecanum_jax.description import RobotDescription, require_impl
 from mecanum_jax.geometry import WheelGeometry
 
 ServoModel = Literal["chord", "mjx"]
@@ -149,25 +149,44 @@ class Robot:
         fidelity: mjcf.Fidelity = "fast",
         servo: ServoModel = "chord",
         strip_visual: bool = True,
+        robots: int = 1,
     ):
         """``strip_visual``: simulate a copy of the model without its draw-only geoms
         (:func:`mjcf.build_model`, same dynamics, fewer poses per step); ``mj_model``
-        keeps them for rendering."""
+        keeps them for rendering.
+
+        ``robots``: with ``desc.sim.impl == "warp"``, the most robots one batched call
+        simulates (all vmapped axes together): MuJoCo Warp's contact buffer is one for the
+        whole batch, sized :data:`WARP_CONTACTS` per wheel and robot. The ``jax``
+        implementation ignores it."""
         if servo not in ("chord", "mjx"):
             raise ValueError(f"servo = {servo!r}: must be 'chord' or 'mjx'")
+        if not isinstance(robots, int) or robots < 1:
+            raise ValueError(f"robots = {robots!r}: must be an integer >= 1")
         self.desc = desc
         self.fidelity = fidelity
         self.servo = servo
+        self.impl = desc.sim.impl
+        require_impl(self.impl)
+        self._chord_on_warp = servo == "chord" and self.impl == "warp"
+        self.robots = robots
         self.mj_model, self.index = mjcf.build_model(desc, fidelity)
         self.sim_model = self.mj_model
         if strip_visual:  # geom indices change: the index must be the simulated model's
             self.sim_model, self.index = mjcf.build_model(desc, fidelity, visual=False)
         # MJX's default device is jax.devices()[0], which another process of a
         # jax.distributed run cannot address; this process's first device always works
-        self.mjx_model = mjx.put_model(self.sim_model, device=jax.local_devices()[0], impl="jax")
+        self.mjx_model = mjx.put_model(
+            self.sim_model, device=jax.local_devices()[0], impl=self.impl
+        )
+        if self.impl == "warp":
+            self.mjx_model = _quiet_solver_limits(self.mjx_model)
         self.geometry: WheelGeometry = desc.build_geometry(warn_singular=False)
         self.n_wheels = self.geometry.n_wheels
         self.dt = float(self.mj_model.opt.timestep)
+        per_robot = WARP_CONTACTS[fidelity] * self.n_wheels
+        self.naconmax = per_robot * robots  # warp: contacts of the whole batch
+        self.njmax = 4 * per_robot  # warp, per robot: a pyramidal condim-3 contact has 4 rows
         idx = self.index
         self._axle_qpos = jnp.asarray(idx.axle_qpos)
         self._axle_dof = jnp.asarray(idx.axle_dof)
@@ -229,11 +248,20 @@ class Robot:
         c = idx.chassis_body
         gain = m.actuator_gainprm.at[self._acts, 0].set(params.kp)
         bias = m.actuator_biasprm.at[self._acts, 2].set(-params.kp)
-        frange = m.actuator_forcerange.at[self._acts].set(
-            jnp.stack([-params.torque_limit, params.torque_limit], -1)
-        )
+        # MuJoCo Warp drops a clamped actuator's damping from the implicit step, but the
+        # chord servo's own slope already keeps every force within the limit, so under
+        # warp its clamp sits beyond reach: the slope stays implicit, as under MJX's JAX
+        limit = params.torque_limit * (CHORD_WARP_RANGE if self._chord_on_warp else 1.0)
+        frange = m.actuator_forcerange.at[self._acts].set(jnp.stack([-limit, limit], -1))
         size, geom_pos, body_pos = self._geom_size, self._geom_pos, self._body_pos
         scale = params.radius_scale[:, None]
+        # the bounding sphere and box scale with the wheel: MuJoCo Warp's broadphase culls
+        # pairs with them (a wheel larger than its bound would only touch the floor once it
+        # had sunk in); MJX's JAX collision does not read them here
+        rbound = m.geom_rbound.at[self._wheel_geoms].multiply(scale)
+        aabb = m.geom_aabb.at[self._wheel_geoms].multiply(
+            scale.reshape(*scale.shape, *(1,) * (m.geom_aabb.ndim - 1))
+        )
         if self.fidelity == "fast":
             size = size.at[self._wheel_geoms[:, 0], 0].multiply(params.radius_scale)
         else:  # the whole roller ring scales about the axle: rollers, spheres, capsules
@@ -248,6 +276,8 @@ class Robot:
         return m.replace(
             geom_friction=friction,
             geom_size=size,
+            geom_rbound=rbound,
+            geom_aabb=aabb,
             geom_pos=geom_pos,
             body_pos=body_pos,
             body_mass=m.body_mass.at[c].set(total),
@@ -273,8 +303,7 @@ class Robot:
         r = jnp.max(params.radius_scale * jnp.asarray(self.geometry.radii))
         qpos = qpos.at[f + 2].add(r - r_nominal)
         with jax.numpy_rank_promotion("allow"):
-            data = mjx.make_data(self.model_for(params), device=jax.local_devices()[0])
-            data = data.replace(qpos=qpos)
+            data = self._make_data(params).replace(qpos=qpos)
         n = self.n_wheels
         return SimState(
             data=data,
@@ -284,6 +313,14 @@ class Robot:
             initial_qpos=qpos,
             unstable=jnp.asarray(0, jnp.int32),
         )
+
+    def _make_data(self, params: RobotParams) -> mjx.Data:
+        device = jax.local_devices()[0]
+        if self.impl == "warp":  # Warp's data is built from the host model, with capacities
+            return mjx.make_data(
+                self.sim_model, device=device, impl="warp", naconmax=self.naconmax, njmax=self.njmax
+            )
+        return mjx.make_data(self.model_for(params), device=device)
 
     def _physics_step(
         self, model: mjx.Model, state: SimState, command: jax.Array, params: RobotParams
@@ -409,12 +446,39 @@ class Robot:
     def batched(self, substeps: int = 1) -> tuple[Any, Any, Any]:
         """Jitted, vmapped ``(reset, step, sensors)`` over a leading robot axis (on CPU in
         chunks, :func:`cpu_chunk`)."""
-        chunk = cpu_chunk(self.fidelity)
+        chunk = cpu_chunk(self.fidelity, self.impl)
         reset = jax.jit(chunked_vmap(self.reset, chunk))
         step = jax.jit(chunked_vmap(lambda s, c, p: self.step(s, c, p, substeps), chunk))
         sensors = jax.jit(jax.vmap(self.sensors))
         return reset, step, sensors
 
+
+def select(done: jax.Array, fresh: SimState, state: SimState) -> SimState:
+    """``fresh`` where ``done``, else ``state`` (one robot, or a batch with ``done`` per
+    robot). MuJoCo Warp's contact and constraint buffers are shared by the whole batch, so
+    they are kept as they are (``mjx.Data.where``), never selected leaf by leaf."""
+
+    def where(a: jax.Array, b: jax.Array) -> jax.Array:
+        return jnp.where(done, a, b)
+
+    return SimState(
+        data=state.data.where(done, fresh.data),
+        setpoint=where(fresh.setpoint, state.setpoint),
+        integral=where(fresh.integral, state.integral),
+        accel=where(fresh.accel, state.accel),
+        initial_qpos=where(fresh.initial_qpos, state.initial_qpos),
+        unstable=where(fresh.unstable, state.unstable),
+    )
+
+
+CHORD_WARP_RANGE = 2.0
+"""Under ``warp``, the chord servo's actuators get this multiple of the torque limit as
+their force range (see :meth:`Robot.model_for`)."""
+
+WARP_CONTACTS = {"fast": 2, "reference": 6}
+"""Contact capacity per wheel and robot under ``sim.impl = "warp"``, per fidelity: a fast
+wheel (a sphere) touches the floor at one point, a reference wheel with two or three of its
+roller spheres; twice that leaves headroom for the moments rollers change over."""
 
 CPU_CHUNK = {"fast": 64, "reference": 16}
 """Robots per vmapped physics call on CPU, per fidelity: jaxlib 0.10's batched LAPACK (the
@@ -424,9 +488,11 @@ batch itself holds. 64 fast robots run, and are the fastest chunk measured
 (docs/benchmarks.md)."""
 
 
-def cpu_chunk(fidelity: str = "fast") -> int:
-    """:data:`CPU_CHUNK` on the CPU backend; 0 (no chunking) on accelerators."""
-    return CPU_CHUNK[fidelity] if jax.default_backend() == "cpu" else 0
+def cpu_chunk(fidelity: str = "fast", impl: str = "jax") -> int:
+    """:data:`CPU_CHUNK` for the ``jax`` implementation on the CPU backend; 0 (no chunking)
+    on accelerators and for ``warp`` (whose batch shares one contact buffer, and which does
+    not use LAPACK)."""
+    return CPU_CHUNK[fidelity] if jax.default_backend() == "cpu" and impl == "jax" else 0
 
 
 def chunked_vmap(fn: Callable[..., Any], chunk: int) -> Callable[..., Any]:
@@ -443,6 +509,17 @@ def chunked_vmap(fn: Callable[..., Any], chunk: int) -> Callable[..., Any]:
         return jax.tree.map(lambda x: x.reshape((n, *x.shape[2:])), out)
 
     return mapped
+
+
+def _quiet_solver_limits(model: mjx.Model) -> mjx.Model:
+    """MuJoCo Warp prints a line whenever a solve stops at its iteration or line-search
+    limit; MJX's JAX implementation stops there silently, and so does this project (the
+    limits are set on purpose, SimSpec.iterations). Buffer overflows still print."""
+    from mujoco.mjx.third_party.mujoco_warp import OverflowType
+
+    quiet = OverflowType.ALL & ~(OverflowType.ITERATIONS | OverflowType.LS_ITERATIONS)
+    impl = dataclasses.replace(model.opt._impl, warn_overflow=int(quiet))
+    return model.replace(opt=model.opt.replace(_impl=impl))
 
 
 def _axle_inverse_inertia(m: Any, axle_dof: np.ndarray) -> np.ndarray:
@@ -493,12 +570,14 @@ def steady_twist(
 __all__ = [
     "CPU_CHUNK",
     "TIPPED_UP_Z",
+    "WARP_CONTACTS",
     "Robot",
     "RobotParams",
     "Sensors",
     "SimState",
     "chunked_vmap",
     "cpu_chunk",
+    "select",
     "stack_params",
     "steady_twist",
     "unstable_robots",

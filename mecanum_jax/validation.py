@@ -36,7 +36,13 @@ import numpy as np
 
 from mecanum_jax import kinematics, odometry, physics
 from mecanum_jax.config import ConfigError
-from mecanum_jax.description import SOLVERS, RobotDescription, builtin_description, check_physics
+from mecanum_jax.description import (
+    IMPLS,
+    SOLVERS,
+    RobotDescription,
+    builtin_description,
+    check_physics,
+)
 from mecanum_jax.geometry import SingularLayoutWarning
 from mecanum_jax.mjcf import Fidelity
 from mecanum_jax.modes import SIX_MODES
@@ -203,7 +209,7 @@ def run(
         results["sim_overrides"] = sim
     for fidelity in fidelities:
         t0 = time.perf_counter()
-        robot = physics.Robot(desc, fidelity)
+        robot = physics.Robot(desc, fidelity, robots=CHUNK)
         out = simulate(robot, track + slips, seconds=2.0)
         n_avg = int(0.5 / out["dt"])
         rows = []
@@ -224,8 +230,8 @@ def run(
                               "odometry_error_m": drift, "distance_m": dist,
                               "resets": int(np.asarray(out["unstable"][i]).max())})  # fmt: skip
         # the X-square against the O-square, same spin pattern; and the X-square's own spin inverse
-        xs = physics.Robot(xsq, fidelity)
-        os_ = physics.Robot(osq, fidelity)
+        xs = physics.Robot(xsq, fidelity, robots=CHUNK)
+        os_ = physics.Robot(osq, fidelity, robots=CHUNK)
         own = _rates(xs.geometry, (0.0, 0.0, 1.0))
         x_out = simulate(xs, [Case("X-square, O spin pattern", "x", spin_pattern),
                               Case("X-square, its own inverse of ω = 1 rad/s", "x", own)], 2.0)  # fmt: skip
@@ -255,8 +261,15 @@ def summary(name: str, r: dict[str, Any]) -> str:
     return (
         f"**{name}**: {passed}/{len(r['tracking'])} pass; relative twist error median "
         f"{100 * np.median(rel):.2f}%, max {100 * np.max(rel):.2f}%; non-finite resets: "
-        f"{r['unstable']}; wall time {r['seconds']:.0f} s (CPU, with compilation)."
+        f"{r['unstable']}; wall time {r['seconds']:.0f} s (with compilation)."
     )
+
+
+def _flags(res: dict[str, Any]) -> str:
+    """The command-line flags that reproduce ``res``."""
+    flags = [" --quick"] if res["quick"] else []
+    flags += [f" --{k} {v}" for k, v in res.get("sim_overrides", {}).items()]
+    return "".join(flags)
 
 
 def to_markdown(res: dict[str, Any]) -> str:
@@ -264,7 +277,7 @@ def to_markdown(res: dict[str, Any]) -> str:
     lines = [
         "# Physics validation: MJX model against the kinematics",
         "",
-        f"Produced by `python -m mecanum_jax.validation{' --quick' if res['quick'] else ''}` "
+        f"Produced by `python -m mecanum_jax.validation{_flags(res)}` "
         f"(robot `{res['robot']}`, {res['date']}, {res['device']}). Wheel rates come from the "
         "analytic inverse model; the achieved twist is the mean true body twist over the last "
         "0.5 s of 2 s, friction 1.0. Pass, fast fidelity: linear error ≤ max(2% |v|, 0.01 m/s) "
@@ -348,10 +361,10 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--solver", choices=list(SOLVERS), help="override sim.solver")
     parser.add_argument("--iterations", type=int, help="override sim.iterations")
+    parser.add_argument("--impl", choices=list(IMPLS), help="override sim.impl (MJX backend)")
     args = parser.parse_args(argv)
-    sim = {
-        k: v for k, v in (("solver", args.solver), ("iterations", args.iterations)) if v is not None
-    }
+    overrides = (("solver", args.solver), ("iterations", args.iterations), ("impl", args.impl))
+    sim = {k: v for k, v in overrides if v is not None}
     try:
         res = run(quick=args.quick, fidelities=tuple(args.fidelities), **sim)
     except ConfigError as err:

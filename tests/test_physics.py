@@ -383,3 +383,79 @@ def test_roller_spheres_validated():
     bad = dataclasses.replace(desc, sim=dataclasses.replace(desc.sim, roller_spheres=1))
     with pytest.raises(ConfigError, match=r"sim\.roller_spheres = 1"):
         check_physics(bad, "robot")
+
+
+# --- the MJX implementation (sim.impl) ------------------------------------------------------
+
+
+def _with_impl(desc, impl):
+    return dataclasses.replace(desc, sim=dataclasses.replace(desc.sim, impl=impl))
+
+
+def test_sim_impl_is_checked_and_left_out_of_the_fingerprint():
+    from mecanum_jax.description import fingerprint
+
+    desc = builtin_description("o_rectangle")
+    assert desc.sim.impl == "jax"
+    with pytest.raises(ConfigError, match=r"sim.impl = 'cuda'"):
+        check_physics(_with_impl(desc, "cuda"), "robot")
+    # the same robot, simulated another way: checkpoints stay compatible
+    assert fingerprint(_with_impl(desc, "warp")) == fingerprint(desc)
+    with pytest.raises(ValueError, match="robots = 0"):
+        physics.Robot(desc, "fast", robots=0)
+
+
+@pytest.mark.skipif(
+    __import__("importlib").util.find_spec("warp") is not None, reason="warp is installed"
+)
+def test_warp_without_its_extra_is_refused_naming_the_field():
+    from mecanum_jax.env import EnvConfig
+
+    with pytest.raises(ConfigError, match=r"env.physics_impl = 'warp'.*extra"):
+        EnvConfig(physics_impl="warp").validate()
+    with pytest.raises(ConfigError, match=r"sim.impl = 'warp'.*extra"):
+        physics.Robot(_with_impl(builtin_description("o_rectangle"), "warp"), "fast")
+
+
+def test_select_takes_fresh_robots_where_done(fast_robot):
+    reset, step, _ = fast_robot.batched(substeps=2)
+    p = physics.stack_params([fast_robot.nominal_params()] * 3)
+    fresh = reset(p, jnp.zeros((3, 3)))
+    cmd = jnp.full((3, 4), 10.0)
+    moved = step(step(fresh, cmd, p), cmd, p)
+    done = jnp.array([True, False, True])
+    merged = jax.vmap(physics.select)(done, fresh, moved)
+    for leaf_m, leaf_f, leaf_s in zip(
+        jax.tree.leaves(merged), jax.tree.leaves(fresh), jax.tree.leaves(moved), strict=True
+    ):
+        if np.size(leaf_m) == 0:
+            continue
+        np.testing.assert_array_equal(np.asarray(leaf_m)[[0, 2]], np.asarray(leaf_f)[[0, 2]])
+        np.testing.assert_array_equal(np.asarray(leaf_m)[1], np.asarray(leaf_s)[1])
+    assert not np.array_equal(np.asarray(moved.setpoint[1]), np.asarray(fresh.setpoint[1]))
+
+
+@pytest.mark.full
+def test_warp_steps_the_robot_as_jax_does():
+    """With the warp extra installed (CPU is enough): the product's step (chord servo,
+    re-zeroed carriers, per-robot friction, payload and wheel radius) under MuJoCo Warp
+    follows MJX's JAX implementation to 1 mm/s."""
+    pytest.importorskip("warp")
+    base = builtin_description("o_rectangle")
+    cases = [(1.0, 1.0, 0.0), (0.3, 1.05, 2.0), (0.1, 0.95, 0.0), (0.6, 1.0, 4.0)]
+    cmd = jnp.array([[10.0, -10.0, 10.0, -10.0]]) * jnp.array([[1.0], [1.0], [-1.0], [0.5]])
+    twists = {}
+    for impl in ("jax", "warp"):
+        robot = physics.Robot(_with_impl(base, impl), "fast", robots=len(cases))
+        p = physics.stack_params(
+            [robot.nominal_params(friction=f, radius_scale=r, payload_mass=m) for f, r, m in cases]
+        )
+        reset, step, sensors = robot.batched(substeps=10)
+        state, out = reset(p), []
+        for _ in range(25):
+            state = step(state, cmd, p)
+            out.append(np.asarray(sensors(state).twist))
+        assert int(np.asarray(state.unstable).sum()) == 0
+        twists[impl] = np.stack(out)
+    assert np.abs(twists["warp"] - twists["jax"]).max() < 1e-3
+    assert abs(twists["jax"][-1, 2, 1] - 0.239) < 0.01  # on ice the robot still moves

@@ -142,11 +142,12 @@ class Target:
             self.restored = checkpoint.restore_policy(run_dir, args.seed, epoch or args.epoch)
             base = self.restored.cfg.env
             self.label = f"{run_dir} (epoch {self.restored.epoch}, seed {self.restored.seed})"
-        self.env = MecanumEnv(scenarios.eval_env_config(base.validate("env"), scenario_set))
+        max_batch = args.max_batch or (64 if jax.default_backend() == "cpu" else 16384)
+        eval_cfg = scenarios.eval_env_config(base.validate("env"), scenario_set)
+        self.env = MecanumEnv(eval_cfg, robots=max_batch)
         apply = None
         if self.restored is not None:
             apply = self.restored.apply
-        max_batch = args.max_batch or (64 if jax.default_backend() == "cpu" else 16384)
         self.evaluator = ev.Evaluator(self.env, apply, max_batch)
 
     @property

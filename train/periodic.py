@@ -54,9 +54,13 @@ class PeriodicEvaluation:
         self.scenarios = scenarios.task_scenarios(cfg.env, r.num_eval_envs, seconds, r.eval_seed)
         # the training environment serves unless the scenarios need more latency history
         eval_cfg = scenarios.eval_env_config(cfg.env, self.scenarios)
-        self.env = env if eval_cfg == env.config else MecanumEnv(eval_cfg)
         # one chunk on a GPU; 64 robots on CPU (larger MJX batches deadlock its backend)
         max_batch = 2 * r.num_eval_envs if on_gpu else 64
+        robots = max_batch * len(r.seeds)
+        too_few = env.robot.impl == "warp" and env.robot.robots < robots  # contact buffer
+        if eval_cfg != env.config or too_few:
+            env = MecanumEnv(eval_cfg, robots=robots)
+        self.env = env
         self.evaluator = evaluation.Evaluator(self.env, deterministic_apply(networks), max_batch)
         self._jacobian = np.asarray(kinematics.jacobian(self.env.geometry))
         self._batches: dict[str, scenarios.EpisodeBatch] | None = None

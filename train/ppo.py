@@ -230,10 +230,10 @@ class Learner:
         self.n_processes = jax.process_count()
         cfg.check_devices(self.n_devices * self.n_processes)
         self.n_seeds = len(cfg.run.seeds)
-        self.env = MecanumEnv(cfg.env)
-        self.train_env = TrainingEnv(self.env)
         p = cfg.ppo
         self.envs_per_device = p.num_envs // (self.n_devices * self.n_processes)
+        self.env = MecanumEnv(cfg.env, robots=self.envs_per_device * self.n_seeds)
+        self.train_env = TrainingEnv(self.env)
         self.unrolls_per_iteration = p.batch_size * p.num_minibatches // p.num_envs
         self.networks = make_networks(self.env, cfg)
         self.make_policy = ppo_networks.make_inference_fn(self.networks)
@@ -277,6 +277,7 @@ class Learner:
         self._env_template = jax.eval_shape(
             self.train_env.reset, jax.ShapeDtypeStruct((self.envs_per_device, 2), jnp.uint32)
         )
+        self._shared = self._shared_buffers()
         on_gpu = all(d.platform == "gpu" for d in self.devices)
         self.evaluation = PeriodicEvaluation(cfg, self.env, self.networks, on_gpu)
 
@@ -327,14 +328,36 @@ class Learner:
         """Compile :meth:`epoch` for these states now, ahead of its first call."""
         self._compiled_epoch = self._parallel_epoch.lower(ts, env_state).compile()
 
+    def _shared_buffers(self) -> dict[str, np.ndarray]:
+        """The environment state's leaves that belong to the whole batch rather than to a
+        robot (MuJoCo Warp's contact buffer and its sizes; none under MJX's JAX), by
+        :func:`train.checkpoint.pack` key: leaves without the robot axis. They are scratch
+        space each physics step refills, so they stay out of the ``(D, S, E)`` layout and
+        every program starts from fresh ones: the small ones (counts, capacities) as the
+        reset made them, the buffers as zeros."""
+        E = self.envs_per_device
+        leaves = jax.tree.leaves(self._env_template)
+        shared = [i for i, x in enumerate(leaves) if x.shape[:1] != (E,) and math.prod(x.shape)]
+        if not shared:
+            return {}
+        # one robot's reset holds the same batch-wide leaves, and compiles faster
+        fresh = jax.tree.leaves(jax.jit(self.env.reset)(jnp.zeros((2,), jnp.uint32)))
+        return {
+            f"{i:05d}": np.asarray(fresh[i]) if fresh[i].size <= 64 else np.zeros_like(fresh[i])
+            for i in shared
+        }
+
     def pack_env(self, env_state: Any) -> dict[str, Any]:
-        """The environment state without its zero-size leaves (MJX has several), as it
-        crosses device programs (:func:`train.checkpoint.pack`)."""
-        return checkpoint.pack(env_state)
+        """The environment state without its zero-size leaves (MJX has several) and its
+        batch-wide buffers (:meth:`_shared_buffers`), as it crosses device programs
+        (:func:`train.checkpoint.pack`)."""
+        packed = checkpoint.pack(env_state)
+        return {k: v for k, v in packed.items() if k not in self._shared}
 
     def unpack_env(self, packed: dict[str, Any]) -> Any:
         """Inverse of :meth:`pack_env` for one seed's per-device batch (inside the program)."""
-        return checkpoint.unpack(self._env_template, packed, host=False)
+        fresh = {k: jnp.asarray(v) for k, v in self._shared.items()}
+        return checkpoint.unpack(self._env_template, {**packed, **fresh}, host=False)
 
     def place(self, ts: TrainingState, env_state: Any) -> tuple[TrainingState, Any]:
         """Put host ``(D, ...)`` states on the devices exactly as :meth:`epoch` returns them
