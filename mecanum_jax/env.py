@@ -51,7 +51,7 @@ from brax.envs.base import Env, State, Wrapper
 
 from mecanum_jax import kinematics, limits
 from mecanum_jax.config import from_mapping, invalid, load_toml, require
-from mecanum_jax.description import IMPLS, RobotDescription, require_impl, resolve_description
+from mecanum_jax.description import IMPLS, RobotDescription, resolve_description
 from mecanum_jax.physics import (
     GRAVITY,
     Robot,
@@ -336,7 +336,6 @@ class EnvConfig:
             raise invalid(
                 f"{where}.physics_impl", self.physics_impl, f"expected one of {['', *IMPLS]}"
             )
-        require_impl(self.physics_impl, f"{where}.physics_impl")
         if self.residual_space not in RESIDUAL_SPACES:
             raise invalid(
                 f"{where}.residual_space", self.residual_space, f"expected one of {RESIDUAL_SPACES}"

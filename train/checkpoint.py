@@ -332,7 +332,9 @@ def restore_policy(
     from mecanum_jax.env import MecanumEnv
     from train.ppo import make_networks, state_template
 
-    env = MecanumEnv(cfg.env)
+    # the networks need the task's shapes only: whichever MJX implementation trained it,
+    # restoring needs no Warp
+    env = MecanumEnv(dataclasses.replace(cfg.env, physics_impl="jax"))
     networks = make_networks(env, cfg)
     check_compatible(meta, env, f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r}")
     train_like = state_template(cfg, env, int(meta["devices"]))

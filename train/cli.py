@@ -27,6 +27,7 @@ from rich.console import Console
 from rich.table import Table
 
 from mecanum_jax.config import ConfigError
+from mecanum_jax.description import require_impl
 from train import checkpoint
 from train.config import TrainConfig, apply_flags, load_train_config
 from train.distributed import init_distributed
@@ -104,6 +105,7 @@ def main(argv: list[str] | None = None) -> int:
             saved = Path(meta.resume) / "config.json"
             base = load_train_config(saved) if saved.exists() else TrainConfig()
             cfg = apply_flags(base, rest, prog, description)
+            require_impl(cfg.env.physics_impl, "env.physics_impl")
             run = Run.resume(meta.resume, overrides=cfg, console=console)
             done = checkpoint.latest_epoch(run.dir)
             if done is not None and done >= run.cfg.num_epochs:
@@ -123,6 +125,7 @@ def main(argv: list[str] | None = None) -> int:
                     "--distributed: give --run-dir (a default name from the clock could "
                     "differ between processes)"
                 )
+            require_impl(cfg.env.physics_impl, "env.physics_impl")  # before the run dir
             run_dir = meta.run_dir or f"runs/{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
             run = Run.create(cfg, run_dir, console=console)
         console.log(f"run directory: {run.dir}")

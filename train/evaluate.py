@@ -31,6 +31,7 @@ from mecanum_jax.render import ensure_gl_backend
 ensure_gl_backend()  # before MuJoCo is imported: OSMesa when there is no display
 
 import dataclasses  # noqa: E402
+import importlib.util  # noqa: E402
 import shutil  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -105,6 +106,9 @@ class EvalArgs:
     max_batch: int | None = None
     """Robots per compiled rollout (default: 64 on CPU, where larger MJX batches deadlock
     jaxlib 0.10.2; 16384 on GPU, so a whole evaluation is one rollout)."""
+    physics_impl: str = ""
+    """MJX implementation to simulate with: "jax", "warp" (the warp extra), or "" (the
+    task's own). Both simulate the same robot (docs/benchmarks.md)."""
     references: tuple[str, ...] = REFERENCES
     """Reference controllers to run on the same episodes (analytic, analytic_nearest,
     feedback)."""
@@ -143,6 +147,12 @@ class Target:
             base = self.restored.cfg.env
             self.label = f"{run_dir} (epoch {self.restored.epoch}, seed {self.restored.seed})"
         max_batch = args.max_batch or (64 if jax.default_backend() == "cpu" else 16384)
+        impl = args.physics_impl
+        if not impl and base.physics_impl == "warp" and importlib.util.find_spec("warp") is None:
+            impl = "jax"  # the same robot (docs/benchmarks.md); Warp is an optional extra
+            console.log("trained under MJX's Warp implementation; evaluating under its JAX one")
+        if impl:
+            base = dataclasses.replace(base, physics_impl=impl)
         eval_cfg = scenarios.eval_env_config(base.validate("env"), scenario_set)
         self.env = MecanumEnv(eval_cfg, robots=max_batch)
         apply = None
@@ -393,7 +403,7 @@ def _policy_arrays(
 ) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray, np.ndarray, dict[str, Any]]:
     """The exported policy's layers, normalizer mean and std, and metadata."""
     cfg = restored.cfg
-    env = MecanumEnv(cfg.env)
+    env = MecanumEnv(dataclasses.replace(cfg.env, physics_impl="jax"))  # shapes only
     layers_tree = restored.params["params"]
     names = sorted(layers_tree, key=lambda n: int(n.rsplit("_", 1)[-1]))
     layers = [
