@@ -255,13 +255,15 @@ class Robot:
         frange = m.actuator_forcerange.at[self._acts].set(jnp.stack([-limit, limit], -1))
         size, geom_pos, body_pos = self._geom_size, self._geom_pos, self._body_pos
         scale = params.radius_scale[:, None]
-        # the bounding sphere and box scale with the wheel: MuJoCo Warp's broadphase culls
-        # pairs with them (a wheel larger than its bound would only touch the floor once it
-        # had sunk in); MJX's JAX collision does not read them here
-        rbound = m.geom_rbound.at[self._wheel_geoms].multiply(scale)
-        aabb = m.geom_aabb.at[self._wheel_geoms].multiply(
-            scale.reshape(*scale.shape, *(1,) * (m.geom_aabb.ndim - 1))
-        )
+        # under warp the bounding sphere and box scale with the wheel: MuJoCo Warp's
+        # broadphase culls pairs with them (a wheel larger than its bound would only touch
+        # the floor once it had sunk in); MJX's JAX collision does not read them here
+        rbound, aabb = m.geom_rbound, m.geom_aabb
+        if self.impl == "warp":
+            rbound = rbound.at[self._wheel_geoms].multiply(scale)
+            aabb = aabb.at[self._wheel_geoms].multiply(
+                scale.reshape(*scale.shape, *(1,) * (aabb.ndim - 1))
+            )
         if self.fidelity == "fast":
             size = size.at[self._wheel_geoms[:, 0], 0].multiply(params.radius_scale)
         else:  # the whole roller ring scales about the axle: rollers, spheres, capsules
