@@ -16,8 +16,8 @@ import argparse
 import jax
 import numpy as np
 
-from mecanum_jax import limits
-from mecanum_jax.env import EnvConfig, MecanumEnv, TrainingEnv, baseline_policy
+from mecanum_jax.kinematics import limits
+from mecanum_jax.task.env import EnvConfig, MecanumEnv, TrainingEnv, baseline_policy
 
 _KEY = jax.random.PRNGKey(0)
 

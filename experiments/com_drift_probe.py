@@ -14,8 +14,8 @@ import dataclasses
 
 import numpy as np
 
-from mecanum_jax import physics, validation
-from mecanum_jax.description import builtin_description
+from mecanum_jax.sim import physics, validation
+from mecanum_jax.sim.description import builtin_description
 
 
 def main() -> None:

@@ -27,8 +27,8 @@ import argparse
 import jax
 import numpy as np
 
-from mecanum_jax import limits
-from mecanum_jax.env import EnvConfig, MecanumEnv
+from mecanum_jax.kinematics import limits
+from mecanum_jax.task.env import EnvConfig, MecanumEnv
 
 
 def main() -> None:

@@ -16,8 +16,9 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from mecanum_jax import kinematics, mjcf
-from mecanum_jax.description import builtin_description
+from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.sim import mjcf
+from mecanum_jax.sim.description import builtin_description
 
 base = builtin_description("o_rectangle")
 desc = dataclasses.replace(

@@ -30,9 +30,9 @@ import jax
 import mujoco
 from mujoco import mjx
 
-from mecanum_jax import physics
 from mecanum_jax.bench import time_physics
-from mecanum_jax.description import builtin_description
+from mecanum_jax.sim import physics
+from mecanum_jax.sim.description import builtin_description
 
 VARIANTS: dict[str, tuple[bool, dict[str, Any]]] = {
     "default": (False, {}),

@@ -28,8 +28,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mecanum_jax import kinematics, mjcf, physics
-from mecanum_jax.description import RobotDescription, builtin_description
+from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.sim import mjcf, physics
+from mecanum_jax.sim.description import RobotDescription, builtin_description
 
 CONTROL = 0.02
 SECONDS = 0.3

@@ -25,8 +25,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mecanum_jax import kinematics, physics
-from mecanum_jax.description import builtin_description
+from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.sim import physics
+from mecanum_jax.sim.description import builtin_description
 
 
 def probe(timestep: float, wz: float, control_steps: int = 12) -> list[tuple[float, float, float]]:

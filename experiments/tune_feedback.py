@@ -19,8 +19,10 @@ import time
 
 import numpy as np
 
-from mecanum_jax import evaluation, kinematics, metrics, scenarios
-from mecanum_jax.env import EnvConfig, MecanumEnv
+from mecanum_jax.evaluation import metrics, scenarios
+from mecanum_jax.evaluation import rollout as evaluation
+from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.task.env import EnvConfig, MecanumEnv
 
 TUNING_SEED = 101  # configs/eval/randomized.toml evaluates on seed 11
 

@@ -1,4 +1,17 @@
-"""mecanum_jax: batched, differentiable mecanum-wheel kinematics in JAX.
+"""mecanum_jax: batched, differentiable mecanum-wheel kinematics, MJX physics and the
+velocity-tracking task, in JAX.
+
+The sub-packages follow the pipeline, each importing only those before it:
+
+- :mod:`mecanum_jax.kinematics`: wheel layouts, inverse and forward models, odometry,
+  limits, singularities, efficiency, calibration, motors, other drives (pure JAX);
+- :mod:`mecanum_jax.sim`: robot descriptions, the MJCF model, the batched MJX robot,
+  physics validation, rendering;
+- :mod:`mecanum_jax.task`: the velocity-tracking environment (commands, randomization,
+  observations, reward) and the reference controllers;
+- :mod:`mecanum_jax.evaluation`: scenarios, rollouts, metrics and paired statistics,
+  plots, velocity spaces;
+- :mod:`mecanum_jax.deploy`: the NumPy policy, ONNX export, ROS 2 parameters.
 
 Public surface::
 
@@ -7,30 +20,38 @@ Public surface::
     rates = kinematics.inverse(geom, twists)      # (..., 3) -> (..., 4) rad/s
     twists = kinematics.forward(geom, rates)      # (..., 4) -> (..., 3)
 
-Importing it changes nothing outside the package: the JAX shim Brax's trainer needs
-(:mod:`mecanum_jax.compat`) is installed by the trainer (:mod:`train`), not here.
+Importing it changes nothing outside the package and does not import MJX: the JAX shim
+Brax's trainer needs (:mod:`mecanum_jax.compat`) is installed by the trainer
+(:mod:`train`), not here.
 """
 
-from mecanum_jax import (
+from mecanum_jax import kinematics
+from mecanum_jax._checks import InputError
+from mecanum_jax.config import ConfigError
+from mecanum_jax.kinematics import (
     calibration,
+    drives,
     efficiency,
     geometry,
-    kinematics,
     limits,
+    modes,
     motors,
     odometry,
     singularity,
 )
-from mecanum_jax._checks import InputError
-from mecanum_jax.config import ConfigError
-from mecanum_jax.description import RobotDescription, builtin_description, load_description
-from mecanum_jax.geometry import (
+from mecanum_jax.kinematics.geometry import (
     GeometryError,
     SingularLayoutError,
     SingularLayoutWarning,
     WheelGeometry,
 )
-from mecanum_jax.kinematics import forward, inverse, jacobian
+from mecanum_jax.kinematics.model import forward, inverse, jacobian
+from mecanum_jax.sim.description import (
+    RobotDescription,
+    builtin_description,
+    load_description,
+    resolve_description,
+)
 
 __all__ = [
     "ConfigError",
@@ -42,6 +63,7 @@ __all__ = [
     "WheelGeometry",
     "builtin_description",
     "calibration",
+    "drives",
     "efficiency",
     "forward",
     "geometry",
@@ -50,7 +72,9 @@ __all__ = [
     "kinematics",
     "limits",
     "load_description",
+    "modes",
     "motors",
     "odometry",
+    "resolve_description",
     "singularity",
 ]

@@ -40,8 +40,9 @@ import tyro
 from rich.console import Console
 from rich.table import Table
 
-from mecanum_jax import geometry, kinematics, odometry
 from mecanum_jax.config import ConfigError
+from mecanum_jax.kinematics import geometry, odometry
+from mecanum_jax.kinematics import model as kinematics
 
 DEFAULT_SIZES = (1_000, 10_000, 100_000, 1_000_000, 10_000_000, 100_000_000)
 
@@ -101,7 +102,7 @@ def time_physics(
 ) -> list[dict[str, Any]]:
     """Time ``robot`` (a :class:`physics.Robot`): one jitted, vmapped call of ``steps``
     physics steps per batch size, median of ``repeats`` after a compiling call."""
-    from mecanum_jax import physics
+    from mecanum_jax.sim import physics
 
     params1 = robot.nominal_params()
     cmd1 = kinematics.inverse(robot.geometry, jnp.array([0.3, 0.1, 0.5]))
@@ -131,8 +132,8 @@ def time_physics(
 
 def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str, Any]:
     """Physics steps per second (robots × steps / wall time) for each fidelity and batch."""
-    from mecanum_jax import physics  # MJX import is slow: only when asked
-    from mecanum_jax.description import IMPLS, builtin_description
+    from mecanum_jax.sim import physics  # MJX import is slow: only when asked
+    from mecanum_jax.sim.description import IMPLS, builtin_description
 
     console = console or Console(width=max(Console().width, 110))
     bad = sorted(set(args.fidelities) - {"fast", "reference"})
@@ -465,7 +466,7 @@ class DrivesComparison:
 
 def run_drives(args: DrivesComparison) -> list[dict[str, Any]]:
     """Print the table, write the JSON and the plot."""
-    from mecanum_jax import velocity_space
+    from mecanum_jax.evaluation import velocity_space
 
     console = Console()
     with jax.enable_x64(True):

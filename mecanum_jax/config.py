@@ -15,6 +15,7 @@ offending value, e.g. ``geometry.wheel_radius = 'big': expected a number``.
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
 import math
 import tomllib
 import types
@@ -176,3 +177,14 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"config file {str(path)!r}: no such file") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"config file {str(path)!r}: invalid TOML: {err}") from None
+
+
+def _config_dir() -> Path:
+    """The built-in configs (robots, run configs, scenarios): inside the installed package
+    (a wheel ships ``configs/`` as ``mecanum_jax/configs``), else the clone's ``configs/``
+    (a checkout, or an editable install of one)."""
+    packaged = Path(str(importlib.resources.files("mecanum_jax"))) / "configs"
+    return packaged if packaged.is_dir() else Path(__file__).resolve().parent.parent / "configs"
+
+
+CONFIG_DIR = _config_dir()

@@ -12,9 +12,10 @@ import tyro
 from rich.console import Console
 from rich.table import Table
 
-from mecanum_jax import kinematics, motors
-from mecanum_jax.description import resolve_description
-from mecanum_jax.modes import SIX_MODES
+from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.kinematics import motors
+from mecanum_jax.kinematics.modes import SIX_MODES
+from mecanum_jax.sim.description import resolve_description
 
 
 @dataclasses.dataclass(frozen=True)

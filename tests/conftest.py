@@ -13,7 +13,7 @@ import os
 
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
-from mecanum_jax.render import ensure_gl_backend  # imports no MuJoCo
+from mecanum_jax.sim.render import ensure_gl_backend  # imports no MuJoCo
 
 ensure_gl_backend()  # must precede the first mujoco import
 
@@ -53,7 +53,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(skip_full)
         elif "render" in item.keywords:
             if not gl_reason:
-                from mecanum_jax.render import gl_unavailable_reason
+                from mecanum_jax.sim.render import gl_unavailable_reason
 
                 gl_reason.append(gl_unavailable_reason())
             if gl_reason[0]:

@@ -12,7 +12,7 @@ import numpy as np
 from hypothesis import assume
 from hypothesis import strategies as st
 
-from mecanum_jax import geometry
+from mecanum_jax.kinematics import geometry
 
 
 class Layout(NamedTuple):

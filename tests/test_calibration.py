@@ -5,7 +5,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mecanum_jax import InputError, calibration, geometry, kinematics, odometry
+from mecanum_jax import InputError
+from mecanum_jax.kinematics import calibration, geometry, odometry
+from mecanum_jax.kinematics import model as kinematics
 
 TRUE_RADII = np.array([0.0506, 0.0496, 0.0503, 0.0493])  # a few % off the nominal 0.05
 TRUE_SCALE = 1.03  # lever arm K 3% longer than drawn

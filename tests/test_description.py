@@ -7,8 +7,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mecanum_jax import ConfigError, kinematics, load_description
-from mecanum_jax.description import CONFIG_DIR, builtin_description
+from mecanum_jax import ConfigError, load_description
+from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.sim.description import CONFIG_DIR, builtin_description
 
 ROBOTS = sorted(p.stem for p in (CONFIG_DIR / "robots").glob("*.toml"))
 

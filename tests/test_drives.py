@@ -8,9 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mecanum_jax import drives, velocity_space
 from mecanum_jax.config import ConfigError
-from mecanum_jax.kinematics import icr as twist_icr
+from mecanum_jax.evaluation import velocity_space
+from mecanum_jax.kinematics import drives
+from mecanum_jax.kinematics.model import icr as twist_icr
 
 R, L, D = 0.05, 0.25, 0.20  # wheel radius, track, wheelbase (m)
 

@@ -7,10 +7,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mecanum_jax import kinematics, limits
 from mecanum_jax.config import ConfigError, from_mapping
-from mecanum_jax.description import builtin_description
-from mecanum_jax.env import (
+from mecanum_jax.kinematics import limits
+from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.sim.description import builtin_description
+from mecanum_jax.sim.physics import CPU_CHUNK, chunked_vmap, cpu_chunk
+from mecanum_jax.task.env import (
     REWARD_TERMS,
     EnvConfig,
     MecanumEnv,
@@ -19,7 +21,6 @@ from mecanum_jax.env import (
     baseline_policy,
     reward_terms,
 )
-from mecanum_jax.physics import CPU_CHUNK, chunked_vmap, cpu_chunk
 
 
 @pytest.fixture(scope="session")
@@ -60,7 +61,7 @@ def test_spaces(env):
 def test_default_physics_step_tracks_like_the_fine_step(env):
     """The environment's coarse physics step (5 ms, 4 substeps, for throughput) drives the
     nominal robot at a combined twist as the description's 2 ms step does."""
-    from mecanum_jax import physics
+    from mecanum_jax.sim import physics
 
     fine = physics.Robot(builtin_description(env.config.robot), "fast")
     assert env.robot.dt > 2 * fine.dt

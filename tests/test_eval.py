@@ -16,10 +16,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mecanum_jax import deploy, evaluation, scenarios, singularity
 from mecanum_jax.config import ConfigError
-from mecanum_jax.env import EnvConfig, MecanumEnv
-from mecanum_jax.modes import SIX_MODES
+from mecanum_jax.deploy import policy as deploy
+from mecanum_jax.evaluation import rollout as evaluation
+from mecanum_jax.evaluation import scenarios
+from mecanum_jax.kinematics import singularity
+from mecanum_jax.kinematics.modes import SIX_MODES
+from mecanum_jax.task.env import EnvConfig, MecanumEnv
 from train import checkpoint
 from train import evaluate as cli
 
@@ -521,8 +524,8 @@ def test_exported_twist_residual_setpoints_match_the_environment():
 
 def _control_loop_only(env: MecanumEnv) -> deploy.NumpyPolicy:
     """An exported policy's control-loop half (no network) for ``env``'s task."""
-    from mecanum_jax import kinematics
-    from mecanum_jax.physics import GRAVITY
+    from mecanum_jax.kinematics import model as kinematics
+    from mecanum_jax.sim.physics import GRAVITY
 
     cfg = env.config
     meta = {

@@ -16,7 +16,7 @@ from train.run import _si
 
 def test_importing_the_task_prints_nothing():
     """MJX's optional Warp probe prints 'Failed to import warp' where warp is absent."""
-    code = "import mecanum_jax.env, train.ppo"
+    code = "import mecanum_jax.task.env, train.ppo"
     env = {k: v for k, v in __import__("os").environ.items() if k != "MJX_WARP_ENABLED"}
     out = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True

@@ -8,7 +8,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from strategies import build, finite, layouts, numpy_jacobian, twists
 
-from mecanum_jax import geometry, kinematics
+from mecanum_jax.kinematics import geometry
+from mecanum_jax.kinematics import model as kinematics
 
 
 @given(layouts(), twists)

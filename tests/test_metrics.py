@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from mecanum_jax import metrics
-from mecanum_jax.geometry import o_rectangle
-from mecanum_jax.kinematics import jacobian
+from mecanum_jax.evaluation import metrics
+from mecanum_jax.kinematics.geometry import o_rectangle
+from mecanum_jax.kinematics.model import jacobian
 
 DT = 0.02
 J = np.asarray(jacobian(o_rectangle(radius=0.05, half_wheelbase=0.10, half_track=0.125)))

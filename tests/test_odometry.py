@@ -7,7 +7,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mecanum_jax import InputError, geometry, kinematics, odometry
+from mecanum_jax import InputError
+from mecanum_jax.kinematics import geometry, odometry
+from mecanum_jax.kinematics import model as kinematics
 
 
 def circle(t, pose0, twist):

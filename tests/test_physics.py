@@ -10,15 +10,17 @@ import mujoco
 import numpy as np
 import pytest
 
-from mecanum_jax import ConfigError, kinematics, mjcf, physics, validation
+from mecanum_jax import ConfigError
 from mecanum_jax.config import load_toml
-from mecanum_jax.description import (
+from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.kinematics.geometry import SingularLayoutWarning
+from mecanum_jax.sim import mjcf, physics, validation
+from mecanum_jax.sim.description import (
     CONFIG_DIR,
     builtin_description,
     check_physics,
     parse_description,
 )
-from mecanum_jax.geometry import SingularLayoutWarning
 
 ROBOTS = sorted(p.stem for p in (CONFIG_DIR / "robots").glob("*.toml"))
 
@@ -393,7 +395,7 @@ def _with_impl(desc, impl):
 
 
 def test_sim_impl_is_checked_and_left_out_of_the_fingerprint():
-    from mecanum_jax.description import fingerprint
+    from mecanum_jax.sim.description import fingerprint
 
     desc = builtin_description("o_rectangle")
     assert desc.sim.impl == "jax"
@@ -409,7 +411,7 @@ def test_sim_impl_is_checked_and_left_out_of_the_fingerprint():
     __import__("importlib").util.find_spec("warp") is not None, reason="warp is installed"
 )
 def test_warp_without_its_extra_is_refused_naming_the_field(capsys, tmp_path):
-    from mecanum_jax.env import EnvConfig
+    from mecanum_jax.task.env import EnvConfig
     from train.cli import main
 
     # a saved task that trained under warp still loads (restoring needs only its shapes)

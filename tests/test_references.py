@@ -7,8 +7,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mecanum_jax import evaluation, kinematics, metrics, scenarios
-from mecanum_jax.env import REFERENCES, EnvConfig, MecanumEnv
+from mecanum_jax.evaluation import metrics, scenarios
+from mecanum_jax.evaluation import rollout as evaluation
+from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.task.env import REFERENCES, EnvConfig, MecanumEnv
 from train import checkpoint
 from train.evaluate import main as eval_main
 
@@ -73,7 +75,7 @@ def test_shipped_model_loads_evaluates_and_exports(tmp_path):
     assert report["epoch"] == restored.epoch
     assert report["scenarios"]["nominal"]["policy"]["rmse_wz"] is not None
     # the NumPy export shipped beside it is this policy
-    from mecanum_jax import deploy
+    from mecanum_jax.deploy import policy as deploy
 
     policy = deploy.load(checkpoint.Path(MODEL) / "policy.npz")
     env = MecanumEnv(restored.cfg.env)

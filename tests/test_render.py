@@ -2,7 +2,7 @@
 
 import os
 
-from mecanum_jax.render import ensure_gl_backend
+from mecanum_jax.sim.render import ensure_gl_backend
 
 ensure_gl_backend()
 
@@ -10,7 +10,7 @@ import imageio.v3 as iio  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from mecanum_jax import render  # noqa: E402
+from mecanum_jax.sim import render  # noqa: E402
 
 
 @pytest.mark.full
@@ -44,7 +44,7 @@ def test_gl_backend_is_only_chosen_when_its_library_exists(found, expected, monk
     (seen on the GPU machine without OSMesa): no display and nothing installed → unset."""
     import ctypes.util
 
-    from mecanum_jax import render
+    from mecanum_jax.sim import render
 
     monkeypatch.delenv("MUJOCO_GL", raising=False)
     monkeypatch.delenv("PYOPENGL_PLATFORM", raising=False)

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 import yaml
 
-from mecanum_jax import kinematics, ros2
 from mecanum_jax.config import ConfigError
-from mecanum_jax.description import builtin_description, load_description, parse_description
+from mecanum_jax.deploy import ros2
+from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.sim.description import builtin_description, load_description, parse_description
 
 # the example parameters of ros2_controllers' mecanum_drive_controller, with its keys
 EXAMPLE = """

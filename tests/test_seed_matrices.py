@@ -10,8 +10,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mecanum_jax import geometry, kinematics, motors
-from mecanum_jax.modes import SIX_MODES
+from mecanum_jax.kinematics import geometry, motors
+from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.kinematics.modes import SIX_MODES
 
 R, RX, RY = 0.05, 0.10, 0.125
 K = RX + RY

@@ -7,7 +7,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mecanum_jax import InputError, efficiency, geometry, kinematics, limits, singularity
+from mecanum_jax import InputError
+from mecanum_jax.kinematics import efficiency, geometry, limits, singularity
+from mecanum_jax.kinematics import model as kinematics
 
 
 @pytest.fixture

@@ -20,8 +20,8 @@ import pytest
 from brax.training.agents.ppo.losses import PPONetworkParams
 
 from mecanum_jax.config import ConfigError
-from mecanum_jax.env import EnvConfig
-from mecanum_jax.metrics import Part
+from mecanum_jax.evaluation.metrics import Part
+from mecanum_jax.task.env import EnvConfig
 from train import checkpoint, cli
 from train.config import (
     TRAIN_CONFIG_DIR,

@@ -8,8 +8,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mecanum_jax import InputError, geometry, kinematics
-from mecanum_jax.geometry import GeometryError, SingularLayoutError, SingularLayoutWarning
+from mecanum_jax import InputError
+from mecanum_jax.kinematics import geometry
+from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.kinematics.geometry import (
+    GeometryError,
+    SingularLayoutError,
+    SingularLayoutWarning,
+)
 
 POS4 = [[0.1, 0.1], [-0.1, 0.1], [-0.1, -0.1], [0.1, -0.1]]
 GAMMA4 = [-math.pi / 4, math.pi / 4, -math.pi / 4, math.pi / 4]

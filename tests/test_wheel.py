@@ -45,7 +45,8 @@ def test_wheel_installs_and_runs_from_outside_the_clone(tmp_path):
         """
         import jax.numpy as jnp
         import mecanum_jax
-        from mecanum_jax import builtin_description, kinematics
+        from mecanum_jax import builtin_description
+        from mecanum_jax.kinematics import model as kinematics
         assert "site-packages" in mecanum_jax.__file__, mecanum_jax.__file__
         geom = builtin_description("o_rectangle").build_geometry()
         rates = kinematics.inverse(geom, jnp.array([0.5, 0.0, 0.0]))

@@ -329,7 +329,7 @@ def restore_policy(
     seed = seeds[0] if seed is None else seed
     if seed not in seeds:
         raise CheckpointError(f"seed = {seed}: this run trained seeds {seeds}")
-    from mecanum_jax.env import MecanumEnv
+    from mecanum_jax.task.env import MecanumEnv
     from train.ppo import make_networks, state_template
 
     # the networks need the task's shapes only: whichever MJX implementation trained it,
@@ -394,7 +394,7 @@ def package_model(restored: RestoredPolicy, out: Path, provenance: dict[str, Any
 
 def check_compatible(meta: dict[str, Any], env: Any, what: str) -> None:
     """Refuse a checkpoint whose robot or observation layout differs from ``env``'s."""
-    from mecanum_jax.description import fingerprint
+    from mecanum_jax.sim.description import fingerprint
 
     robot = env.desc.robot.name
     if meta.get("robot") not in (None, robot):

@@ -27,7 +27,7 @@ from rich.console import Console
 from rich.table import Table
 
 from mecanum_jax.config import ConfigError
-from mecanum_jax.description import require_impl
+from mecanum_jax.sim.description import require_impl
 from train import checkpoint
 from train.config import TrainConfig, apply_flags, load_train_config
 from train.distributed import init_distributed

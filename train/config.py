@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from mecanum_jax.config import (
+    CONFIG_DIR,
     ConfigError,
     find_config,
     from_mapping,
@@ -21,8 +22,7 @@ from mecanum_jax.config import (
     load_toml,
     require,
 )
-from mecanum_jax.description import CONFIG_DIR
-from mecanum_jax.env import EnvConfig
+from mecanum_jax.task.env import EnvConfig
 from train.loggers import check_wandb
 
 TRAIN_CONFIG_DIR = CONFIG_DIR / "train"

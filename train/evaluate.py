@@ -15,7 +15,7 @@ The reference controllers (``--references``, default all of ``env.REFERENCES``:
 episodes as the policy (same robots, command sequences and sensor noise), and the tables,
 ``report.json`` and the plots put them side by side. Every policy-vs-reference ratio comes
 with a paired bootstrap 95% interval over the episodes; the policy is "better" only where
-the whole interval lies below 1 (mecanum_jax/metrics.py). Evaluation seeds come from the
+the whole interval lies below 1 (mecanum_jax/evaluation/metrics.py). Evaluation seeds come from the
 scenario file, in an rng domain of their own: evaluation never replays a training stream.
 
 Everything is written to a ``<out>.partial`` directory that is renamed to ``<out>`` only
@@ -26,7 +26,7 @@ file, checkpoint), 130 interrupted.
 
 from __future__ import annotations
 
-from mecanum_jax.render import ensure_gl_backend
+from mecanum_jax.sim.render import ensure_gl_backend
 
 ensure_gl_backend()  # before MuJoCo is imported: OSMesa when there is no display
 
@@ -51,12 +51,14 @@ from rich.progress import (  # noqa: E402
 )
 from rich.table import Table  # noqa: E402
 
-from mecanum_jax import deploy, kinematics, metrics, scenarios  # noqa: E402
-from mecanum_jax import evaluation as ev  # noqa: E402
 from mecanum_jax.config import ConfigError  # noqa: E402
-from mecanum_jax.description import fingerprint  # noqa: E402
-from mecanum_jax.env import REFERENCES, MecanumEnv  # noqa: E402
-from mecanum_jax.physics import GRAVITY  # noqa: E402
+from mecanum_jax.deploy import policy as deploy  # noqa: E402
+from mecanum_jax.evaluation import metrics, scenarios  # noqa: E402
+from mecanum_jax.evaluation import rollout as ev  # noqa: E402
+from mecanum_jax.kinematics import model as kinematics  # noqa: E402
+from mecanum_jax.sim.description import fingerprint  # noqa: E402
+from mecanum_jax.sim.physics import GRAVITY  # noqa: E402
+from mecanum_jax.task.env import REFERENCES, MecanumEnv  # noqa: E402
 from train import checkpoint  # noqa: E402
 from train.config import load_train_config  # noqa: E402
 from train.run import write_json  # noqa: E402
@@ -358,7 +360,7 @@ def write_plots(
 def write_videos(
     target: Target, traces: dict[str, dict[str, ev.Trace]], args: EvalArgs, out: Path
 ) -> list[Path]:
-    from mecanum_jax.render import render_frames, write_video
+    from mecanum_jax.sim.render import render_frames, write_video
 
     names = list(args.video_scenarios) or (
         ["six_modes"] if "six_modes" in traces else [next(iter(traces))]
@@ -392,8 +394,8 @@ def export_policy(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
 
 
 def export_onnx(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
-    """Write the policy and its control loop as one ONNX graph (``mecanum_jax.onnx_export``)."""
-    from mecanum_jax import onnx_export
+    """Write the policy and its control loop as one ONNX graph (``mecanum_jax.deploy.onnx``)."""
+    from mecanum_jax.deploy import onnx as onnx_export
 
     return onnx_export.write_onnx(deploy.NumpyPolicy(*_policy_arrays(restored)), path)
 

@@ -1,7 +1,7 @@
-"""The trainer's periodic evaluation, on :mod:`mecanum_jax.evaluation`.
+"""The trainer's periodic evaluation, on :mod:`mecanum_jax.evaluation.rollout`.
 
 Each seed's deterministic policy and the analytic baseline play the same held-out episodes
-of the training task (:func:`mecanum_jax.scenarios.task_scenarios`: ``randomized`` and
+of the training task (:func:`mecanum_jax.evaluation.scenarios.task_scenarios`: ``randomized`` and
 ``nominal``, from ``run.eval_seed``), through the rollout, the metrics and the paired
 intervals that ``mecanum-eval`` uses. A policy *beats* the baseline when, on
 ``randomized``, the paired 95% interval of its steady-state error ratio lies below 1 for
@@ -16,8 +16,10 @@ from typing import Any
 import jax
 import numpy as np
 
-from mecanum_jax import evaluation, kinematics, metrics, scenarios
-from mecanum_jax.env import MecanumEnv
+from mecanum_jax.evaluation import metrics, scenarios
+from mecanum_jax.evaluation import rollout as evaluation
+from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.task.env import MecanumEnv
 from train.config import TrainConfig
 
 BEAT_SCENARIO = "randomized"

@@ -41,7 +41,7 @@ from brax.training.agents.ppo import networks as ppo_networks
 from flax import linen
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from mecanum_jax.env import MecanumEnv, TrainingEnv
+from mecanum_jax.task.env import MecanumEnv, TrainingEnv
 from train import checkpoint
 from train.config import TrainConfig
 from train.periodic import PeriodicEvaluation, Result

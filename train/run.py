@@ -36,7 +36,7 @@ from rich.progress import (
 )
 
 from mecanum_jax.config import ConfigError
-from mecanum_jax.description import fingerprint
+from mecanum_jax.sim.description import fingerprint
 from train import checkpoint
 from train.config import TrainConfig, config_diff, load_train_config
 from train.distributed import barrier

@@ -8,8 +8,8 @@
 # examples and tests, goes into a tar.xz (about 21 MB); both are cut into .warp/part-* of
 # at most 55 MB. Each device call carries one part and copies it to /tmp/stash (which
 # survives while the machine stays warm: start each call within about 30 s of the last).
-# The last call carries .whl too and runs scripts/device/warp-install.sh, which rebuilds
-# warp under /tmp/site; then run the measurement (scripts/device/run.sh warp-bench).
+# The last call carries .whl too and runs scripts/device/run.sh --warp, which rebuilds
+# warp under /tmp/site before its task, e.g. `run.sh --warp bench physics --impls jax warp`.
 set -euo pipefail
 root=$(git rev-parse --show-toplevel)
 cd "$root"
@@ -38,4 +38,4 @@ echo "Device calls (each within ~30 s of the last):"
 for p in .warp/part-*; do
   echo "  carry [\"$p\"]: mkdir -p /tmp/stash && cp $p /tmp/stash/"
 done
-echo "  carry [\".whl\", \".warp/manifest.txt\"]: bash scripts/device/warp-install.sh && ..."
+echo "  carry [\".whl\", \".warp/manifest.txt\"]: bash scripts/device/run.sh --warp TASK ..."

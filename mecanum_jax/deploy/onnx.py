@@ -1,0 +1,135 @@
+"""An exported policy as one ONNX graph: raw policy observations in, actions and wheel-rate
+setpoints out, for robot-side inference with onnxruntime (or any ONNX runtime).
+
+The graph holds everything between the observation vector and the servos:
+
+- the observation normalizer (``(obs − mean) / std``, as Brax's running statistics apply
+  it) and the observation clip (``± clip_observations``);
+- the policy network, deterministic (``action = tanh(loc)``);
+- the control loop around it: the command read back from the observation's first three
+  entries, the analytic baseline (nominal inverse model, desaturated uniformly), the
+  residual correction per wheel or of the twist, and the clip to the wheel-rate limits.
+
+Inputs: ``observation`` (batch, observation_size), float32, laid out as
+``meta["observation_layout"]`` (what :meth:`NumpyPolicy.observation` builds). Outputs:
+``action`` (batch, action_size) in [-1, 1] and ``wheel_setpoints`` (batch, n) in rad/s of
+the wheel. The export's metadata (robot, wheel order, layout, scales) is stored as the
+model's ``metadata_props``. Needs the ``onnx`` extra (``pip install mecanum-jax[onnx]``).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mecanum_jax.deploy.policy import NumpyPolicy
+
+OPSET = 17
+
+
+class _Graph:
+    """A small builder: named constants and nodes, each node's one output named for it."""
+
+    def __init__(self) -> None:
+        import onnx.helper as oh
+        import onnx.numpy_helper as onh
+
+        self._oh, self._onh = oh, onh
+        self.nodes: list[Any] = []
+        self.initializers: list[Any] = []
+        self._count = 0
+
+    def const(self, name: str, value: Any, dtype: Any = np.float32) -> str:
+        self.initializers.append(self._onh.from_array(np.asarray(value, dtype), name))
+        return name
+
+    def op(self, kind: str, *inputs: str, name: str | None = None, **attrs: Any) -> str:
+        self._count += 1
+        out = name or f"{kind.lower()}_{self._count}"
+        self.nodes.append(self._oh.make_node(kind, list(inputs), [out], **attrs))
+        return out
+
+
+def _activation(g: _Graph, kind: str, x: str) -> str:
+    if kind == "swish":
+        return g.op("Mul", x, g.op("Sigmoid", x))
+    if kind in ("tanh", "relu", "elu"):
+        return g.op({"tanh": "Tanh", "relu": "Relu", "elu": "Elu"}[kind], x)
+    raise ValueError(f"activation = {kind!r}: not one of swish, tanh, relu, elu")
+
+
+def to_onnx(policy: NumpyPolicy) -> Any:
+    """The policy and its control loop as an ``onnx.ModelProto`` (see the module's doc)."""
+    import onnx
+    import onnx.helper as oh
+
+    meta = policy.meta
+    g = _Graph()
+    n_obs, n_act = policy.observation_size, policy.action_size
+    max_rates = policy.max_rates.astype(np.float32)
+    centred = g.op("Sub", "observation", g.const("obs_mean", policy.mean))
+    x = g.op("Div", centred, g.const("obs_std", policy.std))
+    clip = float(meta.get("clip_observations") or 0.0)
+    if clip > 0:
+        x = g.op("Clip", x, g.const("clip_lo", -clip), g.const("clip_hi", clip))
+    for i, (w, b) in enumerate(policy.layers):
+        x = g.op("Add", g.op("MatMul", x, g.const(f"w{i}", w)), g.const(f"b{i}", b))
+        if i < len(policy.layers) - 1:
+            x = _activation(g, meta["activation"], x)
+    start = g.const("zero", [0], np.int64)
+    axis = g.const("last_axis", [-1], np.int64)
+    loc = g.op("Slice", x, start, g.const("n_act", [n_act], np.int64), axis)
+    action = g.op("Tanh", loc, name="action")
+
+    # the control loop: command from the observation, the desaturated baseline, the residual
+    jt = g.const("jacobian_t", policy.jacobian.T)
+    scaled = g.op("Slice", "observation", start, g.const("three", [3], np.int64), axis)
+    command = g.op("Mul", scaled, g.const("command_scale", policy.command_scale))
+    rates = g.op("MatMul", command, jt)
+    m = g.const("max_rates", max_rates)
+    excess = g.op("ReduceMax", g.op("Div", g.op("Abs", rates), m), axes=[-1], keepdims=1)
+    base = g.op("Div", rates, g.op("Max", excess, g.const("one", 1.0)))
+    scale = np.float32(meta["residual_scale"])
+    if meta["residual"] and meta.get("residual_space", "wheel") == "twist":
+        twist = g.op("Mul", action, g.const("twist_step", scale * policy.command_scale))
+        raw = g.op("Add", base, g.op("MatMul", twist, jt))
+    elif meta["residual"]:
+        raw = g.op("Add", base, g.op("Mul", action, g.const("wheel_step", scale * max_rates)))
+    else:
+        raw = g.op("Mul", action, m)
+    g.op("Min", g.op("Max", raw, g.const("neg_max_rates", -max_rates)), m, name="wheel_setpoints")
+
+    f32 = onnx.TensorProto.FLOAT
+    graph = oh.make_graph(
+        g.nodes,
+        "mecanum_policy",
+        [oh.make_tensor_value_info("observation", f32, ["batch", n_obs])],
+        [
+            oh.make_tensor_value_info("action", f32, ["batch", n_act]),
+            oh.make_tensor_value_info("wheel_setpoints", f32, ["batch", len(max_rates)]),
+        ],
+        g.initializers,
+    )
+    model = oh.make_model(
+        graph, opset_imports=[oh.make_opsetid("", OPSET)], producer_name="mecanum-jax"
+    )
+    model.ir_version = 8  # readable by onnxruntime >= 1.10
+    oh.set_model_props(model, {"mecanum_policy_meta": json.dumps(meta)})
+    onnx.checker.check_model(model)
+    return model
+
+
+def write_onnx(policy: NumpyPolicy, path: str | Path) -> Path:
+    """Write :func:`to_onnx` of ``policy`` to ``path`` (a ``.onnx`` file)."""
+    import onnx
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    onnx.save(to_onnx(policy), str(path))
+    return path
+
+
+__all__ = ["OPSET", "to_onnx", "write_onnx"]

@@ -1,0 +1,39 @@
+"""Evaluating controllers: scenarios (:mod:`.scenarios`), batched rollouts and their
+plots (:mod:`.rollout`), tracking metrics and paired statistics (:mod:`.metrics`), and
+velocity spaces of the drives (:mod:`.velocity_space`).
+
+The metrics import eagerly (NumPy only); the names that need the environment import on
+first use.
+"""
+
+from typing import TYPE_CHECKING
+
+from mecanum_jax._lazy import exports
+from mecanum_jax.evaluation.metrics import Comparison, MetricConfig, paired_ratio, verdict
+
+if TYPE_CHECKING:
+    from mecanum_jax.evaluation.rollout import Evaluator, Trace
+    from mecanum_jax.evaluation.scenarios import Scenario, ScenarioSet, load_scenarios
+
+__getattr__, __dir__ = exports(
+    __name__,
+    {
+        "Evaluator": ".rollout",
+        "Trace": ".rollout",
+        "Scenario": ".scenarios",
+        "ScenarioSet": ".scenarios",
+        "load_scenarios": ".scenarios",
+    },
+)
+
+__all__ = [
+    "Comparison",
+    "Evaluator",
+    "MetricConfig",
+    "Scenario",
+    "ScenarioSet",
+    "Trace",
+    "load_scenarios",
+    "paired_ratio",
+    "verdict",
+]

@@ -1,0 +1,476 @@
+"""Batched evaluation: play a scenario's episodes with a policy and the reference controllers.
+
+:class:`Evaluator` compiles **one** rollout program per episode-batch shape: a scenario's
+physics, latency, noise and command schedule are arrays (:class:`~mecanum_jax.evaluation.scenarios.
+EpisodeBatch`), and the learned policy's parameters and a per-episode controller code
+(:func:`who_code`: the policy or one of ``env.REFERENCES``) are arguments, so every
+scenario of the same size and every controller share the compilation. All controllers see
+the same episodes: the same robots, commands, and sensor noise (the noise stream depends on
+the episode key only, not on the actions).
+
+:func:`summarize` turns a :class:`Trace` into the report's metrics
+(:mod:`mecanum_jax.evaluation.metrics` defines them and their paired comparison):
+
+- ``rmse_vx``, ``rmse_vy`` (m/s), ``rmse_wz`` (rad/s), ``rmse_lin`` (of the velocity
+  vector), over every control step of every episode, against the command in force;
+  ``worst_rmse_lin`` and ``worst_rmse_wz``: the same over the worst single episode;
+- ``ss_*``: steady-state error against the nearest feasible twist of the true robot;
+  ``settle_lin_s``, ``settle_wz_s``: settling time after command steps;
+- for scripted (fixed-sequence) scenarios, the final pose error against the path the
+  commands describe — ``drift_m`` and ``heading_drift_rad`` (mean over episodes); on a
+  closed sequence that is the distance from the start;
+- ``energy_j``: Σ|τ·ω|·dt per episode (mean over episodes); ``energy_per_m`` per metre
+  travelled; ``null_energy_j`` the part of it in the wheels' null space;
+- ``saturated``: the fraction of wheel-steps with the torque at its limit;
+- ``unstable``: physics resets (should be 0).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mecanum_jax.evaluation import metrics
+from mecanum_jax.evaluation.scenarios import EpisodeBatch
+from mecanum_jax.kinematics import odometry
+from mecanum_jax.task.env import REFERENCES, MecanumEnv
+
+PolicyApply = Callable[[Any, dict[str, jax.Array]], jax.Array]
+METRICS = (
+    "rmse_vx",
+    "rmse_vy",
+    "rmse_wz",
+    "rmse_lin",
+    "ss_vx",
+    "ss_vy",
+    "ss_wz",
+    "ss_lin",
+    "settle_lin_s",
+    "settle_wz_s",
+    "worst_rmse_lin",
+    "worst_rmse_wz",
+    "drift_m",
+    "heading_drift_rad",
+    "energy_j",
+    "energy_per_m",
+    "null_energy_j",
+    "saturated",
+    "unstable",
+)
+
+
+LEARNED = -1
+"""The ``who`` code of the learned policy; references are their index in ``REFERENCES``."""
+
+
+class Trace(NamedTuple):
+    """A rollout, per episode and control step (leading axes E, T); numpy on the host."""
+
+    command: Any  # (E, T, 3) command in force during the step
+    target: Any  # (E, T, 3) the command's nearest feasible twist for the true robot
+    twist: Any  # (E, T, 3) true body twist at the end of the step
+    pose: Any  # (E, T, 3) world pose (x, y, yaw) at the end of the step
+    start: Any  # (E, 3) pose before the first step
+    energy_j: Any  # (E, T)
+    saturated: Any  # (E, T)
+    unstable: Any  # (E, T)
+    wheel_torque: Any  # (E, T, n) N·m
+    wheel_rate: Any  # (E, T, n) rad/s
+    qpos: Any  # (E, T, nq), for rendering
+
+
+def who_code(who: str) -> int:
+    """``"policy"`` → :data:`LEARNED`; a reference's name → its index in ``REFERENCES``."""
+    if who == "policy":
+        return LEARNED
+    if who not in REFERENCES:
+        raise ValueError(f"{who!r}: not a policy; expected 'policy' or one of {REFERENCES}")
+    return REFERENCES.index(who)
+
+
+class Evaluator:
+    """Rollouts of ``env`` under a learned policy (``apply(params, obs) -> action``) or a
+    reference controller (``REFERENCES``), compiled once per chunk shape.
+
+    :meth:`run_many` plays many episode batches at once: they are concatenated along the
+    episode axis (each episode with its own controller code) and cut into chunks of at most
+    ``max_batch`` robots, the last one padded, so a whole evaluation is a few calls of one
+    compiled program. On a GPU one chunk holds everything; on CPU keep ``max_batch`` at 64
+    (``physics.CPU_CHUNK``: larger vmapped MJX batches deadlock jaxlib 0.10.2's CPU backend).
+    """
+
+    def __init__(self, env: MecanumEnv, apply: PolicyApply | None = None, max_batch: int = 64):
+        if max_batch < 1:
+            raise ValueError(f"max_batch = {max_batch}: must be >= 1")
+        self.env = env
+        self.apply = apply
+        self.max_batch = max_batch
+        self._run = jax.jit(self._rollout)
+
+    def _feasible_targets(self, batch: EpisodeBatch) -> jax.Array:
+        """(E, T, 3): each command's nearest feasible twist for the robot as it really is
+        (its wheels' actual radii, the rate limits), in the reference controllers' metric."""
+        return jax.vmap(self.env.feasible_target)(batch.commands, batch.params.radius_scale)
+
+    def _rollout(self, params: Any, who: jax.Array, batch: EpisodeBatch, gains: jax.Array) -> Trace:
+        env = self.env
+        state = jax.vmap(env.reset_to)(batch.keys, batch.params, batch.latency, batch.noise_std)
+        info = dict(state.info)
+        info["feedback_gains"] = jnp.broadcast_to(gains, info["feedback_gains"].shape)
+        state = state.replace(info=info)
+        start = jax.vmap(env.robot.sensors)(state.pipeline_state).pose
+
+        def step(s: Any, command: jax.Array) -> tuple[Any, Trace]:
+            s = jax.vmap(env.set_command)(s, command)
+            action = jnp.zeros((command.shape[0], env.action_size))
+            if self.apply is not None:
+                with jax.numpy_rank_promotion("allow"):  # Brax's normalizer broadcasts
+                    action = self.apply(params, s.obs)
+            ns = jax.vmap(env.step)(s, action, who)
+            sens = jax.vmap(env.robot.sensors)(ns.pipeline_state)
+            m = ns.metrics
+            out = Trace(
+                command=command,
+                target=None,
+                twist=sens.twist,
+                pose=sens.pose,
+                start=None,
+                energy_j=m["energy_j"],
+                saturated=m["saturated"],
+                unstable=m["unstable"],
+                wheel_torque=sens.wheel_torque,
+                wheel_rate=sens.wheel_rate,
+                qpos=ns.pipeline_state.data.qpos,
+            )
+            return ns, out
+
+        _, trace = jax.lax.scan(step, state, jnp.swapaxes(batch.commands, 0, 1))
+        trace = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), trace)
+        return trace._replace(start=start, target=self._feasible_targets(batch))
+
+    def run(self, batch: EpisodeBatch, params: Any = None, who: str = "analytic") -> Trace:
+        """Play ``batch`` with ``who`` (``"policy"`` or a reference's name)."""
+        return self.run_many([(batch, who)], params)[0]
+
+    def run_many(
+        self,
+        jobs: Sequence[tuple[EpisodeBatch, str]],
+        params: Any = None,
+        progress: Callable[[int, int], None] | None = None,
+        feedback_gains: Any = None,
+    ) -> list[Trace]:
+        """Play every ``(batch, who)`` job; batches of equal length run together.
+
+        ``who`` is ``"policy"`` or a reference's name (``REFERENCES``).
+        ``progress(done, total)`` is called after each compiled chunk.
+        ``feedback_gains``: ``(kp, ki, i_max)`` of the ``feedback`` controller (default: the
+        environment's config); traced, so a gain sweep compiles once.
+        """
+        gains = self.env.feedback_gains() if feedback_gains is None else feedback_gains
+        gains = jnp.asarray(gains, jnp.float32)
+        codes = [who_code(who) for _, who in jobs]
+        if self.apply is None and LEARNED in codes:
+            raise ValueError("this Evaluator has no learned policy: evaluate a reference")
+        results: list[Trace | None] = [None] * len(jobs)
+        by_length: dict[int, list[int]] = {}
+        for i, (batch, _) in enumerate(jobs):
+            by_length.setdefault(int(batch.commands.shape[1]), []).append(i)
+        chunks = []
+        for idx in by_length.values():
+            merged = jax.tree.map(
+                lambda *xs: np.concatenate([np.asarray(x) for x in xs]),
+                *[jobs[i][0] for i in idx],
+            )
+            flags = np.concatenate([np.full(len(jobs[i][0].keys), codes[i], np.int32) for i in idx])
+            total = len(flags)
+            size = min(self.max_batch, total)
+            for lo in range(0, total, size):
+                chunks.append((idx, merged, flags, total, lo, size))
+        outputs: dict[tuple[int, ...], list[Trace]] = {}
+        for n, (idx, merged, flags, total, lo, size) in enumerate(chunks):
+            take = (np.arange(lo, lo + size) % total) if lo + size > total else slice(lo, lo + size)
+            part = jax.tree.map(lambda x, t=take: x[t], merged)
+            out = self._run(params, jnp.asarray(flags[take]), part, gains)
+            keep = min(size, total - lo)
+            outputs.setdefault(tuple(idx), []).append(Trace(*(np.asarray(x)[:keep] for x in out)))
+            if progress is not None:
+                progress(n + 1, len(chunks))
+        for idx_t, parts in outputs.items():
+            whole = Trace(*(np.concatenate(xs) for xs in zip(*parts, strict=True)))
+            lo = 0
+            for i in idx_t:
+                e = len(jobs[i][0].keys)
+                results[i] = Trace(*(x[lo : lo + e] for x in whole))
+                lo += e
+        return [r for r in results if r is not None]
+
+
+def relative_poses(trace: Trace) -> np.ndarray:
+    """Poses (E, T, 3) in each episode's start frame (x forward, y left, yaw from start)."""
+    start = trace.start[:, None, :]
+    d = trace.pose[..., :2] - start[..., :2]
+    c, s = np.cos(start[..., 2]), np.sin(start[..., 2])
+    x = c * d[..., 0] + s * d[..., 1]
+    y = -s * d[..., 0] + c * d[..., 1]
+    yaw = _wrap(trace.pose[..., 2] - start[..., 2])
+    return np.stack([x, y, yaw], axis=-1)
+
+
+def intended_poses(commands: np.ndarray, dt: float) -> np.ndarray:
+    """The path (E, T, 3) that the commands (E, T, 3) describe from the start, exactly on SE(2)."""
+    path = odometry.integrate_twists(
+        jnp.zeros((commands.shape[0], 3)), jnp.swapaxes(jnp.asarray(commands), 0, 1), dt
+    )
+    return np.swapaxes(np.asarray(path), 0, 1)
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def trace_parts(
+    trace: Trace, jacobian: Any, dt: float, cfg: metrics.MetricConfig | None = None
+) -> dict[str, metrics.Part]:
+    """The per-episode metrics of a rollout (:func:`.metrics.episode_parts`)."""
+    return metrics.episode_parts(
+        trace.command,
+        trace.target,
+        trace.twist,
+        trace.pose,
+        trace.start,
+        trace.energy_j,
+        trace.saturated,
+        trace.wheel_torque,
+        trace.wheel_rate,
+        np.asarray(jacobian),
+        dt,
+        cfg,
+    )
+
+
+def summarize(
+    trace: Trace,
+    dt: float,
+    scripted: bool,
+    jacobian: Any,
+    cfg: metrics.MetricConfig | None = None,
+    parts: dict[str, metrics.Part] | None = None,
+) -> dict[str, float | None]:
+    """The report's metrics of one rollout (see the module docstring); ``parts``: its
+    :func:`trace_parts` if already computed."""
+    err = trace.twist - trace.command
+    parts = trace_parts(trace, jacobian, dt, cfg) if parts is None else parts
+    out: dict[str, float | None] = metrics.summary(parts)
+    out |= {
+        "worst_rmse_lin": float(np.max(np.sqrt(np.mean(err[..., 0] ** 2 + err[..., 1] ** 2, 1)))),
+        "worst_rmse_wz": float(np.max(np.sqrt(np.mean(err[..., 2] ** 2, axis=1)))),
+        "drift_m": None,
+        "heading_drift_rad": None,
+        "unstable": float(np.sum(trace.unstable > 0)),
+    }
+    if scripted:
+        final = relative_poses(trace)[:, -1]
+        goal = intended_poses(trace.command, dt)[:, -1]
+        out["drift_m"] = float(np.mean(np.linalg.norm(final[:, :2] - goal[:, :2], axis=-1)))
+        out["heading_drift_rad"] = float(np.mean(np.abs(_wrap(final[:, 2] - goal[:, 2]))))
+    return out
+
+
+def drift_parts(trace: Trace, dt: float) -> dict[str, metrics.Part]:
+    """Final position and heading drift of a scripted rollout, per episode."""
+    final = relative_poses(trace)[:, -1]
+    goal = intended_poses(trace.command, dt)[:, -1]
+    ones = np.ones(len(final))
+    return {
+        "drift_m": metrics.Part(np.linalg.norm(final[:, :2] - goal[:, :2], axis=-1), ones, "mean"),
+        "heading_drift_rad": metrics.Part(np.abs(_wrap(final[:, 2] - goal[:, 2])), ones, "mean"),
+    }
+
+
+def per_episode(trace: Trace, dt: float, scripted: bool) -> dict[str, list[float]]:
+    """Per-episode RMSE of v and ωz (and final drift of scripted scenarios), for scripts
+    that look for the episodes where a policy fails."""
+    err = trace.twist - trace.command
+    out = {
+        "rmse_lin": np.sqrt(np.mean(err[..., 0] ** 2 + err[..., 1] ** 2, axis=1)).tolist(),
+        "rmse_wz": np.sqrt(np.mean(err[..., 2] ** 2, axis=1)).tolist(),
+    }
+    if scripted:
+        final = relative_poses(trace)[:, -1]
+        goal = intended_poses(trace.command, dt)[:, -1]
+        out["drift_m"] = np.linalg.norm(final[:, :2] - goal[:, :2], axis=-1).tolist()
+    return out
+
+
+# --- plots (matplotlib) ---------------------------------------------------------------------
+
+_COLORS = {
+    "policy": "tab:blue",
+    "analytic": "tab:orange",
+    "analytic_nearest": "tab:green",
+    "feedback": "tab:red",
+    "command": "black",
+}
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_twist(
+    traces: dict[str, Trace], dt: float, title: str, out: Path, episode: int = 0
+) -> Path:
+    """Commanded against achieved vx, vy, ωz over time, every policy overlaid."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
+    first = next(iter(traces.values()))
+    t = np.arange(1, first.command.shape[1] + 1) * dt
+    labels = ("vx (m/s)", "vy (m/s)", "ωz (rad/s)")
+    for i, ax in enumerate(axes):
+        ax.plot(
+            t,
+            first.command[episode, :, i],
+            color=_COLORS["command"],
+            lw=1.2,
+            ls="--",
+            label="command",
+        )
+        for name, tr in traces.items():
+            ax.plot(t, tr.twist[episode, :, i], color=_COLORS.get(name), lw=1.0, label=name)
+        ax.set_ylabel(labels[i])
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8, ncol=3)
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle(title, fontsize=10)
+    return _save(fig, out)
+
+
+def plot_trajectories(
+    traces: dict[str, dict[str, Trace]],
+    dt: float,
+    scripted: dict[str, bool],
+    out: Path,
+    episode: int = 0,
+) -> Path:
+    """Top-down paths (start frame) per scenario: each policy, and the commanded path of
+    scripted scenarios."""
+    plt = _pyplot()
+    names = list(traces)
+    cols = min(4, len(names))
+    rows = (len(names) + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.6 * rows), squeeze=False)
+    for ax, name in zip(axes.flat, names, strict=False):
+        per = traces[name]
+        first = next(iter(per.values()))
+        if scripted[name]:
+            goal = intended_poses(first.command[episode : episode + 1], dt)[0]
+            ax.plot(
+                goal[:, 0], goal[:, 1], color=_COLORS["command"], ls="--", lw=1, label="commanded"
+            )
+        for who, tr in per.items():
+            p = relative_poses(tr)[episode]
+            ax.plot(p[:, 0], p[:, 1], color=_COLORS.get(who), lw=1.2, label=who)
+            ax.plot(p[-1, 0], p[-1, 1], "o", color=_COLORS.get(who), ms=3)
+        ax.plot(0, 0, "k+", ms=8)
+        ax.set_title(name, fontsize=9)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(alpha=0.3)
+        ax.tick_params(labelsize=7)
+    for ax in list(axes.flat)[len(names) :]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=7)
+    fig.suptitle(f"top-down paths, episode {episode}, start frame (m)", fontsize=10)
+    return _save(fig, out)
+
+
+def plot_errors(results: dict[str, dict[str, dict[str, Any]]], out: Path) -> Path:
+    """Bar chart of the steady-state error of v (m/s) and ωz (rad/s) per scenario, every
+    controller side by side."""
+    plt = _pyplot()
+    names = list(results)
+    whos: list[str] = sorted({w for r in results.values() for w in r}, key=_policy_order)
+    fig, axes = plt.subplots(1, 2, figsize=(min(14.0, 4 + 1.2 * len(names)), 3.8))
+    x = np.arange(len(names))
+    width = 0.8 / len(whos)
+    for ax, key, label in zip(
+        axes,
+        ("ss_lin", "ss_wz"),
+        ("steady-state error v (m/s)", "steady-state error ωz (rad/s)"),
+        strict=True,
+    ):
+        for j, who in enumerate(whos):
+            vals = [results[n].get(who, {}).get(key, np.nan) for n in names]
+            ax.bar(
+                x + (j - (len(whos) - 1) / 2) * width,
+                vals,
+                width,
+                label=who,
+                color=_COLORS.get(who),
+            )
+        ax.set_xticks(x, names, rotation=35, ha="right", fontsize=8)
+        ax.set_ylabel(label)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle("steady-state tracking error per scenario", fontsize=10)
+    return _save(fig, out)
+
+
+def _policy_order(who: str) -> int:
+    order = ("policy", *REFERENCES)
+    return order.index(who) if who in order else len(order)
+
+
+def _save(fig: Any, out: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def side_by_side(videos: Sequence[np.ndarray], labels: Sequence[str]) -> np.ndarray:
+    """Frames (T, H, W·k, 3): the given equal-length clips next to each other, labelled."""
+    from PIL import Image, ImageDraw
+
+    out = np.concatenate(list(videos), axis=2)
+    w = videos[0].shape[2]
+    labelled = []
+    for frame in out:
+        img = Image.fromarray(frame)
+        draw = ImageDraw.Draw(img)
+        for i, label in enumerate(labels):
+            draw.rectangle([i * w + 4, 4, i * w + 8 + 7 * len(label), 20], fill=(0, 0, 0))
+            draw.text((i * w + 6, 6), label, fill=(255, 255, 255))
+        labelled.append(np.asarray(img))
+    return np.stack(labelled)
+
+
+__all__ = [
+    "LEARNED",
+    "METRICS",
+    "Evaluator",
+    "Trace",
+    "drift_parts",
+    "intended_poses",
+    "per_episode",
+    "plot_errors",
+    "plot_trajectories",
+    "plot_twist",
+    "relative_poses",
+    "side_by_side",
+    "summarize",
+    "trace_parts",
+    "who_code",
+]

@@ -1,0 +1,489 @@
+"""Evaluation scenarios: named, seeded sets of episodes, read from TOML (``configs/eval/``).
+
+A scenario fixes everything an episode depends on — the robot's physics, the sensors, the
+command sequence, the seed — so two policies evaluated on it face *the same* episodes
+(paired comparison). It turns into an :class:`EpisodeBatch`: plain arrays (per-episode
+physics parameters, latency, noise levels, command schedule, rng keys) that one compiled
+rollout (:mod:`mecanum_jax.evaluation.rollout`) plays for any scenario of the same size.
+
+File format (every key optional except the scenario tables themselves)::
+
+    [defaults]               # for every scenario
+    episodes = 32            # robots simulated side by side
+    seconds = 10.0           # episode length
+    seed = 7                 # evaluation seed (its rng stream never meets training's)
+
+    [scenarios.slippery]
+    description = "a slippery floor"
+    episodes = 16            # overrides [defaults]
+
+    [scenarios.slippery.commands]
+    kind = "random"          # random | sequence | six_modes | singular_pass
+    p_beyond = 0.0           # random: keys of the task's [env.commands], overriding it
+    # sequence = [[vx, vy, wz, seconds], ...], units = "reach" (fraction of each axis'
+    #   largest feasible speed) or "si" (m/s, rad/s); zero command after the last segment
+    # six_modes / singular_pass: speed (fraction of the reach in each direction),
+    #   segment_s, pause_s
+
+    [scenarios.slippery.randomization]   # keys of [env.randomization]; missing = nominal
+    friction = [0.12, 0.2]
+
+    [scenarios.slippery.noise]           # keys of [env.noise]; no table = no sensor noise
+    scale = 1.0
+
+``six_modes`` plays seed 000's six motion modes one after another (each at ``speed`` of
+the reach in its direction, with a pause after each); ``singular_pass`` drives out and
+back along each singular direction of the layout (seed 003: two wheels are only
+dragged), so the command sequence is closed and the final pose error measures drift.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import weakref
+import zlib
+from pathlib import Path
+from typing import Any, Literal, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mecanum_jax.config import (
+    CONFIG_DIR,
+    ConfigError,
+    find_config,
+    from_mapping,
+    invalid,
+    load_toml,
+    require,
+)
+from mecanum_jax.kinematics import limits, singularity
+from mecanum_jax.kinematics.modes import SIX_MODES
+from mecanum_jax.sim.physics import RobotParams
+from mecanum_jax.task.env import (
+    CommandConfig,
+    EnvConfig,
+    MecanumEnv,
+    NoiseConfig,
+    RandomizationConfig,
+)
+
+EVAL_DIR = CONFIG_DIR / "eval"
+# Domain tags of evaluation rng streams: scenario files, and the trainer's periodic
+# evaluation (training uses others; see train.ppo), so no two ever replay each other.
+SCENARIO_STREAM = 0x5CE7
+TASK_STREAM = 0x7A5C
+_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+CommandKind = Literal["random", "sequence", "six_modes", "singular_pass"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Defaults:
+    episodes: int = 32
+    seconds: float = 10.0
+    seed: int = 7
+
+
+@dataclasses.dataclass(frozen=True)
+class ScenarioCommands:
+    """How a scenario commands the robot (see the module docstring)."""
+
+    kind: CommandKind = "random"
+    sequence: tuple[tuple[float, float, float, float], ...] = ()
+    units: Literal["reach", "si"] = "reach"
+    speed: float = 0.5
+    segment_s: float = 1.2
+    pause_s: float = 0.3
+
+
+@dataclasses.dataclass(frozen=True)
+class Scenario:
+    """One named scenario. ``mix`` and ``randomization`` hold the file's keys (overrides
+    of the task's command mix, and of the nominal robot)."""
+
+    name: str
+    description: str
+    episodes: int
+    seconds: float
+    seed: int
+    commands: ScenarioCommands
+    mix: dict[str, Any]
+    randomization: dict[str, Any]
+    noise: NoiseConfig
+    truncate: bool = False  # cut a scripted sequence at ``seconds`` (set by an override)
+    stream: int = SCENARIO_STREAM  # rng domain of its episodes (see scenario_key)
+
+    @property
+    def scripted(self) -> bool:
+        """Whether the commands are a fixed sequence (so the intended path is known)."""
+        return self.commands.kind != "random"
+
+    def randomization_config(self, nominal_friction: float) -> RandomizationConfig:
+        """The scenario's physics as a :class:`RandomizationConfig`: nominal where unset
+        (as ranges pinned to the nominal values, so every scenario samples alike)."""
+        return from_mapping(
+            RandomizationConfig,
+            {**_fixed_nominal(nominal_friction), **self.randomization},
+            f"scenarios.{self.name}.randomization",
+        )
+
+    def command_config(self, task: CommandConfig) -> CommandConfig:
+        """The task's command mix with this scenario's overrides."""
+        return dataclasses.replace(task, **self.mix)
+
+
+def _fixed_nominal(friction: float) -> dict[str, Any]:
+    """Randomization ranges that pin every parameter to its nominal value: the floor's
+    ``friction``, scale factors 1, everything else (spreads, payload, latency) 0."""
+    ones = {"friction": friction, "radius_scale": 1.0, "torque_scale": 1.0, "gain_scale": 1.0}
+    out: dict[str, Any] = {"enabled": True}
+    for f in dataclasses.fields(RandomizationConfig):
+        default = getattr(RandomizationConfig(), f.name)
+        if isinstance(default, tuple):
+            out[f.name] = tuple(type(x)(ones.get(f.name, 0)) for x in default)
+        elif not isinstance(default, bool):
+            out[f.name] = type(default)(0)
+    return out
+
+
+_SCENARIO_KEYS = (
+    "description",
+    "episodes",
+    "seconds",
+    "seed",
+    "commands",
+    "randomization",
+    "noise",
+)
+
+
+def _check_keys(table: Any, where: str, allowed: list[str]) -> dict[str, Any]:
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where} = {table!r}: expected a table of keys")
+    for key in table:
+        if key not in allowed:
+            raise ConfigError(
+                f"{where}.{key} = {table[key]!r}: unknown key; expected keys of {where}: "
+                f"{sorted(allowed)}"
+            )
+    return table
+
+
+def parse_scenario(name: str, table: Any, defaults: Defaults) -> Scenario:
+    """One ``[scenarios.<name>]`` table, validated (errors name the field and value)."""
+    where = f"scenarios.{name}"
+    if not _NAME.match(name):
+        raise invalid(where, name, "scenario names are lower_snake_case (used in file names)")
+    table = _check_keys(table, where, list(_SCENARIO_KEYS))
+    description = table.get("description", "")
+    if not isinstance(description, str):
+        raise invalid(f"{where}.description", description, "expected a string")
+    top = from_mapping(
+        Defaults,
+        {k: table.get(k, getattr(defaults, k)) for k in ("episodes", "seconds", "seed")},
+        where,
+    )
+    require(top, where, ("episodes",), lambda v: 1 <= v <= 4096, "must be in [1, 4096]")
+    require(top, where, ("seconds",), lambda v: 0 < v <= 600, "must be in (0, 600]")
+    mix_keys = [f.name for f in dataclasses.fields(CommandConfig)]
+    cmd_keys = [f.name for f in dataclasses.fields(ScenarioCommands)]
+    cmd_table = _check_keys(table.get("commands", {}), f"{where}.commands", cmd_keys + mix_keys)
+    commands = from_mapping(
+        ScenarioCommands,
+        {k: v for k, v in cmd_table.items() if k in cmd_keys},
+        f"{where}.commands",
+    )
+    mix = {k: v for k, v in cmd_table.items() if k in mix_keys}
+    rand = _check_keys(
+        table.get("randomization", {}),
+        f"{where}.randomization",
+        [f.name for f in dataclasses.fields(RandomizationConfig) if f.name != "enabled"],
+    )
+    noise = (
+        from_mapping(NoiseConfig, table["noise"], f"{where}.noise")
+        if "noise" in table
+        else NoiseConfig(scale=0.0)
+    )
+    scenario = Scenario(
+        name=name,
+        description=description,
+        episodes=top.episodes,
+        seconds=top.seconds,
+        seed=top.seed,
+        commands=commands,
+        mix=mix,
+        randomization=dict(rand),
+        noise=noise,
+    )
+    _validate_commands(scenario, where)
+    # value checks shared with the training config (ranges ordered, > 0, ...)
+    EnvConfig(
+        commands=scenario.command_config(CommandConfig()),
+        randomization=scenario.randomization_config(1.0),
+        noise=noise,
+    ).validate(where)
+    return scenario
+
+
+def _validate_commands(s: Scenario, where: str) -> None:
+    c, w = s.commands, f"{where}.commands"
+    if c.kind == "sequence":
+        if not c.sequence:
+            raise invalid(f"{w}.sequence", [], 'kind = "sequence" needs at least one segment')
+        for i, seg in enumerate(c.sequence):
+            if seg[3] <= 0:
+                raise invalid(f"{w}.sequence[{i}]", list(seg), "a segment lasts > 0 seconds")
+            if c.units == "reach" and max(abs(x) for x in seg[:3]) > 2:
+                raise invalid(
+                    f"{w}.sequence[{i}]", list(seg), 'units = "reach": components in [-2, 2]'
+                )
+        total = sum(seg[3] for seg in c.sequence)
+        if total > s.seconds + 1e-9:
+            raise invalid(f"{w}.sequence", f"{total} s", f"longer than the episode ({s.seconds} s)")
+    elif c.sequence:
+        raise invalid(
+            f"{w}.sequence", list(c.sequence), f'only for kind = "sequence", not {c.kind!r}'
+        )
+    if c.kind != "random" and s.mix:
+        key = sorted(s.mix)[0]
+        raise invalid(f"{w}.{key}", s.mix[key], 'command-mix keys only apply to kind = "random"')
+    require(c, w, ("speed",), lambda v: 0 < v <= 2, "must be in (0, 2] (fraction of reach)")
+    require(c, w, ("segment_s",), lambda v: v > 0, "must be > 0")
+    require(c, w, ("pause_s",), lambda v: v >= 0, "must be >= 0")
+
+
+@dataclasses.dataclass(frozen=True)
+class ScenarioSet:
+    """The scenarios of one file, in file order."""
+
+    source: str
+    scenarios: tuple[Scenario, ...]
+
+    @property
+    def names(self) -> list[str]:
+        return [s.name for s in self.scenarios]
+
+    def select(
+        self,
+        names: list[str] | tuple[str, ...] = (),
+        episodes: int | None = None,
+        seconds: float | None = None,
+    ) -> ScenarioSet:
+        """A subset by name (in the given order), optionally with fewer episodes or seconds."""
+        by_name = {s.name: s for s in self.scenarios}
+        unknown = [n for n in names if n not in by_name]
+        if unknown:
+            raise ConfigError(
+                f"scenario {unknown[0]!r}: not in {self.source}; available: {self.names}"
+            )
+        chosen = [by_name[n] for n in names] if names else list(self.scenarios)
+        if episodes is not None and not 1 <= episodes <= 4096:
+            raise invalid("episodes", episodes, "must be in [1, 4096]")
+        if seconds is not None and not 0 < seconds <= 600:
+            raise invalid("seconds", seconds, "must be in (0, 600]")
+        out = []
+        for s in chosen:
+            changes: dict[str, Any] = {}
+            if episodes is not None:
+                changes["episodes"] = episodes
+            if seconds is not None:
+                changes["seconds"] = seconds
+                changes["truncate"] = True
+            out.append(dataclasses.replace(s, **changes))
+        return ScenarioSet(self.source, tuple(out))
+
+
+def task_scenarios(task: EnvConfig, episodes: int, seconds: float, seed: int) -> ScenarioSet:
+    """The training task's own held-out scenarios, built from its config: ``randomized``
+    (its robots, floors, sensors and command mix) and ``nominal`` (the nominal robot, no
+    sensor noise or latency, the same command mix). Their episodes come from a stream of
+    their own (:data:`TASK_STREAM`): whatever ``seed``, they never replay a scenario
+    file's."""
+    r = task.randomization
+    rand = {f.name: getattr(r, f.name) for f in dataclasses.fields(r)} if r.enabled else {}
+    randomized = Scenario(
+        name="randomized",
+        description="the training distribution",
+        episodes=episodes,
+        seconds=seconds,
+        seed=seed,
+        commands=ScenarioCommands(),
+        mix={},
+        randomization=rand,
+        noise=task.noise,
+        stream=TASK_STREAM,
+    )
+    nominal = dataclasses.replace(
+        randomized,
+        name="nominal",
+        description="the nominal robot, no sensor noise or latency",
+        randomization={},
+        noise=dataclasses.replace(task.noise, scale=0.0),
+    )
+    return ScenarioSet("the training task", (randomized, nominal))
+
+
+def load_scenarios(path_or_name: str | Path = "default") -> ScenarioSet:
+    """A scenario file: a path, or the name of one in ``configs/eval/`` (``default``)."""
+    path = find_config(path_or_name, EVAL_DIR, "scenarios", "scenario file")
+    data = load_toml(path)
+    _check_keys(data, f"{path}", ["defaults", "scenarios"])
+    defaults = from_mapping(Defaults, data.get("defaults", {}), "defaults")
+    tables = data.get("scenarios")
+    if not isinstance(tables, dict) or not tables:
+        raise ConfigError(f"{path}: scenarios: expected at least one [scenarios.<name>] table")
+    scenarios = tuple(parse_scenario(name, t, defaults) for name, t in tables.items())
+    return ScenarioSet(str(path), scenarios)
+
+
+# --- from a scenario to arrays -------------------------------------------------------------
+
+
+class EpisodeBatch(NamedTuple):
+    """What one evaluation rollout needs, per episode (leading axis E)."""
+
+    keys: jax.Array  # (E, 2) rng of each episode's sensor noise
+    params: RobotParams  # (E, ...) physics
+    latency: jax.Array  # (E,) control steps
+    noise_std: jax.Array  # (E, 3) wheel rate, gyro, accel
+    commands: jax.Array  # (E, T, 3) command at each control step
+
+
+def scenario_key(scenario: Scenario) -> jax.Array:
+    """The root key of a scenario: its seed and name, in the evaluation domain."""
+    root = jax.random.fold_in(jax.random.PRNGKey(scenario.seed), scenario.stream)
+    return jax.random.fold_in(root, zlib.crc32(scenario.name.encode()) & 0x7FFFFFFF)
+
+
+def steps(env: MecanumEnv, scenario: Scenario) -> int:
+    return max(1, round(scenario.seconds / env.config.control_dt))
+
+
+def scripted_commands(env: MecanumEnv, scenario: Scenario) -> np.ndarray:
+    """The (T, 3) command sequence of a scripted scenario (zeros after its end)."""
+    c = scenario.commands
+    T = steps(env, scenario)
+    scale = np.asarray(env.command_scale, np.float64)
+    segments: list[tuple[np.ndarray, float]] = []
+
+    def reach(direction: np.ndarray) -> float:
+        d = jnp.asarray(direction / np.linalg.norm(direction), jnp.float32)
+        return float(limits.max_speed(env.geometry, d, env.max_rates))
+
+    def toward(direction: np.ndarray, seconds: float) -> None:
+        unit = direction / np.linalg.norm(direction)
+        segments.append((unit * reach(direction) * c.speed, seconds))
+        if c.pause_s > 0:
+            segments.append((np.zeros(3), c.pause_s))
+
+    if c.kind == "sequence":
+        for seg in c.sequence:
+            twist = np.asarray(seg[:3], np.float64)
+            segments.append((twist * scale if c.units == "reach" else twist, seg[3]))
+    elif c.kind == "six_modes":
+        for _, unit, _ in SIX_MODES.values():
+            toward(np.asarray(unit, np.float64), c.segment_s)
+    elif c.kind == "singular_pass":
+        directions = singularity.singular_directions(env.geometry)
+        if not directions:
+            raise invalid(
+                f"scenarios.{scenario.name}.commands.kind",
+                c.kind,
+                f"robot {env.desc.robot.name!r} has no singular directions",
+            )
+        for d in directions:
+            v = np.array([np.cos(d.heading), np.sin(d.heading), 0.0])
+            toward(v, c.segment_s)
+            toward(-v, c.segment_s)
+    else:
+        raise ValueError(f"scenario {scenario.name!r} is not scripted")
+    out = np.zeros((T, 3), np.float32)
+    t = 0
+    for twist, seconds in segments:
+        n = round(seconds / env.config.control_dt)
+        if t + n > T and scenario.truncate:
+            n = T - t
+        if t + n > T:
+            raise invalid(
+                f"scenarios.{scenario.name}.seconds",
+                scenario.seconds,
+                f"too short for its command sequence ({sum(s for _, s in segments):.2f} s)",
+            )
+        out[t : t + n] = twist
+        t += n
+    return out
+
+
+def prepare(env: MecanumEnv, scenario: Scenario) -> EpisodeBatch:
+    """The scenario's episodes as arrays for ``env`` (whose latency history must be long
+    enough: see :func:`eval_env_config`)."""
+    E, T = scenario.episodes, steps(env, scenario)
+    rand = scenario.randomization_config(env.desc.sim.floor_friction)
+    if rand.latency_steps[1] > env.max_latency:
+        raise invalid(
+            f"scenarios.{scenario.name}.randomization.latency_steps",
+            list(rand.latency_steps),
+            f"this environment keeps at most {env.max_latency} steps of history",
+        )
+    k_params, k_cmd, k_run = jax.random.split(scenario_key(scenario), 3)
+    samplers = _samplers(env, T)
+    params, latency = samplers[0](jax.random.split(k_params, E), _as_arrays(rand))
+    if scenario.scripted:
+        commands = jnp.broadcast_to(jnp.asarray(scripted_commands(env, scenario)), (E, T, 3))
+    else:
+        mix = scenario.command_config(env.config.commands)
+        commands = samplers[1](jax.random.split(k_cmd, E), _as_arrays(mix))
+    noise = jnp.broadcast_to(env.noise_std(scenario.noise), (E, 3))
+    return EpisodeBatch(jax.random.split(k_run, E), params, latency, noise, commands)
+
+
+_SAMPLERS: weakref.WeakKeyDictionary[MecanumEnv, dict[int, tuple[Any, Any]]] = (
+    weakref.WeakKeyDictionary()
+)
+
+
+def _samplers(env: MecanumEnv, steps: int) -> tuple[Any, Any]:
+    """Compiled (parameters, command schedule) samplers of ``env``, taking the scenario's
+    configs as traced values: compiled once per environment and episode length."""
+    cache = _SAMPLERS.setdefault(env, {})
+    if steps not in cache:
+        cache[steps] = (
+            jax.jit(jax.vmap(env.sample_params, in_axes=(0, None))),
+            jax.jit(jax.vmap(lambda k, c: env.command_schedule(k, steps, c), in_axes=(0, None))),
+        )
+    return cache[steps]
+
+
+def _as_arrays(config: Any) -> Any:
+    """A config dataclass (a pytree) with its numbers as float32/int32 arrays."""
+    return jax.tree.map(jnp.asarray, config)
+
+
+def eval_env_config(base: EnvConfig, scenarios: ScenarioSet) -> EnvConfig:
+    """The task config to evaluate ``scenarios`` in: ``base`` (the policy's task) with a
+    latency history long enough for every scenario. Physics, noise and commands come from
+    each scenario's :class:`EpisodeBatch`, not from this config."""
+    need = max(
+        [base.randomization.latency_steps[1]]
+        + [int(s.randomization.get("latency_steps", (0, 0))[1]) for s in scenarios.scenarios]
+    )
+    lo = min(base.randomization.latency_steps[0], need)
+    return dataclasses.replace(
+        base, randomization=dataclasses.replace(base.randomization, latency_steps=(lo, need))
+    )
+
+
+__all__ = [
+    "EpisodeBatch",
+    "Scenario",
+    "ScenarioCommands",
+    "ScenarioSet",
+    "eval_env_config",
+    "load_scenarios",
+    "parse_scenario",
+    "prepare",
+    "scripted_commands",
+    "task_scenarios",
+]

@@ -1,0 +1,586 @@
+"""Batched MJX physics of a mecanum robot: reset, step, sensors, per-robot parameters.
+
+The functions here simulate **one** robot; batch them with ``jax.vmap`` (see
+:meth:`Robot.batched`). Per-robot physical parameters (:class:`RobotParams`: floor
+friction per wheel, payload mass and centre of mass, wheel-radius error, torque limit,
+servo gains, setpoint slew limit) are arguments, so domain randomisation varies them per
+robot without rebuilding the model: they are written into that robot's copy of the
+``mjx.Model`` inside the vmapped step.
+
+Actuation, as on seed 004's robot: each wheel has a speed servo with a torque limit. The
+proportional part is MuJoCo's velocity actuator (``kv``), which the implicit integrator
+treats implicitly, so stiff gains stay stable at a 2 ms step; the integral part adds
+``ki/kp · ∫(setpoint − ω) dt`` to the actuator's setpoint, with the integral clamped so
+the I-term alone never exceeds the torque limit (anti-windup). Commands are wheel-rate
+setpoints in rad/s, slewed at ``max_accel`` rad/s² when that is > 0.
+
+Sensors (:func:`Robot.sensors`): wheel encoders (angle, rate), an IMU (gyro z and the
+accelerometer's specific force, finite-differenced over the control step, body frame),
+and, for evaluation only, the true pose and body twist.
+
+A robot whose state turns non-finite is reset to its initial state in the same step and
+its ``unstable`` counter incremented, so it never poisons the batch; see
+:func:`unstable_robots` to report which robots and with which parameters.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any, Literal, NamedTuple
+
+# isort: split
+import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
+
+# isort: split
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+
+from mecanum_jax.kinematics.geometry import WheelGeometry
+from mecanum_jax.sim import mjcf
+from mecanum_jax.sim.description import RobotDescription, require_impl
+
+ServoModel = Literal["chord", "mjx"]
+"""How a saturated servo is integrated: ``"chord"`` (default, see
+:meth:`Robot._chord_servo`) or ``"mjx"`` (MJX's own, with the spurious ``−kp·Δω``)."""
+
+GRAVITY = 9.81
+MAX_ABS_QVEL = 2.0e3  # rad/s or m/s: beyond this a state counts as unstable
+TIPPED_UP_Z = 0.7  # a chassis whose up axis has a world z below this (tilt > 45.6°) has tipped
+MAX_ABS_QPOS = 1.0e5  # m or rad (wheel angles accumulate; 1e5 rad is > 1 h at 20 rad/s)
+
+
+class RobotParams(NamedTuple):
+    """Per-robot physical parameters (leaves may carry a leading batch axis under vmap).
+
+    Attributes:
+      friction: (n,) sliding friction coefficient at each wheel.
+      payload_mass: () kg added to the chassis.
+      payload_com: (3,) m, where the payload sits in the body frame.
+      radius_scale: (n,) actual wheel radius / nominal radius (wheel-radius error).
+      torque_limit: (n,) N·m.
+      kp: (n,) servo proportional gain, N·m per rad/s.
+      ki: (n,) servo integral gain, N·m per rad.
+      max_accel: () setpoint slew limit, rad/s² (0: none).
+    """
+
+    friction: jax.Array
+    payload_mass: jax.Array
+    payload_com: jax.Array
+    radius_scale: jax.Array
+    torque_limit: jax.Array
+    kp: jax.Array
+    ki: jax.Array
+    max_accel: jax.Array
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class SimState:
+    """One robot's simulation state.
+
+    Attributes:
+      data: the MJX data.
+      setpoint: (n,) the servos' current (slewed) rate setpoints, rad/s.
+      integral: (n,) the servos' integrated rate error, rad.
+      accel: (3,) specific force in the body frame over the last control step, m/s².
+      initial_qpos: (nq,) the reset configuration, restored if the state goes non-finite.
+      unstable: () how many times this robot went non-finite and was reset.
+    """
+
+    data: mjx.Data
+    setpoint: jax.Array
+    integral: jax.Array
+    accel: jax.Array
+    initial_qpos: jax.Array
+    unstable: jax.Array
+
+    def replace(self, **changes: Any) -> SimState:
+        return dataclasses.replace(self, **changes)
+
+
+class Sensors(NamedTuple):
+    """What a real base measures (first five) and the ground truth (last two).
+
+    Attributes:
+      wheel_angle: (n,) rad, encoder angles (positive rolls forward).
+      wheel_rate: (n,) rad/s, encoder rates.
+      gyro_z: () rad/s, yaw rate in the body frame.
+      accel: (3,) m/s², accelerometer (specific force, body frame; +9.81 z at rest).
+      wheel_torque: (n,) N·m, the servos' applied torques.
+      pose: (3,) true world pose (x, y, yaw), for evaluation only.
+      twist: (3,) true body twist (vx, vy, wz), for evaluation only.
+    """
+
+    wheel_angle: jax.Array
+    wheel_rate: jax.Array
+    gyro_z: jax.Array
+    accel: jax.Array
+    wheel_torque: jax.Array
+    pose: jax.Array
+    twist: jax.Array
+
+
+def _quat_to_yaw(q: jax.Array) -> jax.Array:
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    return jnp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def _quat_to_mat(q: jax.Array) -> jax.Array:
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    return jnp.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+class Robot:
+    """A compiled robot at one fidelity: the host model, its MJX model, and its index."""
+
+    def __init__(
+        self,
+        desc: RobotDescription,
+        fidelity: mjcf.Fidelity = "fast",
+        servo: ServoModel = "chord",
+        strip_visual: bool = True,
+        robots: int = 1,
+    ):
+        """``strip_visual``: simulate a copy of the model without its draw-only geoms
+        (:func:`mjcf.build_model`, same dynamics, fewer poses per step); ``mj_model``
+        keeps them for rendering.
+
+        ``robots``: with ``desc.sim.impl == "warp"``, the most robots one batched call
+        simulates (all vmapped axes together): MuJoCo Warp's contact buffer is one for the
+        whole batch, sized :data:`WARP_CONTACTS` per wheel and robot. The ``jax``
+        implementation ignores it."""
+        if servo not in ("chord", "mjx"):
+            raise ValueError(f"servo = {servo!r}: must be 'chord' or 'mjx'")
+        if not isinstance(robots, int) or robots < 1:
+            raise ValueError(f"robots = {robots!r}: must be an integer >= 1")
+        self.desc = desc
+        self.fidelity = fidelity
+        self.servo = servo
+        self.impl = desc.sim.impl
+        require_impl(self.impl)
+        self._chord_on_warp = servo == "chord" and self.impl == "warp"
+        self.robots = robots
+        self.mj_model, self.index = mjcf.build_model(desc, fidelity)
+        self.sim_model = self.mj_model
+        if strip_visual:  # geom indices change: the index must be the simulated model's
+            self.sim_model, self.index = mjcf.build_model(desc, fidelity, visual=False)
+        # MJX's default device is jax.devices()[0], which another process of a
+        # jax.distributed run cannot address; this process's first device always works
+        self.mjx_model = mjx.put_model(
+            self.sim_model, device=jax.local_devices()[0], impl=self.impl
+        )
+        if self.impl == "warp":
+            self.mjx_model = _quiet_solver_limits(self.mjx_model)
+        self.geometry: WheelGeometry = desc.build_geometry(warn_singular=False)
+        self.n_wheels = self.geometry.n_wheels
+        self.dt = float(self.mj_model.opt.timestep)
+        per_robot = WARP_CONTACTS[fidelity] * self.n_wheels
+        self.naconmax = per_robot * robots  # warp: contacts of the whole batch
+        self.njmax = 4 * per_robot  # warp, per robot: a pyramidal condim-3 contact has 4 rows
+        idx = self.index
+        self._axle_qpos = jnp.asarray(idx.axle_qpos)
+        self._axle_dof = jnp.asarray(idx.axle_dof)
+        self._carrier_qpos = jnp.asarray(idx.carrier_qpos)
+        self._acts = jnp.asarray(idx.actuators)
+        self._wheel_geoms = jnp.asarray(idx.wheel_geoms)
+        m = self.sim_model
+        self._base_mass = float(m.body_mass[idx.chassis_body])
+        self._base_ipos = jnp.asarray(m.body_ipos[idx.chassis_body])
+        self._base_inertia = jnp.asarray(m.body_inertia[idx.chassis_body])
+        self._geom_size = jnp.asarray(m.geom_size)
+        self._geom_pos = jnp.asarray(m.geom_pos)
+        self._roller_bodies = jnp.asarray(idx.roller_bodies)
+        self._body_pos = jnp.asarray(m.body_pos)
+        self._qpos0 = jnp.asarray(m.qpos0)
+        self._axle_inv_inertia = jnp.asarray(_axle_inverse_inertia(m, idx.axle_dof), jnp.float32)
+
+    # --- parameters -------------------------------------------------------------------
+
+    def nominal_params(self, **overrides: Any) -> RobotParams:
+        """The description's nominal parameters, with any field overridden (scalars broadcast)."""
+        n = self.n_wheels
+        a = self.desc.actuators
+        base = {
+            "friction": jnp.full((n,), self.desc.sim.floor_friction),
+            "payload_mass": jnp.asarray(0.0),
+            "payload_com": jnp.zeros(3),
+            "radius_scale": jnp.ones(n),
+            "torque_limit": jnp.full((n,), a.max_torque),
+            "kp": jnp.full((n,), a.kp),
+            "ki": jnp.full((n,), a.ki),
+            "max_accel": jnp.asarray(a.max_accel),
+        }
+        for key, value in overrides.items():
+            if key not in base:
+                raise KeyError(f"{key!r} is not a RobotParams field; fields: {sorted(base)}")
+            base[key] = jnp.broadcast_to(jnp.asarray(value, jnp.float32), base[key].shape)
+        return RobotParams(**{k: jnp.asarray(v, jnp.float32) for k, v in base.items()})
+
+    def model_for(self, params: RobotParams) -> mjx.Model:
+        """This robot's MJX model with ``params`` written in (traceable; batched under vmap)."""
+        m = self.mjx_model
+        idx = self.index
+        friction = m.geom_friction.at[self._wheel_geoms, 0].set(
+            jnp.broadcast_to(params.friction[:, None], self._wheel_geoms.shape)
+        )
+        # payload: a point mass at payload_com, combined with the chassis about the new CoM
+        mb, mp = self._base_mass, params.payload_mass
+        total = mb + mp
+        com = (mb * self._base_ipos + mp * params.payload_com) / total
+        db, dp = self._base_ipos - com, params.payload_com - com
+
+        def point(mass: jax.Array | float, d: jax.Array) -> jax.Array:
+            return mass * jnp.array(
+                [d[1] ** 2 + d[2] ** 2, d[0] ** 2 + d[2] ** 2, d[0] ** 2 + d[1] ** 2]
+            )
+
+        inertia = self._base_inertia + point(mb, db) + point(mp, dp)
+        c = idx.chassis_body
+        gain = m.actuator_gainprm.at[self._acts, 0].set(params.kp)
+        bias = m.actuator_biasprm.at[self._acts, 2].set(-params.kp)
+        # MuJoCo Warp drops a clamped actuator's damping from the implicit step, but the
+        # chord servo's own slope already keeps every force within the limit, so under
+        # warp its clamp sits beyond reach: the slope stays implicit, as under MJX's JAX
+        limit = params.torque_limit * (CHORD_WARP_RANGE if self._chord_on_warp else 1.0)
+        frange = m.actuator_forcerange.at[self._acts].set(jnp.stack([-limit, limit], -1))
+        size, geom_pos, body_pos = self._geom_size, self._geom_pos, self._body_pos
+        scale = params.radius_scale[:, None]
+        # under warp the bounding sphere and box scale with the wheel: MuJoCo Warp's
+        # broadphase culls pairs with them (a wheel larger than its bound would only touch
+        # the floor once it had sunk in); MJX's JAX collision does not read them here
+        rbound, aabb = m.geom_rbound, m.geom_aabb
+        if self.impl == "warp":
+            rbound = rbound.at[self._wheel_geoms].multiply(scale)
+            aabb = aabb.at[self._wheel_geoms].multiply(
+                scale.reshape(*scale.shape, *(1,) * (aabb.ndim - 1))
+            )
+        if self.fidelity == "fast":
+            size = size.at[self._wheel_geoms[:, 0], 0].multiply(params.radius_scale)
+        else:  # the whole roller ring scales about the axle: rollers, spheres, capsules
+            size = (
+                size.at[self._wheel_geoms, 0]
+                .multiply(scale)
+                .at[self._wheel_geoms, 1]
+                .multiply(scale)
+            )
+            geom_pos = geom_pos.at[self._wheel_geoms].multiply(scale[..., None])
+            body_pos = body_pos.at[self._roller_bodies].multiply(scale[..., None])
+        return m.replace(
+            geom_friction=friction,
+            geom_size=size,
+            geom_rbound=rbound,
+            geom_aabb=aabb,
+            geom_pos=geom_pos,
+            body_pos=body_pos,
+            body_mass=m.body_mass.at[c].set(total),
+            body_ipos=m.body_ipos.at[c].set(com),
+            body_inertia=m.body_inertia.at[c].set(inertia),
+            actuator_gainprm=gain,
+            actuator_biasprm=bias,
+            actuator_forcerange=frange,
+        )
+
+    # --- simulation -------------------------------------------------------------------
+
+    def reset(self, params: RobotParams, pose: Any = (0.0, 0.0, 0.0)) -> SimState:
+        """A robot at rest at world ``pose`` (x, y, yaw), wheels on the floor."""
+        p = jnp.asarray(pose, jnp.float32)
+        f = self.index.free_qpos
+        qpos = self._qpos0
+        half = p[2] / 2
+        qpos = qpos.at[f : f + 2].set(p[:2])
+        qpos = qpos.at[f + 3 : f + 7].set(jnp.stack([jnp.cos(half), 0.0, 0.0, jnp.sin(half)]))
+        # wheels with a radius error stand the chassis higher or lower
+        r_nominal = float(np.max(np.asarray(self.geometry.radii)))
+        r = jnp.max(params.radius_scale * jnp.asarray(self.geometry.radii))
+        qpos = qpos.at[f + 2].add(r - r_nominal)
+        with jax.numpy_rank_promotion("allow"):
+            data = self._make_data(params).replace(qpos=qpos)
+        n = self.n_wheels
+        return SimState(
+            data=data,
+            setpoint=jnp.zeros(n),
+            integral=jnp.zeros(n),
+            accel=jnp.array([0.0, 0.0, GRAVITY]),
+            initial_qpos=qpos,
+            unstable=jnp.asarray(0, jnp.int32),
+        )
+
+    def _make_data(self, params: RobotParams) -> mjx.Data:
+        device = jax.local_devices()[0]
+        if self.impl == "warp":  # Warp's data is built from the host model, with capacities
+            return mjx.make_data(
+                self.sim_model, device=device, impl="warp", naconmax=self.naconmax, njmax=self.njmax
+            )
+        return mjx.make_data(self.model_for(params), device=device)
+
+    def _physics_step(
+        self, model: mjx.Model, state: SimState, command: jax.Array, params: RobotParams
+    ) -> SimState:
+        data = state.data
+        if self.fidelity == "fast":  # re-zero the carriers: the axle never tilts (mjx-model.md §2)
+            data = data.replace(qpos=data.qpos.at[self._carrier_qpos].set(0.0))
+        dt = self.dt
+        slew = params.max_accel * dt
+        delta = command - state.setpoint
+        setpoint = jnp.where(slew > 0, state.setpoint + jnp.clip(delta, -slew, slew), command)
+        rate = data.qvel[self._axle_dof]
+        has_i = params.ki > 0
+        bound = jnp.where(has_i, params.torque_limit / jnp.where(has_i, params.ki, 1.0), 0.0)
+        integral = jnp.clip(state.integral + (setpoint - rate) * dt, -bound, bound)
+        ctrl = setpoint + jnp.where(has_i, params.ki / params.kp, 0.0) * integral
+        if self.servo == "chord":
+            model = self._chord_servo(model, ctrl - rate, params)
+        with jax.numpy_rank_promotion("allow"):  # MJX relies on implicit rank promotion
+            data = mjx.step(model, data.replace(ctrl=data.ctrl.at[self._acts].set(ctrl)))
+        # Non-finite, or blown up while still finite (a diverging solve passes through huge
+        # values first): either way the robot is reset. Normal |qvel| stays below ~300.
+        finite = jnp.all(jnp.abs(data.qpos) < MAX_ABS_QPOS) & jnp.all(
+            jnp.abs(data.qvel) < MAX_ABS_QVEL
+        )
+        data = data.replace(
+            qpos=jnp.where(finite, data.qpos, state.initial_qpos),
+            qvel=jnp.where(finite, data.qvel, 0.0),
+            qacc_warmstart=jnp.where(finite, data.qacc_warmstart, 0.0),
+        )
+        return state.replace(
+            data=data,
+            setpoint=jnp.where(finite, setpoint, 0.0),
+            integral=jnp.where(finite, integral, 0.0),
+            unstable=state.unstable + (~finite).astype(jnp.int32),
+        )
+
+    def _chord_servo(self, model: mjx.Model, error: jax.Array, params: RobotParams) -> mjx.Model:
+        """The servo for this step, linearised so that a saturated one stays at its limit.
+
+        A velocity servo's torque is ``f(Δω) = clip(kp·(e − Δω), ±limit)`` for a rate error
+        ``e`` and a change ``Δω`` over the step. The implicit integrator uses the tangent
+        ``f(0) − kp·Δω``; MJX keeps that ``−kp·Δω`` even when ``f(0)`` is clamped (C MuJoCo
+        drops it), so a saturated wheel spins up as if its inertia were ``I + kp·dt``,
+        11-22x the hub's, while its contact still drives the chassis (docs/physics_model.md).
+
+        Here a saturated servo gets the chord of ``f`` from ``Δω = 0`` to ``D``, the most its
+        wheel can gain in one step (the limit torque on the free wheel, ``limit·dt/I``, at
+        most ``e``): the force starts at exactly the limit, stays at it while the servo
+        would stay saturated for the whole step (slope 0: a constant torque), and bends
+        toward ``kp``'s line only when the step may reach the setpoint. ``f`` is concave on
+        ``[0, e]``, so the chord lies under it: no step exceeds the limit or overshoots the
+        setpoint. Unsaturated servos keep the tangent ``kp``. Written into the actuator's
+        gain and bias (``force = g·ctrl + b₀ − g·ω``), so MJX integrates the slope
+        implicitly.
+        """
+        limit, kp = params.torque_limit, params.kp
+        mag = jnp.abs(error)
+        saturated = kp * mag > limit
+        reach = jnp.minimum(limit * self.dt * self._axle_inv_inertia, mag)
+        reach = jnp.where(saturated, reach, 1.0)
+        at_reach = jnp.minimum(limit, kp * jnp.maximum(mag - reach, 0.0))
+        slope = (limit - at_reach) / reach
+        gain = jnp.where(saturated, slope, kp)
+        offset = jnp.where(saturated, jnp.sign(error) * limit - slope * error, 0.0)
+        return model.replace(
+            actuator_gainprm=model.actuator_gainprm.at[self._acts, 0].set(gain),
+            actuator_biasprm=model.actuator_biasprm.at[self._acts, 0]
+            .set(offset)
+            .at[self._acts, 2]
+            .set(-gain),
+        )
+
+    def step(
+        self, state: SimState, command: jax.typing.ArrayLike, params: RobotParams, substeps: int = 1
+    ) -> SimState:
+        """Advance ``substeps`` physics steps holding wheel-rate setpoints (n,) rad/s."""
+        model = self.model_for(params)
+        cmd = jnp.asarray(command, jnp.float32)
+        v0 = self._linear_velocity_world(state.data)
+
+        def body(s: SimState, _: None) -> tuple[SimState, None]:
+            return self._physics_step(model, s, cmd, params), None
+
+        state, _ = jax.lax.scan(body, state, None, length=substeps)
+        v1 = self._linear_velocity_world(state.data)
+        R = _quat_to_mat(state.data.qpos[self.index.free_qpos + 3 : self.index.free_qpos + 7])
+        accel_world = (v1 - v0) / (substeps * self.dt) + jnp.array([0.0, 0.0, GRAVITY])
+        return state.replace(accel=R.T @ accel_world)
+
+    def _linear_velocity_world(self, data: mjx.Data) -> jax.Array:
+        d = self.index.free_dof
+        return data.qvel[d : d + 3]
+
+    def sensors(self, state: SimState) -> Sensors:
+        """Encoders, IMU and (for evaluation) the true pose and body twist."""
+        data = state.data
+        f, d = self.index.free_qpos, self.index.free_dof
+        q = data.qpos[f + 3 : f + 7]
+        R = _quat_to_mat(q)
+        v_body = R.T @ data.qvel[d : d + 3]
+        omega_body = data.qvel[d + 3 : d + 6]  # free-joint angular velocity is body-frame
+        yaw = _quat_to_yaw(q)
+        return Sensors(
+            wheel_angle=data.qpos[self._axle_qpos],
+            wheel_rate=data.qvel[self._axle_dof],
+            gyro_z=omega_body[2],
+            accel=state.accel,
+            wheel_torque=data.actuator_force[self._acts],
+            pose=jnp.stack([data.qpos[f], data.qpos[f + 1], yaw]),
+            twist=jnp.stack([v_body[0], v_body[1], omega_body[2]]),
+        )
+
+    def up_z(self, state: SimState) -> jax.Array:
+        """World z component of the chassis's up axis: 1 upright, below
+        :data:`TIPPED_UP_Z` tipped over (no flat-floor mecanum base gets there physically:
+        experiments/runaway_episodes.py counts such robots)."""
+        f = self.index.free_qpos
+        return _quat_to_mat(state.data.qpos[f + 3 : f + 7])[2, 2]
+
+    # --- batches ------------------------------------------------------------------------
+
+    def batched(self, substeps: int = 1) -> tuple[Any, Any, Any]:
+        """Jitted, vmapped ``(reset, step, sensors)`` over a leading robot axis (on CPU in
+        chunks, :func:`cpu_chunk`)."""
+        chunk = cpu_chunk(self.fidelity, self.impl)
+        reset = jax.jit(chunked_vmap(self.reset, chunk))
+        step = jax.jit(chunked_vmap(lambda s, c, p: self.step(s, c, p, substeps), chunk))
+        sensors = jax.jit(jax.vmap(self.sensors))
+        return reset, step, sensors
+
+
+def select(done: jax.Array, fresh: SimState, state: SimState) -> SimState:
+    """``fresh`` where ``done``, else ``state`` (one robot, or a batch with ``done`` per
+    robot). MuJoCo Warp's contact and constraint buffers are shared by the whole batch, so
+    they are kept as they are (``mjx.Data.where``), never selected leaf by leaf."""
+
+    def where(a: jax.Array, b: jax.Array) -> jax.Array:
+        return jnp.where(done, a, b)
+
+    return SimState(
+        data=state.data.where(done, fresh.data),
+        setpoint=where(fresh.setpoint, state.setpoint),
+        integral=where(fresh.integral, state.integral),
+        accel=where(fresh.accel, state.accel),
+        initial_qpos=where(fresh.initial_qpos, state.initial_qpos),
+        unstable=where(fresh.unstable, state.unstable),
+    )
+
+
+CHORD_WARP_RANGE = 2.0
+"""Under ``warp``, the chord servo's actuators get this multiple of the torque limit as
+their force range (see :meth:`Robot.model_for`)."""
+
+WARP_CONTACTS = {"fast": 2, "reference": 6}
+"""Contact capacity per wheel and robot under ``sim.impl = "warp"``, per fidelity: a fast
+wheel (a sphere) touches the floor at one point, a reference wheel with two or three of its
+roller spheres; twice that leaves headroom for the moments rollers change over."""
+
+CPU_CHUNK = {"fast": 64, "reference": 16}
+"""Robots per vmapped physics call on CPU, per fidelity: jaxlib 0.10's batched LAPACK (the
+Cholesky of MJX's Newton solver) deadlocks the 2-core CPU's thread pool from a batch of
+256 fast robots on (34 reference ones): its batch tasks wait for pool threads that the
+batch itself holds. 64 fast robots run, and are the fastest chunk measured
+(docs/benchmarks.md)."""
+
+
+def cpu_chunk(fidelity: str = "fast", impl: str = "jax") -> int:
+    """:data:`CPU_CHUNK` for the ``jax`` implementation on the CPU backend; 0 (no chunking)
+    on accelerators and for ``warp`` (whose batch shares one contact buffer, and which does
+    not use LAPACK)."""
+    return CPU_CHUNK[fidelity] if jax.default_backend() == "cpu" and impl == "jax" else 0
+
+
+def chunked_vmap(fn: Callable[..., Any], chunk: int) -> Callable[..., Any]:
+    """``jax.vmap(fn)``, but over at most ``chunk`` items at a time (a ``lax.map`` over
+    chunks; 0: one vmap). The chunk is the largest divisor of the batch up to ``chunk``."""
+
+    def mapped(*xs: Any) -> Any:
+        n = jax.tree.leaves(xs)[0].shape[0]
+        c = max(d for d in range(1, min(chunk, n) + 1) if n % d == 0) if chunk else n
+        if c == n:
+            return jax.vmap(fn)(*xs)
+        split = jax.tree.map(lambda x: x.reshape((n // c, c, *x.shape[1:])), xs)
+        out = jax.lax.map(lambda ys: jax.vmap(fn)(*ys), split)
+        return jax.tree.map(lambda x: x.reshape((n, *x.shape[2:])), out)
+
+    return mapped
+
+
+def _quiet_solver_limits(model: mjx.Model) -> mjx.Model:
+    """MuJoCo Warp prints a line whenever a solve stops at its iteration or line-search
+    limit; MJX's JAX implementation stops there silently, and so does this project (the
+    limits are set on purpose, SimSpec.iterations). Buffer overflows still print."""
+    from mujoco.mjx.third_party.mujoco_warp import OverflowType
+
+    quiet = OverflowType.ALL & ~(OverflowType.ITERATIONS | OverflowType.LS_ITERATIONS)
+    impl = dataclasses.replace(model.opt._impl, warn_overflow=int(quiet))
+    return model.replace(opt=model.opt.replace(_impl=impl))
+
+
+def _axle_inverse_inertia(m: Any, axle_dof: np.ndarray) -> np.ndarray:
+    """``(M⁻¹)[a, a]`` per axle at the reset pose: how fast a torque spins the free wheel."""
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    full = np.zeros((m.nv, m.nv))
+    mujoco.mj_fullM(m, d, full)
+    inv = np.linalg.inv(full)
+    return inv[axle_dof, axle_dof]
+
+
+def stack_params(params: list[RobotParams]) -> RobotParams:
+    """Stack single-robot parameters into a batch."""
+    return RobotParams(*(jnp.stack(xs) for xs in zip(*params, strict=True)))
+
+
+def unstable_robots(states: SimState, params: RobotParams) -> list[dict[str, Any]]:
+    """Robots (of a batch) that went non-finite and were reset: index, count and parameters."""
+    counts = np.asarray(states.unstable)
+    out = []
+    for i in np.flatnonzero(counts):
+        fields = {k: np.asarray(v[i]).round(6).tolist() for k, v in params._asdict().items()}
+        out.append({"robot": int(i), "resets": int(counts[i]), "params": fields})
+    return out
+
+
+def steady_twist(
+    robot: Robot,
+    params: RobotParams,
+    command: jax.Array,
+    seconds: float = 2.0,
+    average_last: float = 0.5,
+) -> jax.Array:
+    """Hold wheel-rate setpoints from rest; the mean true body twist over the last part."""
+    n_steps = round(seconds / robot.dt)
+    n_avg = max(1, round(average_last / robot.dt))
+    state = robot.reset(params)
+
+    def body(s: SimState, _: None) -> tuple[SimState, jax.Array]:
+        s = robot.step(s, command, params)
+        return s, robot.sensors(s).twist
+
+    _, twists = jax.lax.scan(body, state, None, length=n_steps)
+    return jnp.mean(twists[-n_avg:], axis=0)
+
+
+__all__ = [
+    "CPU_CHUNK",
+    "TIPPED_UP_Z",
+    "WARP_CONTACTS",
+    "Robot",
+    "RobotParams",
+    "Sensors",
+    "SimState",
+    "chunked_vmap",
+    "cpu_chunk",
+    "select",
+    "stack_params",
+    "steady_twist",
+    "unstable_robots",
+]

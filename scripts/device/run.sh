@@ -1,0 +1,164 @@
+#!/usr/bin/env bash
+# The one runner for the GPU machine: set-up, then one task; everything lands in $OUT.
+#
+#   bash scripts/device/run.sh [--warp] TASK [ARGS...]
+#
+# Carry .whl (filled by ../shared/device/carry-wheels.sh, then scripts/device/extra-wheels.sh).
+# --warp also rebuilds warp-lang under /tmp/site from the parts scripts/device/warp-parts.sh
+# made (each part sent by an earlier call into /tmp/stash; carry .warp/manifest.txt too).
+#
+# Tasks (each writes $OUT/log.txt besides its own files):
+#   bench ARGS...           mecanum-bench ARGS: kinematics or physics throughput
+#   validate ARGS...        the physics validation table (python -m mecanum_jax.sim.validation)
+#   train-bench ARGS...     PPO env steps/s of the gpu config, --variant 'name flags' side by side
+#   train MIN ARGS...       mecanum-train --config gpu for MIN minutes (+ mecanum-train flags)
+#   ship MIN ARGS...        train, then package the policy as $OUT/model.tgz with provenance
+#   tune [MODEL]            MODEL (default /tmp/model/o_rectangle) against models/o_rectangle
+#                           on the tuning episodes (the training distribution, its own seed)
+#   eval [MODEL]            the evaluation table: MODEL (default models/o_rectangle) against the
+#                           references on the default scenarios and 1024 randomized episodes
+#   ab MIN 'name|flags'...  variants trained concurrently for MIN minutes on one GPU, then each
+#                           evaluated on the tuning episodes
+#   multi-gpu EPOCHS [VARIANT...]  throughput over several GPUs: sh1gpu sh2gpu sh2gpu_64k mp2gpu
+#   experiment SCRIPT ARGS...      python experiments/SCRIPT ARGS
+#
+# docs/benchmarks.md and docs/training.md list the call behind each figure.
+set -uo pipefail
+WARP=0
+if [ "${1:-}" = --warp ]; then WARP=1; shift; fi
+TASK="${1:?usage: run.sh [--warp] TASK [ARGS...]}"; shift
+python3 -m pip install -q --no-index --no-deps --no-compile --upgrade --target /tmp/site .whl/*.whl 2>&1 \
+  | grep -v "already exists" || true
+export PYTHONPATH=/tmp/site:$PWD XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUFFERED=1
+export JAX_COMPILATION_CACHE_DIR=/tmp/jax_cache
+O="${OUT:-/tmp/out}"; mkdir -p "$O"
+quiet() { grep -v -E '^(Warp |Module |   )' ; }  # Warp's kernel-cache chatter
+
+warp_install() {
+  python3 - <<'PY'
+import glob, io, lzma, os, tarfile
+so_size, rest_size = map(int, open(".warp/manifest.txt").read().split())
+blob = b"".join(open(p, "rb").read() for p in sorted(glob.glob("/tmp/stash/part-*")))
+if len(blob) != so_size + rest_size:
+    raise SystemExit(f"/tmp/stash holds {len(blob)} bytes of parts, expected "
+                     f"{so_size + rest_size}: resend the parts")
+with tarfile.open(fileobj=io.BytesIO(lzma.decompress(blob[so_size:]))) as tar:
+    tar.extractall("/tmp/site", filter="data")
+os.makedirs("/tmp/site/warp/bin", exist_ok=True)
+with open("/tmp/site/warp/bin/warp.so", "wb") as f:
+    f.write(lzma.decompress(blob[:so_size]))
+print("warp rebuilt under /tmp/site")
+PY
+}
+
+train() {  # RUN_DIR MINUTES [flags]: the gpu config, one checkpoint kept
+  local dir=$1 min=$2; shift 2
+  python3 -m train.cli --config gpu --run-dir "$dir" --max-minutes "$min" \
+    --run.max-checkpoints 1 --run.checkpoint-every 1000 "$@"
+}
+
+evaluate() {  # MODEL SCENARIOS OUT_DIR [flags]
+  local model=$1 set=$2 dir=$3; shift 3
+  /usr/bin/time -f "wall %e s" python3 -m train.evaluate "$model" --scenarios "$set" --out "$dir" "$@"
+}
+
+ship() {  # MINUTES [flags]
+  local min=$1; shift
+  local commit device
+  commit="${COMMIT:-$(git rev-parse --short HEAD 2>/dev/null || echo unknown)}"
+  device=$(nvidia-smi --query-gpu=name --format=csv,noheader | head -1)
+  echo "device: $device; commit $commit; $(date -u +%Y-%m-%dT%H:%M:%SZ)"
+  train /tmp/gpu "$min" "$@" 2>&1 | quiet | tail -22
+  python3 - "$min" "$commit" "$device" "$*" <<'PY'
+import json, sys
+from train.evaluate import export_main
+minutes, commit, device, extra = sys.argv[1:5]
+s = json.load(open("/tmp/gpu/summary.json"))
+command = f"mecanum-train --config gpu --max-minutes {minutes} {extra}".strip()
+prov = [f"command={command}", f"commit={commit}", f"device={device}",
+        f"session_wall_s={s['session_s']:.0f}", "script=scripts/device/run.sh ship"]
+raise SystemExit(export_main(["/tmp/gpu", "/tmp/model/o_rectangle", "--model", "--provenance", *prov]))
+PY
+  tar czf "$O/model.tgz" -C /tmp/model o_rectangle
+  cp /tmp/gpu/metrics.jsonl /tmp/gpu/summary.json "$O/"
+}
+
+ab() {  # MINUTES 'name|flags'...
+  local min=$1; shift
+  local names=() spec name
+  for spec in "$@"; do
+    name="${spec%%|*}"; names+=("$name")
+    echo "== variant $name: ${spec#*|}"
+    # shellcheck disable=SC2086
+    train "/tmp/run_$name" "$min" ${spec#*|} > "/tmp/train_$name.log" 2>&1 &
+  done
+  wait
+  for name in "${names[@]}"; do
+    echo "== $name"; quiet < "/tmp/train_$name.log" | tail -8
+    evaluate "/tmp/run_$name" tuning "/tmp/eval_$name" --no-plots 2>&1 | quiet | tail -24
+    cp "/tmp/eval_$name/report.json" "$O/${name}_report.json" || true
+    cp "/tmp/run_$name/metrics.jsonl" "$O/${name}_metrics.jsonl" || true
+  done
+}
+
+multi_gpu() {  # EPOCHS [VARIANT...]: one process per variant, so a crash loses only that one
+  local epochs=$1; shift
+  declare -A spec=(
+    [sh1gpu]="--run.parallel sharded --run.max-devices 1"
+    [sh2gpu]="--run.parallel sharded"
+    [sh2gpu_64k]="--run.parallel sharded --ppo.num-envs 65536 --ppo.batch-size 8192"
+    [mp2gpu]="--run.parallel sharded"
+  )
+  local v i
+  for v in ${*:-sh1gpu sh2gpu sh2gpu_64k mp2gpu}; do
+    if [ "$v" = mp2gpu ]; then  # two processes, one GPU each, joined through jax.distributed
+      for i in 0 1; do
+        JAX_COORDINATOR_ADDRESS=localhost:12355 JAX_NUM_PROCESSES=2 JAX_PROCESS_ID=$i \
+          JAX_LOCAL_DEVICE_IDS=$i python3 -m train.bench --config gpu --epochs "$epochs" \
+          --variant "$v ${spec[$v]}" --json-out "$O/gpu2_$v.json" --distributed \
+          > "$O/${v}_p$i.log" 2>&1 &
+      done
+      wait
+      grep -hE "│ $v|Error" "$O/${v}"_p*.log | head -4
+    else
+      # shellcheck disable=SC2086
+      python3 -m train.bench --config gpu --epochs "$epochs" --variant "$v ${spec[$v]}" \
+        --json-out "$O/gpu2_$v.json" > "$O/$v.log" 2>&1
+      grep -hE "│ $v|Error" "$O/$v.log" | head -3
+    fi
+  done
+}
+
+{
+nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
+date -u +%Y-%m-%dT%H:%M:%SZ
+[ "$WARP" = 1 ] && warp_install
+case "$TASK" in
+  bench) python3 -m mecanum_jax.bench "$@" 2>&1 | quiet ;;
+  validate) python3 -m mecanum_jax.sim.validation "$@" 2>&1 | quiet | tail -40 ;;
+  train-bench) python3 -m train.bench --config gpu --epochs 3 "$@" 2>&1 | quiet | tail -14 ;;
+  train)
+    min=$1; shift
+    train /tmp/gpu "$min" "$@" 2>&1 | quiet | tail -30
+    cp /tmp/gpu/metrics.jsonl /tmp/gpu/summary.json "$O/" ;;
+  ship) ship "$@" ;;
+  tune)
+    for pair in "candidate:${1:-/tmp/model/o_rectangle}" "shipped:models/o_rectangle"; do
+      echo "== ${pair%%:*} (${pair#*:}) on the tuning episodes"
+      evaluate "${pair#*:}" tuning "/tmp/tune-${pair%%:*}" --no-plots 2>&1 | quiet | tail -30
+      cp "/tmp/tune-${pair%%:*}/report.json" "$O/tune_${pair%%:*}.json"
+    done ;;
+  eval)
+    for set in default randomized; do
+      echo "== ${1:-models/o_rectangle}, scenarios: $set"
+      evaluate "${1:-models/o_rectangle}" "$set" "/tmp/eval-$set" 2>&1 | quiet
+      cp "/tmp/eval-$set/report.json" "$O/report_$set.json"
+    done
+    (cd /tmp && tar czf "$O/plots.tgz" eval-default/*.png eval-randomized/*.png) ;;
+  ab) ab "$@" ;;
+  multi-gpu) multi_gpu "$@" ;;
+  experiment) script=$1; shift; python3 "experiments/$script" "$@" 2>&1 | quiet ;;
+  *) echo "run.sh: unknown task '$TASK' (see the header of scripts/device/run.sh)"; exit 2 ;;
+esac
+} 2>&1 | tee "$O/log.txt"
+ls -la "$O"
