@@ -136,20 +136,7 @@ def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str,
     from mecanum_jax.sim.description import IMPLS, builtin_description
 
     console = console or Console(width=max(Console().width, 110))
-    bad = sorted(set(args.fidelities) - {"fast", "reference"})
-    if bad:
-        raise SystemExit(f"--fidelities: unknown fidelity {bad[0]!r}; known: fast, reference")
-    bad = sorted(set(args.servos) - {"chord", "mjx"})
-    if bad or not args.servos:
-        raise SystemExit(f"--servos: {list(args.servos)}: expected chord and/or mjx")
-    bad = sorted(set(args.impls) - set(IMPLS))
-    if bad or not args.impls:
-        raise SystemExit(f"--impls: {list(args.impls)}: expected {' and/or '.join(IMPLS)}")
-    if args.steps < 1 or args.repeats < 1 or any(n < 1 for n in args.sizes):
-        raise SystemExit(
-            f"--steps = {args.steps}, --repeats = {args.repeats}, "
-            f"--sizes = {list(args.sizes)}: all must be >= 1"
-        )
+    _check_physics_args(args, IMPLS)
     desc = builtin_description(args.robot)
     if args.ls_iterations is not None:
         desc = dataclasses.replace(
@@ -171,17 +158,44 @@ def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str,
                 f"{fidelity:9s} {impl:4s} {servo:5s} batch {row['size']:6d}: "
                 f"{row['steps_per_s']:12.4g} steps/s"
             )
+    result = {**_header("physics", args), "results": rows}
+    console.print(_physics_table(result, args.steps))
+    _write_json(result, args.json_out, console)
+    return result
+
+
+def _header(benchmark: str, args: Any) -> dict[str, Any]:
+    """What every benchmark's JSON starts with: the date, the device and the arguments."""
     device = jax.devices()[0]
-    result = {
-        "benchmark": "physics",
+    return {
+        "benchmark": benchmark,
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "device": f"{device.platform}: {device.device_kind}",
         "jax": jax.__version__,
         "config": {
             k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(args).items()
         },
-        "results": rows,
     }
+
+
+def _check_physics_args(args: PhysicsBench, impls: tuple[str, ...]) -> None:
+    bad = sorted(set(args.fidelities) - {"fast", "reference"})
+    if bad:
+        raise SystemExit(f"--fidelities: unknown fidelity {bad[0]!r}; known: fast, reference")
+    bad = sorted(set(args.servos) - {"chord", "mjx"})
+    if bad or not args.servos:
+        raise SystemExit(f"--servos: {list(args.servos)}: expected chord and/or mjx")
+    bad = sorted(set(args.impls) - set(impls))
+    if bad or not args.impls:
+        raise SystemExit(f"--impls: {list(args.impls)}: expected {' and/or '.join(impls)}")
+    if args.steps < 1 or args.repeats < 1 or any(n < 1 for n in args.sizes):
+        raise SystemExit(
+            f"--steps = {args.steps}, --repeats = {args.repeats}, "
+            f"--sizes = {list(args.sizes)}: all must be >= 1"
+        )
+
+
+def _physics_table(result: dict[str, Any], steps: int) -> Table:
     table = Table(title=f"MJX physics on {result['device']} (jax {result['jax']})")
     for col in (
         "fidelity",
@@ -194,13 +208,11 @@ def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str,
         "unstable",
     ):
         table.add_column(col, justify="right")
-    for r in rows:
-        ms = 1e3 * r["seconds_per_call"] / args.steps
+    for r in result["results"]:
+        ms = 1e3 * r["seconds_per_call"] / steps
         cells = (r["fidelity"], r["impl"], r["servo"], str(r["size"]), f"{r['steps_per_s']:.4g}")
         table.add_row(*cells, f"{ms:.3f}", f"{r['compile_s']:.1f}", str(r["unstable"]))
-    console.print(table)
-    _write_json(result, args.json_out, console)
-    return result
+    return table
 
 
 def _write_json(result: dict[str, Any], path: Path | None, console: Console) -> None:
@@ -328,9 +340,7 @@ def _make_calls(
     return (lambda: fn(geom, x)), (lambda: J_np @ x_np)
 
 
-def run_kinematics(args: KinematicsBench, console: Console | None = None) -> dict[str, Any]:
-    """Run the kinematics benchmark; returns the JSON-able results."""
-    console = console or Console(width=max(Console().width, 130))
+def _check_kinematics_args(args: KinematicsBench) -> None:
     for name, value in (("repeats", args.repeats), ("odometry_steps", args.odometry_steps)):
         if value < 1:
             raise SystemExit(f"--{name.replace('_', '-')} = {value}: must be >= 1")
@@ -343,18 +353,21 @@ def run_kinematics(args: KinematicsBench, console: Console | None = None) -> dic
             f"--ops: unknown operation {unknown[0]!r}; "
             "known: inverse, inverse_soa, forward, odometry"
         )
+
+
+def run_kinematics(args: KinematicsBench, console: Console | None = None) -> dict[str, Any]:
+    """Run the kinematics benchmark; returns the JSON-able results."""
+    console = console or Console(width=max(Console().width, 130))
+    _check_kinematics_args(args)
     geom = geometry.o_rectangle(0.05, 0.10, 0.125)
-    J = kinematics.jacobian(geom)
-    F = kinematics.forward_matrix(geom)
-    J_np, F_np = np.asarray(J), np.asarray(F)
-    device = jax.devices()[0]
+    J_np = np.asarray(kinematics.jacobian(geom))
+    F_np = np.asarray(kinematics.forward_matrix(geom))
     jit_ops: dict[str, Callable[..., jax.Array]] = {
         "inverse": jax.jit(kinematics.inverse),
         "inverse_soa": jax.jit(kinematics.inverse_soa),
         "forward": jax.jit(kinematics.forward),
         "odometry": jax.jit(lambda p, d: odometry.integrate_increments(p, d, return_path=False)),
     }
-    copy = jax.jit(lambda x: x + jnp.float32(1))
     rows: list[dict[str, Any]] = []
     for size in args.sizes:
         need = max(_bytes_moved(op, size, args.odometry_steps) for op in args.ops) * 3
@@ -366,52 +379,55 @@ def run_kinematics(args: KinematicsBench, console: Console | None = None) -> dic
             continue
         key = jax.random.PRNGKey(size % (2**31))
         for op in args.ops:
-            moved = _bytes_moved(op, size, args.odometry_steps)
-            call, ref = _make_calls(op, size, key, args.odometry_steps, geom, jit_ops, J_np, F_np)
-            t_jax = _time(call, args.repeats, args.min_time, _block)
-            t_latency = _time(functools.partial(_call_and_block, call), args.repeats, args.min_time)
-            del call
-            half = jnp.zeros((max(moved // 8, 1),), jnp.float32)  # read + write = moved bytes
-            t_copy = _time(functools.partial(copy, half), args.repeats, args.min_time, _block)
-            del half
-            t_np = None
-            if args.numpy and size <= args.numpy_max_size:
-                t_np = _time(ref, max(3, args.repeats // 2), args.min_time)
-            rows.append(
-                {
-                    "op": op,
-                    "size": size,
-                    "jax_s": t_jax,
-                    "jax_latency_s": t_latency,
-                    "numpy_s": t_np,
-                    "copy_s": t_copy,
-                    "bytes": moved,
-                    "jax_robots_per_s": size / t_jax,
-                    "numpy_robots_per_s": size / t_np if t_np else None,
-                    "jax_over_numpy": t_np / t_jax if t_np else None,
-                    "jax_GBps": moved / t_jax / 1e9,
-                    "copy_GBps": moved / t_copy / 1e9,
-                    "roofline_fraction": t_copy / t_jax,
-                }
-            )
+            calls = _make_calls(op, size, key, args.odometry_steps, geom, jit_ops, J_np, F_np)
+            rows.append(_time_op(args, op, size, *calls))
     result = {
-        "benchmark": "kinematics",
-        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "device": f"{device.platform}: {device.device_kind}",
+        **_header("kinematics", args),
         "devices": len(jax.devices()),
         "host": platform.node(),
         "cpu_count": os.cpu_count(),
-        "jax": jax.__version__,
         "numpy": np.__version__,
         "glibc_tunables": os.environ.get("GLIBC_TUNABLES", ""),
-        "config": {
-            k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(args).items()
-        },
         "results": rows,
     }
     _print_table(result, console)
     _write_json(result, args.json_out, console)
     return result
+
+
+_copy = jax.jit(lambda x: x + jnp.float32(1))
+
+
+def _time_op(
+    args: KinematicsBench, op: str, size: int, call: Callable[[], Any], ref: Callable[[], Any]
+) -> dict[str, Any]:
+    """One row: the JAX call's throughput and latency, a copy of as many bytes (the
+    bandwidth roofline) and, for small batches, NumPy."""
+    moved = _bytes_moved(op, size, args.odometry_steps)
+    t_jax = _time(call, args.repeats, args.min_time, _block)
+    t_latency = _time(functools.partial(_call_and_block, call), args.repeats, args.min_time)
+    del call
+    half = jnp.zeros((max(moved // 8, 1),), jnp.float32)  # read + write = moved bytes
+    t_copy = _time(functools.partial(_copy, half), args.repeats, args.min_time, _block)
+    del half
+    t_np = None
+    if args.numpy and size <= args.numpy_max_size:
+        t_np = _time(ref, max(3, args.repeats // 2), args.min_time)
+    return {
+        "op": op,
+        "size": size,
+        "jax_s": t_jax,
+        "jax_latency_s": t_latency,
+        "numpy_s": t_np,
+        "copy_s": t_copy,
+        "bytes": moved,
+        "jax_robots_per_s": size / t_jax,
+        "numpy_robots_per_s": size / t_np if t_np else None,
+        "jax_over_numpy": t_np / t_jax if t_np else None,
+        "jax_GBps": moved / t_jax / 1e9,
+        "copy_GBps": moved / t_copy / 1e9,
+        "roofline_fraction": t_copy / t_jax,
+    }
 
 
 def _print_table(result: dict[str, Any], console: Console) -> None:

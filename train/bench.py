@@ -73,6 +73,33 @@ def measure(cfg: TrainConfig, epochs: int) -> dict[str, Any]:
     }
 
 
+def _table(results: list[dict[str, Any]]) -> Table:
+    table = Table(title=f"PPO training throughput ({jax.devices()[0].device_kind})")
+    for col in (
+        "variant",
+        "envs",
+        "devices",
+        "seeds",
+        "precision",
+        "1st epoch s",
+        "env steps/s",
+        "phys steps/s",
+    ):
+        table.add_column(col)
+    for r in results:
+        table.add_row(
+            r["variant"],
+            str(r["num_envs"]),
+            str(r["devices"]),
+            str(r["seeds"]),
+            r["matmul_precision"],
+            f"{r['first_epoch_s']:.1f}",
+            f"{r['steps_per_s_median']:,.0f}",
+            f"{r['physics_steps_per_s_median']:,.0f}",
+        )
+    return table
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m train.bench", description=__doc__)
     parser.add_argument("--config", default="gpu")
@@ -106,29 +133,7 @@ def main(argv: list[str] | None = None) -> int:
         console.log(f"variant {name}")
         results.append({"variant": name, **measure(cfg, args.epochs)})
         console.log(json.dumps(results[-1]))
-    table = Table(title=f"PPO training throughput ({jax.devices()[0].device_kind})")
-    for col in (
-        "variant",
-        "envs",
-        "devices",
-        "seeds",
-        "precision",
-        "1st epoch s",
-        "env steps/s",
-        "phys steps/s",
-    ):
-        table.add_column(col)
-    for r in results:
-        table.add_row(
-            r["variant"],
-            str(r["num_envs"]),
-            str(r["devices"]),
-            str(r["seeds"]),
-            r["matmul_precision"],
-            f"{r['first_epoch_s']:.1f}",
-            f"{r['steps_per_s_median']:,.0f}",
-            f"{r['physics_steps_per_s_median']:,.0f}",
-        )
+    table = _table(results)
     if jax.process_index() != 0:
         return 0
     console.print(table)

@@ -478,22 +478,7 @@ def main(argv: list[str] | None = None) -> int:
     args = _parse(argv, "mecanum-eval", EvalArgs)
     t_start = time.time()
     try:
-        _check_args(args)
-        scenario_set = scenarios.load_scenarios(args.scenarios).select(
-            args.only, args.episodes, args.seconds
-        )
-        target = Target(args, scenario_set)
-        smallest = min(s.episodes for s in scenario_set.scenarios)
-        if args.video and args.video_episode >= smallest:
-            raise ConfigError(
-                f"--video-episode = {args.video_episode}: scenarios have {smallest} episodes"
-            )
-        out = Path(args.out) if args.out else default_out(args, target)
-        if out.exists():
-            raise ConfigError(f"--out = {str(out)!r}: already exists; never overwritten")
-        for sc in scenario_set.scenarios:  # fail on bad scenarios before any rollout
-            if sc.scripted:
-                scenarios.scripted_commands(target.env, sc)
+        target, scenario_set, out = _prepare(args)
     except (ConfigError, checkpoint.CheckpointError) as err:
         _error(err)
         return 2
@@ -503,30 +488,7 @@ def main(argv: list[str] | None = None) -> int:
     partial.mkdir(parents=True)
     try:
         console.log(f"evaluating {target.label} on {scenario_set.names} ({scenario_set.source})")
-        results, traces, timing = evaluate(target, scenario_set, args)
-        dt = target.env.config.control_dt
-        files: list[Path] = []
-        if args.plots:
-            files += write_plots(results, traces, dt, partial)
-        if args.video:
-            files += write_videos(target, traces, args, partial)
-        if args.export and target.restored is not None:
-            files.append(export_policy(target.restored, partial / "policy.npz"))
-        report = {
-            "target": args.target,
-            "label": target.label,
-            "epoch": None if target.restored is None else target.restored.epoch,
-            "seed": None if target.restored is None else target.restored.seed,
-            "robot": target.env.desc.robot.name,
-            "scenario_file": scenario_set.source,
-            "device": str(jax.devices()[0]),
-            "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
-            "wall_s": round(time.time() - t_start, 2),
-            "timing": timing,
-            "files": sorted(p.name for p in files),
-            "scenarios": results,
-        }
-        write_json(partial / "report.json", report)
+        results = _evaluate_into(partial, target, scenario_set, args, t_start)
         partial.rename(out)
     except ConfigError as err:
         _error(err)
@@ -547,6 +509,64 @@ def main(argv: list[str] | None = None) -> int:
             out_console.print(comparison_table(results, f"{first}/{ref}"))
     console.log(f"report: {out / 'report.json'} ({time.time() - t_start:.0f} s)")
     return 0
+
+
+def _prepare(args: EvalArgs) -> tuple[Target, scenarios.ScenarioSet, Path]:
+    """Check everything that can be checked before a rollout: the arguments, the
+    scenarios (scripted ones included), the target and the output directory."""
+    _check_args(args)
+    scenario_set = scenarios.load_scenarios(args.scenarios).select(
+        args.only, args.episodes, args.seconds
+    )
+    target = Target(args, scenario_set)
+    smallest = min(s.episodes for s in scenario_set.scenarios)
+    if args.video and args.video_episode >= smallest:
+        raise ConfigError(
+            f"--video-episode = {args.video_episode}: scenarios have {smallest} episodes"
+        )
+    out = Path(args.out) if args.out else default_out(args, target)
+    if out.exists():
+        raise ConfigError(f"--out = {str(out)!r}: already exists; never overwritten")
+    for sc in scenario_set.scenarios:  # fail on bad scenarios before any rollout
+        if sc.scripted:
+            scenarios.scripted_commands(target.env, sc)
+    return target, scenario_set, out
+
+
+def _evaluate_into(
+    partial: Path,
+    target: Target,
+    scenario_set: scenarios.ScenarioSet,
+    args: EvalArgs,
+    t_start: float,
+) -> dict[str, Any]:
+    """Run the evaluation and write its plots, videos, export and report.json into
+    ``partial``; returns the results."""
+    results, traces, timing = evaluate(target, scenario_set, args)
+    dt = target.env.config.control_dt
+    files: list[Path] = []
+    if args.plots:
+        files += write_plots(results, traces, dt, partial)
+    if args.video:
+        files += write_videos(target, traces, args, partial)
+    if args.export and target.restored is not None:
+        files.append(export_policy(target.restored, partial / "policy.npz"))
+    report = {
+        "target": args.target,
+        "label": target.label,
+        "epoch": None if target.restored is None else target.restored.epoch,
+        "seed": None if target.restored is None else target.restored.seed,
+        "robot": target.env.desc.robot.name,
+        "scenario_file": scenario_set.source,
+        "device": str(jax.devices()[0]),
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
+        "wall_s": round(time.time() - t_start, 2),
+        "timing": timing,
+        "files": sorted(p.name for p in files),
+        "scenarios": results,
+    }
+    write_json(partial / "report.json", report)
+    return results
 
 
 @dataclasses.dataclass

@@ -151,67 +151,88 @@ def episode_parts(
 ) -> dict[str, Part]:
     """Every metric of one rollout, per episode (arrays as in ``evaluation.Trace``)."""
     cfg = cfg or MetricConfig()
-    E, T = command.shape[:2]
-    ones = np.ones(E)
-    full = np.full(E, float(T))
+    E = command.shape[0]
+    out = _tracking_parts(command, target, twist, dt, cfg)
+    out.update(_settling_parts(command, target, twist, dt, cfg))
+    out.update(_energy_parts(pose, start, energy_j, wheel_torque, wheel_rate, jacobian, dt))
+    out["saturated"] = Part(np.mean(saturated, axis=1), np.ones(E), "mean")
+    return out
+
+
+def _steady(command: np.ndarray, dt: float, cfg: MetricConfig) -> np.ndarray:
+    """1 on the control steps at least ``settle_s`` after a command change, else 0."""
+    since = steps_since_change(command)
+    return ((since + 1) * dt >= cfg.settle_s - 1e-9).astype(float)
+
+
+def _tracking_parts(
+    command: np.ndarray, target: np.ndarray, twist: np.ndarray, dt: float, cfg: MetricConfig
+) -> dict[str, Part]:
+    """Raw RMSE against the command and steady-state RMSE against the feasible target."""
+    T = command.shape[1]
+    full = np.full(command.shape[0], float(T))
     out: dict[str, Part] = {}
     err = twist - command
     for i, axis in enumerate(("vx", "vy", "wz")):
         out[f"rmse_{axis}"] = Part(np.sum(err[..., i] ** 2, axis=1), full, "rms")
     out["rmse_lin"] = Part(np.sum(err[..., 0] ** 2 + err[..., 1] ** 2, axis=1), full, "rms")
-
-    since = steps_since_change(command)
-    steady = ((since + 1) * dt >= cfg.settle_s - 1e-9).astype(float)
+    steady = _steady(command, dt, cfg)
     ss = twist - target
     count = np.sum(steady, axis=1)
     for i, axis in enumerate(("vx", "vy", "wz")):
         out[f"ss_{axis}"] = Part(np.sum(steady * ss[..., i] ** 2, axis=1), count, "rms")
     lin2 = ss[..., 0] ** 2 + ss[..., 1] ** 2
     out["ss_lin"] = Part(np.sum(steady * lin2, axis=1), count, "rms")
+    return out
 
+
+def _settling_parts(
+    command: np.ndarray, target: np.ndarray, twist: np.ndarray, dt: float, cfg: MetricConfig
+) -> dict[str, Part]:
+    """Settling times after the command steps, translation and spin apart."""
+    T = command.shape[1]
+    since = steps_since_change(command)
+    ss = twist - target
     seg = segment_ids(command)
     previous = np.concatenate([np.zeros_like(target[:, :1]), target[:, :-1]], axis=1)
     jump = np.where((since == 0)[..., None], target - previous, 0.0)
     # the step that began each step's segment, spread over the segment
     first_idx = np.arange(T)[None, :] - since
     jump = np.take_along_axis(jump, first_idx[..., None], axis=1)
+    lin_err = np.sqrt(ss[..., 0] ** 2 + ss[..., 1] ** 2)
     lin_step = np.hypot(jump[..., 0], jump[..., 1])
-    out["settle_lin_s"] = Part(
-        *settling_times(
-            np.sqrt(lin2),
-            lin_step,
-            seg,
-            dt,
-            cfg.band_fraction,
-            cfg.band_lin,
-            cfg.min_step_lin,
-        ),
-        "mean",
+    lin = settling_times(
+        lin_err, lin_step, seg, dt, cfg.band_fraction, cfg.band_lin, cfg.min_step_lin
     )
-    out["settle_wz_s"] = Part(
-        *settling_times(
-            np.abs(ss[..., 2]),
-            np.abs(jump[..., 2]),
-            seg,
-            dt,
-            cfg.band_fraction,
-            cfg.band_wz,
-            cfg.min_step_wz,
-        ),
-        "mean",
-    )
+    wz = settling_times(
+        np.abs(ss[..., 2]), np.abs(jump[..., 2]), seg, dt, cfg.band_fraction, cfg.band_wz,
+        cfg.min_step_wz,
+    )  # fmt: skip
+    return {"settle_lin_s": Part(*lin, "mean"), "settle_wz_s": Part(*wz, "mean")}
 
+
+def _energy_parts(
+    pose: np.ndarray,
+    start: np.ndarray,
+    energy_j: np.ndarray,
+    wheel_torque: np.ndarray,
+    wheel_rate: np.ndarray,
+    jacobian: np.ndarray,
+    dt: float,
+) -> dict[str, Part]:
+    """Energy per episode and per metre travelled, and the part spent in the null space."""
+    ones = np.ones(pose.shape[0])
     energy = np.sum(energy_j, axis=1)
-    out["energy_j"] = Part(energy, ones, "mean")
     xy = np.concatenate([start[:, None, :2], pose[..., :2]], axis=1)
     travelled = np.sum(np.linalg.norm(np.diff(xy, axis=1), axis=-1), axis=1)
-    out["energy_per_m"] = Part(energy, travelled, "mean")
     P = null_space_projector(jacobian)
     null_torque = np.einsum("ij,etj->eti", P, wheel_torque)
     null_power = np.sum(np.abs(null_torque * wheel_rate), axis=-1)
-    out["null_energy_j"] = Part(np.sum(null_power, axis=1) * dt, ones, "mean")
-    out["saturated"] = Part(np.mean(saturated, axis=1), ones, "mean")
-    return out
+    return {
+        "energy_j": Part(energy, ones, "mean"),
+        "energy_per_m": Part(energy, travelled, "mean"),
+        "null_energy_j": Part(np.sum(null_power, axis=1) * dt, ones, "mean"),
+    }
 
 
 class Comparison(NamedTuple):

@@ -183,9 +183,27 @@ def _fit(
     corr = cov / np.outer(std_theta, std_theta)
     geometry = build(theta)
     th = np.asarray(theta, dtype=float)
+    params, std = _physical_params(fit, geometry, th, std_theta)
+    final_residual = np.asarray(raw(theta), dtype=float)
+    _check_relative_std(params, std, names)
+    return CalibrationResult(
+        geometry=geometry,
+        params=params,
+        std=std,
+        correlation=corr,
+        names=tuple(names),
+        residual_rms=np.sqrt(np.mean(final_residual**2, axis=0)),
+        iterations=int(iters),
+    )
+
+
+def _physical_params(
+    fit: FitSet, geometry: WheelGeometry, th: np.ndarray, std_theta: np.ndarray
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """The fitted parameters in physical units, and their standard deviations."""
     params: dict[str, np.ndarray] = {}
     std: dict[str, np.ndarray] = {}
-    n = nominal.n_wheels
+    n = geometry.n_wheels
     k = 0
     if fit in ("radii+lever_scale", "radii+levers", "radii"):
         params["radii"] = np.asarray(geometry.radii, dtype=float)
@@ -199,17 +217,7 @@ def _fit(
         pos = np.asarray(geometry.positions, dtype=float)
         params["levers"] = pos[:, 0] * u[:, 1] - pos[:, 1] * u[:, 0]
         std["levers"] = std_theta[k : k + n]
-    final_residual = np.asarray(raw(theta), dtype=float)
-    _check_relative_std(params, std, names)
-    return CalibrationResult(
-        geometry=geometry,
-        params=params,
-        std=std,
-        correlation=corr,
-        names=tuple(names),
-        residual_rms=np.sqrt(np.mean(final_residual**2, axis=0)),
-        iterations=int(iters),
-    )
+    return params, std
 
 
 def _check_identifiable(Jr: np.ndarray, names: list[str], components: tuple[str, ...]) -> None:

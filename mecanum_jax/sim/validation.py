@@ -275,6 +275,14 @@ def _flags(res: dict[str, Any]) -> str:
 
 
 def to_markdown(res: dict[str, Any]) -> str:
+    """The validation results as docs/physics_validation.md."""
+    fast, ref = res["fast"], res["reference"]
+    lines = _tracking_md(res) + _x_square_md(fast, ref) + _slip_md(fast, ref)
+    lines += ["", res.get("notes", ""), ""]
+    return "\n".join(lines)
+
+
+def _tracking_md(res: dict[str, Any]) -> list[str]:
     fast, ref = res["fast"], res["reference"]
     lines = [
         "# Physics validation: MJX model against the kinematics",
@@ -309,6 +317,12 @@ def to_markdown(res: dict[str, Any]) -> str:
         "radius polygonal instead (their ends stand ≈3.4% of r beyond the radius for 10 "
         "rollers at 45°) and failed 2 of these 26 twists, up to 6.9% (docs/physics_model.md).",
         "",
+    ]
+    return lines
+
+
+def _x_square_md(fast: dict[str, Any], ref: dict[str, Any]) -> list[str]:
+    lines = [
         "## X-square cannot spin in place",
         "",
         "| fidelity | O-square, rates (−10, −10, +10, +10) | X-square, same rates | X-square, its inverse of ω = 1 rad/s |",
@@ -320,7 +334,11 @@ def to_markdown(res: dict[str, Any]) -> str:
             f"| {name} | ωz = {s['o_square_pattern_wz']:+.3f} rad/s | ωz = {s['x_square_pattern_wz']:+.4f} rad/s | "
             f"rates {_f(s['x_square_own_inverse_rates'])}, ωz = {s['x_square_own_inverse_wz']:+.4f} rad/s |"
         )
-    lines += [
+    return lines
+
+
+def _slip_md(fast: dict[str, Any], ref: dict[str, Any]) -> list[str]:
+    lines = [
         "",
         "## Slip where physics says, and odometry",
         "",
@@ -342,8 +360,7 @@ def to_markdown(res: dict[str, Any]) -> str:
             f"{a['odometry_error_m']:.3f} m / {a['distance_m']:.2f} m | {_f(b['mean_twist_first_0.5s'])} | "
             f"{pose(b)} | {b['odometry_error_m']:.3f} m / {b['distance_m']:.2f} m |"
         )
-    lines += ["", res.get("notes", ""), ""]
-    return "\n".join(lines)
+    return lines
 
 
 def _with_sim(desc: RobotDescription, sim: dict[str, Any]) -> RobotDescription:

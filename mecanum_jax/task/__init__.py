@@ -1,21 +1,29 @@
-"""The velocity-tracking task on the MJX robot (:mod:`.env`): its configuration, the
-environment, Brax's training wrapper, and the reference controllers."""
+"""The velocity-tracking task on the MJX robot.
 
-from mecanum_jax.task.env import (
-    REFERENCES,
-    REWARD_TERMS,
-    EnvConfig,
-    MecanumEnv,
-    TrainingEnv,
-    baseline_policy,
-    load_env_config,
-)
+- :mod:`.env`: the Brax environment (:class:`MecanumEnv`) and its batched training form;
+- :mod:`.config`: :class:`EnvConfig`, the task's settings;
+- :mod:`.commands`, :mod:`.randomization`, :mod:`.observations`, :mod:`.reward`: its parts;
+- :mod:`.references`: the reference controllers (``analytic``, the baseline, among them).
+"""
+
+from mecanum_jax.task.commands import CommandConfig
+from mecanum_jax.task.config import EnvConfig, load_env_config
+from mecanum_jax.task.env import MecanumEnv, TrainingEnv
+from mecanum_jax.task.observations import NoiseConfig
+from mecanum_jax.task.randomization import RandomizationConfig
+from mecanum_jax.task.references import REFERENCES, FeedbackConfig, baseline_policy
+from mecanum_jax.task.reward import REWARD_TERMS, RewardConfig
 
 __all__ = [
     "REFERENCES",
     "REWARD_TERMS",
+    "CommandConfig",
     "EnvConfig",
+    "FeedbackConfig",
     "MecanumEnv",
+    "NoiseConfig",
+    "RandomizationConfig",
+    "RewardConfig",
     "TrainingEnv",
     "baseline_policy",
     "load_env_config",

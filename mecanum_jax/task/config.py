@@ -1,0 +1,154 @@
+"""The task's configuration: :class:`EnvConfig` and the configs it holds, each checking
+its own values (:meth:`EnvConfig.validate` names the field of any bad value)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from mecanum_jax.config import from_mapping, invalid, load_toml, require
+from mecanum_jax.sim.description import IMPLS, RobotDescription, resolve_description
+from mecanum_jax.task.commands import CommandConfig
+from mecanum_jax.task.observations import NoiseConfig
+from mecanum_jax.task.randomization import RandomizationConfig
+from mecanum_jax.task.references import FeedbackConfig
+from mecanum_jax.task.reward import RewardConfig
+
+RESIDUAL_SPACES = ("wheel", "twist")
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvConfig:
+    """The task. ``robot`` is a built-in description name or a path to a TOML file.
+
+    ``residual_space`` (with ``residual = true``): ``"wheel"``, one correction per wheel
+    (``± residual_scale · max_rate``); or ``"twist"``, a correction of the body twist
+    (``± residual_scale`` of the largest feasible vx, vy, ωz) mapped through the nominal
+    inverse model, so the policy cannot drive the wheels against each other (the
+    inverse model's null space, which squeezes the rollers and only costs energy).
+
+    ``solver_iterations`` > 0 overrides the description's Newton iterations (``0``: keep
+    them); fewer than 12 let robots on slippery floors tip over (SimSpec.iterations).
+
+    ``yaw_integral_tau`` > 0 adds an observation a real controller can compute: the leaky
+    integral of the yaw-rate error the robot *measures*, ``I ← e^(−dt/τ)·I + (ω_cmd −
+    gyro)·dt`` (gyro as observed: noisy, delayed), in units of ``τ`` times the largest
+    feasible ωz. It gives a feedforward policy the memory an integral controller needs
+    (experiments/feedback_headroom.py); ``0`` leaves it out.
+    """
+
+    robot: str = "o_rectangle"
+    """A built-in robot description (configs/robots) or a path to a description TOML."""
+    control_dt: float = 0.02
+    """Control period, s (> 0, a whole multiple of physics_timestep)."""
+    physics_timestep: float = 0.005
+    """MJX physics step, s (> 0)."""
+    contact_timeconst: float = 0.01
+    """Contact solver time constant, s (> 0; about 2 physics steps or more)."""
+    solver_iterations: int = 0
+    """Newton iterations of the physics solver (>= 0; 0: the description's)."""
+    physics_impl: str = ""
+    """MJX implementation: "jax", "warp" (needs the warp extra), or "" (the robot's sim.impl)."""
+    episode_length: int = 500
+    """Control steps per training episode (>= 1)."""
+    residual: bool = True
+    """Actions correct the analytic baseline's setpoints (false: actions are setpoints)."""
+    residual_scale: float = 0.1
+    """Largest residual correction, as a fraction of the largest wheel rate or twist (> 0)."""
+    residual_space: str = "wheel"
+    """Where the residual acts: "wheel" (one per wheel) or "twist" (vx, vy, ωz)."""
+    yaw_integral_tau: float = 0.0
+    """Time constant of the observed leaky yaw-rate error integral, s (>= 0; 0: off)."""
+    commands: CommandConfig = CommandConfig()
+    """How commands are drawn."""
+    randomization: RandomizationConfig = RandomizationConfig()
+    """Per-robot domain randomization."""
+    noise: NoiseConfig = NoiseConfig()
+    """Sensor noise."""
+    reward: RewardConfig = RewardConfig()
+    """Reward scales."""
+    feedback: FeedbackConfig = FeedbackConfig()
+    """The feedback reference controller's gains."""
+
+    def validate(self, where: str = "env") -> EnvConfig:
+        """Check values (not only types); raise :class:`ConfigError` naming the field."""
+        self._validate_timing(where)
+        if self.physics_impl not in ("", *IMPLS):
+            raise invalid(
+                f"{where}.physics_impl", self.physics_impl, f"expected one of {['', *IMPLS]}"
+            )
+        if self.residual_space not in RESIDUAL_SPACES:
+            raise invalid(
+                f"{where}.residual_space", self.residual_space, f"expected one of {RESIDUAL_SPACES}"
+            )
+        if self.residual_space == "twist" and not self.residual:
+            raise invalid(f"{where}.residual_space", self.residual_space, "needs residual = true")
+        self.commands.validate(f"{where}.commands")
+        self.randomization.validate(f"{where}.randomization")
+        self.noise.validate(f"{where}.noise")
+        self.reward.validate(f"{where}.reward")
+        self.feedback.validate(f"{where}.feedback")
+        self.description(where)  # the robot must load
+        return self
+
+    def _validate_timing(self, where: str) -> None:
+        require(
+            self,
+            where,
+            ("control_dt", "physics_timestep", "contact_timeconst", "residual_scale"),
+            lambda v: v > 0,
+            "must be > 0",
+        )
+        ratio = self.control_dt / self.physics_timestep
+        if abs(ratio - round(ratio)) > 1e-6:
+            raise invalid(
+                f"{where}.control_dt",
+                self.control_dt,
+                f"must be a whole multiple of physics_timestep = {self.physics_timestep}",
+            )
+        require(self, where, ("episode_length",), lambda v: v >= 1, "must be >= 1")
+        require(
+            self,
+            where,
+            ("solver_iterations",),
+            lambda v: v >= 0,
+            "must be >= 0 (0: the robot description's sim.iterations)",
+        )
+        require(self, where, ("yaw_integral_tau",), lambda v: v >= 0, "must be >= 0 (0: off)")
+
+    def description(self, where: str = "env") -> RobotDescription:
+        """The robot description, with this task's physics timestep and contact time constant."""
+        desc = resolve_description(self.robot, where)
+        sim = dataclasses.replace(
+            desc.sim,
+            timestep=self.physics_timestep,
+            contact_timeconst=self.contact_timeconst,
+            iterations=self.solver_iterations or desc.sim.iterations,
+            impl=self.physics_impl or desc.sim.impl,
+        )
+        return dataclasses.replace(desc, sim=sim)
+
+    def nominal(self) -> EnvConfig:
+        """The nominal scenario: no randomization, no sensor noise, no latency."""
+        return dataclasses.replace(
+            self,
+            randomization=dataclasses.replace(self.randomization, enabled=False),
+            noise=dataclasses.replace(self.noise, scale=0.0),
+        )
+
+
+def load_env_config(path: str | Path) -> EnvConfig:
+    """An :class:`EnvConfig` from a TOML file (all keys optional, unknown keys rejected)."""
+    return from_mapping(EnvConfig, load_toml(path), "env").validate()
+
+
+__all__ = [
+    "RESIDUAL_SPACES",
+    "CommandConfig",
+    "EnvConfig",
+    "FeedbackConfig",
+    "NoiseConfig",
+    "RandomizationConfig",
+    "RewardConfig",
+    "load_env_config",
+]

@@ -1,0 +1,159 @@
+"""What the robot observes: sensors with noise and latency, and the observation layouts.
+
+The policy's ``obs["state"]``: the command, encoder rates, IMU gyro z and accelerometer,
+the wheel-odometry body twist, and the last action, with sensor noise
+(:class:`NoiseConfig`) and an observation latency of whole control steps; optionally the
+leaky integral of the measured yaw-rate error. The critic's ``obs["privileged_state"]``
+adds the true twist and the randomized physical parameters. Every entry is scaled to
+about unit size (by the rate limits, the largest feasible twist, or gravity).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING, Any
+
+import jax
+import jax.numpy as jnp
+
+from mecanum_jax.config import require
+from mecanum_jax.sim.physics import GRAVITY, RobotParams, Sensors
+
+if TYPE_CHECKING:
+    from mecanum_jax.task.env import MecanumEnv
+
+Layout = tuple[tuple[str, int], ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class NoiseConfig:
+    """Gaussian sensor noise (standard deviations); ``scale = 0`` turns it off."""
+
+    scale: float = 1.0
+    """Multiplies every standard deviation below (>= 0; 0: noise off)."""
+    wheel_rate: float = 0.3
+    """Encoder wheel-rate noise, rad/s (>= 0)."""
+    gyro: float = 0.02
+    """Gyro z noise, rad/s (>= 0)."""
+    accel: float = 0.3
+    """Accelerometer noise, m/s² (>= 0)."""
+
+    def validate(self, where: str = "env.noise") -> None:
+        """Check values; raise :class:`ConfigError` naming the field."""
+        fields = ("scale", "wheel_rate", "gyro", "accel")
+        require(self, where, fields, lambda v: v >= 0, "must be >= 0")
+
+    def std(self) -> jax.Array:
+        """The standard deviations (wheel rate, gyro, accel), scaled."""
+        return jnp.asarray(
+            [self.scale * self.wheel_rate, self.scale * self.gyro, self.scale * self.accel],
+            jnp.float32,
+        )
+
+
+def policy_layout(n_wheels: int, action_size: int, yaw_integral: bool) -> Layout:
+    """The policy observation's entries and their sizes, in order."""
+    layout: Layout = (
+        ("command", 3),
+        ("wheel_rate", n_wheels),
+        ("gyro_z", 1),
+        ("accel", 3),
+        ("odometry_twist", 3),
+        ("last_action", action_size),
+    )
+    return (*layout, ("yaw_error_integral", 1)) if yaw_integral else layout
+
+
+def privileged_layout(layout: Layout, n_wheels: int) -> Layout:
+    """The critic's observation: the policy's, then the truth it cannot sense."""
+    n = n_wheels
+    return (
+        *layout,
+        ("true_twist", 3),
+        ("friction", n),
+        ("payload_mass", 1),
+        ("payload_com", 3),
+        ("radius_scale", n),
+        ("torque_scale", n),
+        ("gain_scale", n),
+        ("latency", 1),
+    )
+
+
+def sensor_vector(env: MecanumEnv, s: Sensors, key: jax.Array, noise_std: jax.Array) -> jax.Array:
+    """Noisy encoder rates, gyro z, accelerometer and the odometry twist (scaled)."""
+    k1, k2, k3 = jax.random.split(key, 3)
+    n = env.n_wheels
+    rate = s.wheel_rate + noise_std[0] * jax.random.normal(k1, (n,))
+    gyro = s.gyro_z + noise_std[1] * jax.random.normal(k2)
+    accel = s.accel + noise_std[2] * jax.random.normal(k3, (3,))
+    odom = env.forward_matrix @ rate
+    return jnp.concatenate(
+        [
+            rate / env.max_rates,
+            (gyro / env.command_scale[2])[None],
+            accel / GRAVITY,
+            odom / env.command_scale,
+        ]
+    )
+
+
+def delayed(info: dict[str, Any]) -> jax.Array:
+    """The sensor vector as the robot observes it now: ``latency`` steps old."""
+    return jnp.take(info["history"], info["latency"], axis=0)
+
+
+def measured_yaw_rate(env: MecanumEnv, info: dict[str, Any]) -> jax.Array:
+    """The gyro's yaw rate as a controller sees it now (noisy, ``latency`` steps old)."""
+    return delayed(info)[env.n_wheels] * env.command_scale[2]
+
+
+def yaw_integral(env: MecanumEnv, info: dict[str, Any], command: jax.Array) -> jax.Array:
+    """The observed leaky yaw-error integral after a step that tracked ``command``."""
+    err = command[2] - measured_yaw_rate(env, info)
+    return env.yaw_decay * info["yaw_integral"] + err * env.config.control_dt
+
+
+def observe(env: MecanumEnv, sens: Sensors, info: dict[str, Any]) -> dict[str, jax.Array]:
+    """The policy's and the critic's observations of the state ``info`` describes."""
+    parts = [info["command"] / env.command_scale, delayed(info), info["last_action"]]
+    tau = env.config.yaw_integral_tau
+    if tau > 0:
+        parts.append((info["yaw_integral"] / (tau * env.command_scale[2]))[None])
+    state = jnp.concatenate(parts)
+    p: RobotParams = info["params"]
+    nom = env.nominal_params
+    truth = sens.twist / env.command_scale
+    privileged = jnp.concatenate(
+        [
+            state,
+            truth,
+            p.friction,
+            p.payload_mass[None],
+            p.payload_com,
+            p.radius_scale,
+            p.torque_limit / nom.torque_limit,
+            p.kp / nom.kp,
+            info["latency"].astype(jnp.float32)[None],
+        ]
+    )
+    return {"state": state, "privileged_state": privileged}
+
+
+def command_from_obs(env: MecanumEnv, obs: dict[str, jax.Array]) -> jax.Array:
+    """The (noise-free) command carried in the first three policy observations."""
+    cmd = obs["state"][..., :3]
+    return cmd * env.command_scale.reshape((1,) * (cmd.ndim - 1) + (3,))
+
+
+__all__ = [
+    "NoiseConfig",
+    "command_from_obs",
+    "delayed",
+    "measured_yaw_rate",
+    "observe",
+    "policy_layout",
+    "privileged_layout",
+    "sensor_vector",
+    "yaw_integral",
+]

@@ -1,0 +1,160 @@
+"""The reference controllers a learned policy is judged against (:data:`REFERENCES`).
+
+- ``analytic``: the nominal inverse model, desaturated uniformly to the rate limits: the
+  baseline the product is judged against;
+- ``analytic_nearest``: the same with the nearest feasible twist instead;
+- ``feedback``: inverse-model feedforward with a yaw-rate PI loop on the gyro and
+  nearest-feasible desaturation (:class:`FeedbackConfig`).
+
+:func:`baseline_policy` puts ``analytic`` behind a learned policy's interface.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+import jax
+import jax.numpy as jnp
+
+from mecanum_jax.config import require
+from mecanum_jax.kinematics import limits
+from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.task.observations import command_from_obs, measured_yaw_rate
+
+if TYPE_CHECKING:
+    from mecanum_jax.task.env import MecanumEnv
+
+Policy = Callable[[Any, jax.Array], tuple[jax.Array, dict[str, Any]]]
+
+
+@dataclasses.dataclass(frozen=True)
+class FeedbackConfig:
+    """The ``feedback`` reference controller: inverse-model feedforward, a yaw-rate PI loop
+    on the (noisy, delayed) gyro, and nearest-feasible desaturation.
+
+    Yaw-rate correction ``u = kp·e + I`` with ``e = ωz_cmd − gyro`` and
+    ``I ← clip(I + ki·e·dt, ±i_max)``; the integrator holds while the corrected twist is out
+    of the wheels' reach and ``e`` would drive it further (conditional-integration
+    anti-windup). The gains come from a sweep on training-distribution episodes
+    (experiments/tune_feedback.py; docs/evaluation.md): any proportional gain (even 0.02)
+    raised the steady-state ωz error there, since the servos' own step response overshoots
+    within one control step and the gyro arrives noisy and up to 2 steps late; integral
+    gains above about 0.8/s oscillate.
+    """
+
+    kp: float = 0.0
+    """Proportional gain, rad/s of yaw-rate correction per rad/s of error (>= 0)."""
+    ki: float = 0.5
+    """Integral gain, 1/s (>= 0)."""
+    i_max: float = 1.5
+    """Integrator clamp, rad/s (>= 0)."""
+    omega_weight: float = 0.1
+    """Nearest-feasible metric: (m/s)² per (rad/s)² of yaw-rate error (> 0)."""
+
+    def validate(self, where: str = "env.feedback") -> None:
+        """Check values; raise :class:`ConfigError` naming the field."""
+        require(self, where, ("kp", "ki", "i_max"), lambda v: v >= 0, "must be >= 0")
+        require(self, where, ("omega_weight",), lambda v: v > 0, "must be > 0")
+
+    def gains(self) -> jax.Array:
+        """``(kp, ki, i_max)`` as the array the state carries in ``info["feedback_gains"]``
+        (so that a gain sweep compiles once)."""
+        return jnp.asarray([self.kp, self.ki, self.i_max], jnp.float32)
+
+
+REFERENCES = ("analytic", "analytic_nearest", "feedback")
+"""The reference controllers, by index: the analytic inverse model with uniform
+desaturation (the baseline), the same with nearest-feasible desaturation, and
+:class:`FeedbackConfig`'s closed loop."""
+
+
+def baseline_rates(env: MecanumEnv, command: jax.Array) -> jax.Array:
+    """The analytic baseline: the nominal inverse model, desaturated to the rate limits."""
+    twist, _ = limits.desaturate(env.geometry, command, env.max_rates)
+    return kinematics.apply_rows(env.jacobian, twist)
+
+
+def nearest_rates(env: MecanumEnv, twist: jax.Array) -> jax.Array:
+    """Wheel rates of the feasible twist nearest ``twist`` (nominal geometry)."""
+    w = env.config.feedback.omega_weight
+    feasible = limits.nearest_feasible(env.geometry, twist, env.max_rates, w)
+    return kinematics.apply_rows(env.jacobian, feasible)
+
+
+def feasible_target(env: MecanumEnv, command: jax.Array, radius_scale: jax.Array) -> jax.Array:
+    """The nearest feasible twist to ``command`` (..., 3) for the robot as it really is
+    (wheel radii scaled by ``radius_scale`` (n,), the rate limits), in the reference
+    controllers' metric: the target of the steady-state error."""
+    geom = env.geometry.replace(radii=env.geometry.radii * radius_scale)
+    w = env.config.feedback.omega_weight
+    return limits.nearest_feasible(geom, command, env.max_rates, w)
+
+
+def feedback_twist(env: MecanumEnv, info: dict[str, Any]) -> tuple[jax.Array, jax.Array]:
+    """The PI-corrected twist command, and the yaw-rate error it corrects."""
+    kp = info["feedback_gains"][0]
+    command = info["command"]
+    err = command[2] - measured_yaw_rate(env, info)
+    u = kp * err + info["feedback_integral"]
+    return command + jnp.asarray([0.0, 0.0, 1.0]) * u, err
+
+
+def feedback_integral(env: MecanumEnv, info: dict[str, Any]) -> jax.Array:
+    """The feedback controller's integrator after this step (see :class:`FeedbackConfig`)."""
+    _, ki, i_max = info["feedback_gains"]
+    twist, err = feedback_twist(env, info)
+    rates = kinematics.apply_rows(env.jacobian, twist)
+    saturated = jnp.max(jnp.abs(rates) / env.max_rates) > 1.0
+    u = twist[2] - info["command"][2]
+    hold = saturated & (err * u > 0)  # the error would wind it up further
+    grown = jnp.clip(info["feedback_integral"] + ki * err * env.config.control_dt,
+                     -i_max, i_max)  # fmt: skip
+    return jnp.where(hold, info["feedback_integral"], grown)
+
+
+def reference_rates(env: MecanumEnv, reference: int | jax.Array, info: dict[str, Any]) -> jax.Array:
+    """Wheel-rate setpoints of reference controller ``reference`` (an index into
+    :data:`REFERENCES`; a Python int computes only that one) for the state's ``info``."""
+    candidates = (
+        lambda: baseline_rates(env, info["command"]),
+        lambda: nearest_rates(env, info["command"]),
+        lambda: nearest_rates(env, feedback_twist(env, info)[0]),
+    )
+    if isinstance(reference, int):
+        return candidates[reference]()
+    index = jnp.clip(jnp.asarray(reference), 0, len(candidates) - 1)
+    return jnp.select([index == i for i in range(len(candidates))], [c() for c in candidates])
+
+
+def baseline_policy(env: MecanumEnv) -> Policy:
+    """The analytic baseline behind the learned-policy interface ``(obs, key) -> (action, {})``.
+
+    With residual actions it is the zero residual; otherwise it outputs the desaturated
+    nominal inverse model's wheel rates divided by the rate limits.
+    """
+
+    def policy(obs: dict[str, jax.Array], key: jax.Array) -> tuple[jax.Array, dict[str, Any]]:
+        del key
+        command = command_from_obs(env, obs)
+        if env.config.residual:
+            return jnp.zeros((*command.shape[:-1], env.action_size)), {}
+        rates = baseline_rates(env, command)
+        return rates / env.max_rates.reshape((1,) * (rates.ndim - 1) + (-1,)), {}
+
+    return policy
+
+
+__all__ = [
+    "REFERENCES",
+    "FeedbackConfig",
+    "Policy",
+    "baseline_policy",
+    "baseline_rates",
+    "feasible_target",
+    "feedback_integral",
+    "feedback_twist",
+    "nearest_rates",
+    "reference_rates",
+]
