@@ -1,4 +1,4 @@
-"""Which observations have outliers after normalization (docs/training.md, session 5).
+"""Which observations have outliers after normalization (docs/training.md).
 
 Rolls randomized robots under the baseline plus exploration-like noise (tanh of
 N(0, 0.3) residuals), normalizes the critic's observations by their own mean and standard

@@ -10,7 +10,7 @@ impacts (it is constant while airborne). At the training environment's 4 ms step
 about 3 mm and the body spins at -8.65 rad/s while the wheels imply -4.2: a 1.6x overshoot
 of the command for ~0.1 s, which a real robot with slipping wheels could not do. At 2 ms
 the hops are about 1 mm and there is no overshoot. See docs/physics_model.md.
-Those figures were taken with MJX's own servo; since session 4 the default chord servo
+Those figures were taken with MJX's own servo; since 2026-11-22 the default chord servo
 (physics.Robot._chord_servo) removes the over-spin, the 3 N·m / 4 ms hop remains (3.5 mm).
 
     .venv/bin/python experiments/spin_transient.py [--timesteps 0.002 0.004] [--wz -5.5]

@@ -20,6 +20,7 @@
 #   ab MIN 'name|flags'...  variants trained concurrently for MIN minutes on one GPU, then each
 #                           evaluated on the tuning episodes
 #   multi-gpu EPOCHS [VARIANT...]  throughput over several GPUs: sh1gpu sh2gpu sh2gpu_64k mp2gpu
+#                           (default) and pmap2gpu
 #   experiment SCRIPT ARGS...      python experiments/SCRIPT ARGS
 #
 # docs/benchmarks.md and docs/training.md list the call behind each figure.
@@ -108,6 +109,7 @@ multi_gpu() {  # EPOCHS [VARIANT...]: one process per variant, so a crash loses 
     [sh2gpu]="--run.parallel sharded"
     [sh2gpu_64k]="--run.parallel sharded --ppo.num-envs 65536 --ppo.batch-size 8192"
     [mp2gpu]="--run.parallel sharded"
+    [pmap2gpu]="--run.parallel pmap"  # Brax's path: crashes XLA's compiler with MJX on GPUs
   )
   local v i
   for v in ${*:-sh1gpu sh2gpu sh2gpu_64k mp2gpu}; do
