@@ -219,6 +219,15 @@ def test_descriptions_load_and_bad_ones_name_the_field(tmp_path):
         drives.load_drive(str(bad))
     with pytest.raises(ConfigError, match=r"robot = 'hovercraft': no such built-in drive"):
         drives.load_drive("hovercraft")
+    # the steering limit is named in the unit it was given, and 0 is not "the default"
+    steer = '[robot]\nname = "x"\ndrive = "ackermann"\n[geometry]\nwheel_radius = 0.05\n'
+    for value in ("0.0", "90.0", "-10.0"):
+        bad.write_text(
+            steer + f"wheelbase = 0.2\ntrack = 0.3\nmax_steer_deg = {value}\n"
+            "[motors]\nmax_motor_rpm = 100.0\n"
+        )
+        with pytest.raises(drives.DriveError, match=rf"geometry\.max_steer_deg = {value}: "):
+            drives.load_drive(str(bad))
 
 
 # --- batching, jit, vmap, grad ----------------------------------------------------------------

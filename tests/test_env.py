@@ -206,7 +206,6 @@ def test_nominal_scenario_is_deterministic_and_unrandomized():
     [
         ({"control_dt": 0.021}, "env.control_dt = 0.021"),
         ({"episode_length": 0}, "env.episode_length = 0"),
-        ({"obs_history": 11}, "env.obs_history = 11"),
         ({"randomization": {"friction": [1.0, 0.5]}}, "env.randomization.friction"),
         ({"randomization": {"friction": [0.0, 0.5]}}, "must be > 0"),
         ({"commands": {"p_zero": -1}}, "env.commands.p_zero = -1"),

@@ -573,51 +573,6 @@ def test_yaw_error_integral_observation_matches_the_control_loop():
         policy.observation(tracked, sens.wheel_rate, sens.gyro_z, sens.accel, np.asarray(action))
 
 
-@pytest.mark.full
-def test_sensor_history_observation_matches_the_control_loop():
-    """obs_history > 0: the policy observes that many earlier sensor frames, newest first,
-    each as delayed as the current one, and a robot-side loop that keeps the last frames
-    (deploy.sensor_frame) builds the same observation."""
-    base = EnvConfig(obs_history=2).nominal()
-    cfg = dataclasses.replace(
-        base, randomization=dataclasses.replace(base.randomization, latency_steps=(1, 1))
-    )
-    env = MecanumEnv(cfg)
-    assert env.layout[-1] == ("sensor_history", 2 * env.sensor_size)
-    policy = _control_loop_only(env)
-    policy.meta["obs_history"] = 2
-    state = env.reset_to(
-        jax.random.PRNGKey(3), env.nominal_params, jnp.asarray(1), jnp.zeros(3)
-    )
-    state = env.set_command(state, jnp.array([0.3, -0.1, 1.0]))
-    step = jax.jit(env.step)
-    first = env.robot.sensors(state.pipeline_state)
-    frames = [policy.sensor_frame(first.wheel_rate, first.gyro_z, first.accel)] * 4
-    for k in range(5):
-        action = jnp.full(env.action_size, 0.02 * (-1) ** k)
-        state = step(state, action)
-        sens = env.robot.sensors(state.pipeline_state)
-        frames.insert(0, policy.sensor_frame(sens.wheel_rate, sens.gyro_z, sens.accel))
-        # latency 1: the observed frame is one step old, the history the two before it
-        seen = np.asarray(frames[1]), np.asarray(frames[2:4])
-        obs = policy.observation(
-            np.asarray(state.info["command"]), *_raw(policy, seen[0]), np.asarray(action),
-            sensor_history=seen[1],
-        )  # fmt: skip
-        np.testing.assert_allclose(obs, np.asarray(state.obs["state"]), rtol=1e-5, atol=1e-5)
-    with pytest.raises(ValueError, match="sensor_history: shape None"):
-        policy.observation(np.zeros(3), np.zeros(4), 0.0, np.zeros(3), np.asarray(action))
-
-
-def _raw(policy, frame):
-    """Wheel rates, gyro and accelerometer back from a scaled sensor frame."""
-    n = policy.max_rates.size
-    rate = frame[:n] * policy.max_rates
-    gyro = frame[n] * policy.command_scale[2]
-    accel = frame[n + 1 : n + 4] * policy.meta["gravity"]
-    return rate, gyro, accel
-
-
 def test_onnx_export_matches_the_jax_policy_and_the_control_loop(full_run, tmp_path, learner):
     """``mecanum-export --format onnx``: onnxruntime maps raw observations to the JAX
     policy's actions, and to the NumPy control loop's wheel-rate setpoints."""

@@ -100,25 +100,6 @@ class NumpyPolicy:
         err = float(np.asarray(command, np.float32)[2]) - float(gyro_z)
         return float(np.exp(-dt / tau)) * float(integral) + err * dt
 
-    @property
-    def obs_history(self) -> int:
-        """How many earlier sensor frames the policy observes (0: none)."""
-        return int(self.meta.get("obs_history") or 0)
-
-    def sensor_frame(self, wheel_rate: Any, gyro_z: Any, accel: Any) -> np.ndarray:
-        """One scaled sensor frame as the policy observes it: encoder rates, gyro z,
-        accelerometer and the wheel-odometry twist. Keep the last :attr:`obs_history` of
-        them (newest first) for :meth:`observation`'s ``sensor_history``."""
-        rate = np.asarray(wheel_rate, np.float32)
-        return np.concatenate(
-            [
-                rate / self.max_rates,
-                np.asarray([gyro_z], np.float32).reshape(1) / self.command_scale[2],
-                np.asarray(accel, np.float32) / np.float32(self.meta["gravity"]),
-                (self.forward @ rate) / self.command_scale,
-            ]
-        ).astype(np.float32)
-
     def observation(
         self,
         command: Any,
@@ -127,7 +108,6 @@ class NumpyPolicy:
         accel: Any,
         last_action: Any,
         yaw_integral: float | None = None,
-        sensor_history: Any = None,
     ) -> np.ndarray:
         """The policy observation from raw measurements (what the environment builds).
 
@@ -139,8 +119,6 @@ class NumpyPolicy:
           last_action: (action_size,) the previous action returned by :meth:`action`.
           yaw_integral: the state of :meth:`yaw_integral_step`, required when the policy
             observes it (``yaw_integral_tau > 0``), rad.
-          sensor_history: (obs_history, frame) the :meth:`sensor_frame` of the control steps
-            before this one, newest first; required when ``obs_history > 0``.
         """
         tau = self.yaw_integral_tau
         if tau > 0 and yaw_integral is None:
@@ -148,25 +126,23 @@ class NumpyPolicy:
                 f"yaw_integral = None: this policy observes the yaw-error integral "
                 f"(tau = {tau} s); keep it with yaw_integral_step()"
             )
-        frame = self.sensor_frame(wheel_rate, gyro_z, accel)
-        parts = [
-            np.asarray(command, np.float32) / self.command_scale,
-            frame,
-            np.asarray(last_action, np.float32),
-        ]
-        if tau > 0:
-            parts.append(np.asarray([yaw_integral], np.float32) / (tau * self.command_scale[2]))
-        if self.obs_history > 0:
-            past = None if sensor_history is None else np.asarray(sensor_history, np.float32)
-            if past is None or past.shape != (self.obs_history, frame.size):
-                shape = None if past is None else past.shape
-                raise ValueError(
-                    f"sensor_history: shape {shape}, expected ({self.obs_history}, "
-                    f"{frame.size}): this policy observes {self.obs_history} earlier "
-                    "sensor_frame()s, newest first"
-                )
-            parts.append(past.reshape(-1))
-        return np.concatenate(parts).astype(np.float32)
+        rate = np.asarray(wheel_rate, np.float32)
+        odometry = self.forward @ rate
+        return np.concatenate(
+            [
+                np.asarray(command, np.float32) / self.command_scale,
+                rate / self.max_rates,
+                np.asarray([gyro_z], np.float32) / self.command_scale[2],
+                np.asarray(accel, np.float32) / np.float32(self.meta["gravity"]),
+                odometry / self.command_scale,
+                np.asarray(last_action, np.float32),
+                *(
+                    [np.asarray([yaw_integral], np.float32) / (tau * self.command_scale[2])]
+                    if tau > 0
+                    else []
+                ),
+            ]
+        ).astype(np.float32)
 
     def baseline_rates(self, command: Any) -> np.ndarray:
         """The analytic baseline: nominal inverse model, desaturated (uniformly scaled

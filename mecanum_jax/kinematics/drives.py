@@ -235,7 +235,14 @@ class DriveDescription:
                 raise DriveError(f"geometry.{key}: missing, a {kind} drive needs it")
             if key not in allowed and value is not None:
                 raise DriveError(f"geometry.{key} = {value!r}: a {kind} drive has no {key}")
-        steer = None if g.max_steer_deg is None else math.radians(g.max_steer_deg)
+        deg = g.max_steer_deg
+        if deg is not None:
+            top = 90.0 if kind == "tricycle" else math.nextafter(90.0, 0.0)
+            if isinstance(deg, bool) or not (math.isfinite(deg) and 0 < deg <= top):
+                bound = "<= 90" if kind == "tricycle" else "< 90"
+                raise DriveError(
+                    f"geometry.max_steer_deg = {deg!r}: must be in (0, {bound}] degrees"
+                )
         track, base = cast(float, g.track), cast(float, g.wheelbase)  # present where needed
         try:
             if kind == "differential":
@@ -243,10 +250,12 @@ class DriveDescription:
             if kind == "synchronous":
                 return synchronous(g.wheel_radius, dtype)
             if kind == "tricycle":
-                return tricycle(g.wheel_radius, base, steer or math.pi / 2, dtype)
-            return ackermann(g.wheel_radius, base, track, steer or math.radians(35), dtype)
+                steer = math.pi / 2 if deg is None else math.radians(deg)
+                return tricycle(g.wheel_radius, base, steer, dtype)
+            steer = math.radians(35.0 if deg is None else deg)
+            return ackermann(g.wheel_radius, base, track, steer, dtype)
         except DriveError as err:
-            raise DriveError(f"geometry.{str(err).replace('max_steer', 'max_steer_deg')}") from None
+            raise DriveError(f"geometry.{err}") from None
 
     def max_wheel_rate(self) -> float:
         """The driven wheels' rate limit, rad/s, from the motor limit and the gear ratio."""

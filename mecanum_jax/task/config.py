@@ -35,10 +35,6 @@ class EnvConfig:
     gyro)·dt`` (gyro as observed: noisy, delayed), in units of ``τ`` times the largest
     feasible ωz. It gives a feedforward policy the memory an integral controller needs
     (experiments/feedback_headroom.py); ``0`` leaves it out.
-
-    ``obs_history`` > 0 appends that many earlier sensor frames (encoders, gyro,
-    accelerometer, odometry twist, as observed: noisy and delayed), newest first, so the
-    policy can see how the robot responded to its last setpoints (friction, payload).
     """
 
     robot: str = "o_rectangle"
@@ -63,8 +59,6 @@ class EnvConfig:
     """Where the residual acts: "wheel" (one per wheel) or "twist" (vx, vy, ωz)."""
     yaw_integral_tau: float = 0.0
     """Time constant of the observed leaky yaw-rate error integral, s (>= 0; 0: off)."""
-    obs_history: int = 0
-    """Earlier sensor frames the policy observes, one control step apart (0 to 10; 0: none)."""
     commands: CommandConfig = CommandConfig()
     """How commands are drawn."""
     randomization: RandomizationConfig = RandomizationConfig()
@@ -121,7 +115,6 @@ class EnvConfig:
             "must be >= 0 (0: the robot description's sim.iterations)",
         )
         require(self, where, ("yaw_integral_tau",), lambda v: v >= 0, "must be >= 0 (0: off)")
-        require(self, where, ("obs_history",), lambda v: 0 <= v <= 10, "must be in [0, 10]")
 
     def description(self, where: str = "env") -> RobotDescription:
         """The robot description, with this task's physics timestep and contact time constant."""

@@ -51,9 +51,8 @@ class NoiseConfig:
         )
 
 
-def policy_layout(n_wheels: int, action_size: int, yaw_integral: bool, history: int = 0) -> Layout:
-    """The policy observation's entries and their sizes, in order; ``history`` earlier
-    sensor frames come last."""
+def policy_layout(n_wheels: int, action_size: int, yaw_integral: bool) -> Layout:
+    """The policy observation's entries and their sizes, in order."""
     layout: Layout = (
         ("command", 3),
         ("wheel_rate", n_wheels),
@@ -62,16 +61,7 @@ def policy_layout(n_wheels: int, action_size: int, yaw_integral: bool, history: 
         ("odometry_twist", 3),
         ("last_action", action_size),
     )
-    if yaw_integral:
-        layout = (*layout, ("yaw_error_integral", 1))
-    if history > 0:
-        layout = (*layout, ("sensor_history", history * sensor_size(n_wheels)))
-    return layout
-
-
-def sensor_size(n_wheels: int) -> int:
-    """One sensor frame: encoder rates, gyro z, accelerometer (3), odometry twist (3)."""
-    return n_wheels + 1 + 3 + 3
+    return (*layout, ("yaw_error_integral", 1)) if yaw_integral else layout
 
 
 def privileged_layout(layout: Layout, n_wheels: int) -> Layout:
@@ -113,12 +103,6 @@ def delayed(info: dict[str, Any]) -> jax.Array:
     return jnp.take(info["history"], info["latency"], axis=0)
 
 
-def past_sensors(info: dict[str, Any], frames: int) -> jax.Array:
-    """The ``frames`` sensor frames before the one observed now, newest first, flattened."""
-    past = jax.lax.dynamic_slice_in_dim(info["history"], info["latency"] + 1, frames, axis=0)
-    return past.reshape(-1)
-
-
 def measured_yaw_rate(env: MecanumEnv, info: dict[str, Any]) -> jax.Array:
     """The gyro's yaw rate as a controller sees it now (noisy, ``latency`` steps old)."""
     return delayed(info)[env.n_wheels] * env.command_scale[2]
@@ -136,8 +120,6 @@ def observe(env: MecanumEnv, sens: Sensors, info: dict[str, Any]) -> dict[str, j
     tau = env.config.yaw_integral_tau
     if tau > 0:
         parts.append((info["yaw_integral"] / (tau * env.command_scale[2]))[None])
-    if env.config.obs_history > 0:
-        parts.append(past_sensors(info, env.config.obs_history))
     state = jnp.concatenate(parts)
     p: RobotParams = info["params"]
     nom = env.nominal_params
@@ -170,10 +152,8 @@ __all__ = [
     "delayed",
     "measured_yaw_rate",
     "observe",
-    "past_sensors",
     "policy_layout",
     "privileged_layout",
-    "sensor_size",
     "sensor_vector",
     "yaw_integral",
 ]

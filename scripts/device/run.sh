@@ -60,6 +60,7 @@ train() {  # RUN_DIR MINUTES [flags]: the gpu config, one checkpoint kept
 
 evaluate() {  # MODEL SCENARIOS OUT_DIR [flags]
   local model=$1 set=$2 dir=$3; shift 3
+  rm -rf "$dir"  # scratch of an earlier call on this warm machine
   /usr/bin/time -f "wall %e s" python3 -m train.evaluate "$model" --scenarios "$set" --out "$dir" "$@"
 }
 
@@ -69,6 +70,7 @@ ship() {  # MINUTES [flags]
   commit="${COMMIT:-$(git rev-parse --short HEAD 2>/dev/null || echo unknown)}"
   device=$(nvidia-smi --query-gpu=name --format=csv,noheader | head -1)
   echo "device: $device; commit $commit; $(date -u +%Y-%m-%dT%H:%M:%SZ)"
+  rm -rf /tmp/gpu /tmp/model  # scratch of an earlier call on this warm machine
   train /tmp/gpu "$min" "$@" 2>&1 | quiet | tail -22
   python3 - "$min" "$commit" "$device" "$*" <<'PY'
 import json, sys
@@ -80,6 +82,7 @@ prov = [f"command={command}", f"commit={commit}", f"device={device}",
         f"session_wall_s={s['session_s']:.0f}", "script=scripts/device/run.sh ship"]
 raise SystemExit(export_main(["/tmp/gpu", "/tmp/model/o_rectangle", "--model", "--provenance", *prov]))
 PY
+  [ -d /tmp/model/o_rectangle ] || { echo "ship: no model was written"; return 1; }
   tar czf "$O/model.tgz" -C /tmp/model o_rectangle
   cp /tmp/gpu/metrics.jsonl /tmp/gpu/summary.json "$O/"
 }
@@ -89,6 +92,7 @@ ab() {  # MINUTES 'name|flags'...
   local names=() spec name
   for spec in "$@"; do
     name="${spec%%|*}"; names+=("$name")
+    rm -rf "/tmp/run_$name"
     echo "== variant $name: ${spec#*|}"
     # shellcheck disable=SC2086
     train "/tmp/run_$name" "$min" ${spec#*|} > "/tmp/train_$name.log" 2>&1 &
@@ -141,6 +145,7 @@ case "$TASK" in
   train-bench) python3 -m train.bench --config gpu --epochs 3 "$@" 2>&1 | quiet | tail -14 ;;
   train)
     min=$1; shift
+    rm -rf /tmp/gpu
     train /tmp/gpu "$min" "$@" 2>&1 | quiet | tail -30
     cp /tmp/gpu/metrics.jsonl /tmp/gpu/summary.json "$O/" ;;
   ship) ship "$@" ;;
