@@ -1,4 +1,6 @@
-"""Plot a run's learning curve against the baseline's line (PNG).
+"""Plot a run's learning curve against the baseline's line (PNG): the training reward, and
+the steady-state error of v and ωz on the held-out evaluation episodes (raw RMSE for runs
+logged before the steady-state metrics existed).
 
 .venv/bin/python scripts/plot_learning_curve.py RUN_DIR OUT.png
 """
@@ -21,7 +23,10 @@ def main() -> None:
     axes[0].plot(steps, [r["train"]["reward"] for r in rows])
     axes[0].set(title="training reward per step", xlabel="env steps (M)")
     ev = [r for r in rows if "eval" in r]
-    for ax, key, unit in ((axes[1], "rmse_lin", "m/s"), (axes[2], "rmse_wz", "rad/s")):
+    if not ev:
+        raise SystemExit(f"{run / 'metrics.jsonl'}: no evaluation logged yet")
+    prefix = "ss" if "ss_lin" in ev[0]["eval"]["randomized"] else "rmse"
+    for ax, key, unit in ((axes[1], f"{prefix}_lin", "m/s"), (axes[2], f"{prefix}_wz", "rad/s")):
         for scen, style in (("randomized", "-"), ("nominal", "--")):
             x = [r["env_steps"] / 1e6 for r in ev]
             ax.plot(
