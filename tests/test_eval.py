@@ -243,7 +243,7 @@ def test_baseline_rollout_tracks_and_is_deterministic(env, small, baseline_evalu
     b = baseline_evaluator.run(batch)
     np.testing.assert_array_equal(a.twist, b.twist)
     np.testing.assert_array_equal(a.command, np.asarray(batch.commands))
-    m = evaluation.summarize(a, env.config.control_dt, False, env._jacobian)
+    m = evaluation.summarize(a, env.config.control_dt, False, env.jacobian)
     assert m["unstable"] == 0
     # it tracks: far better than standing still
     still = np.sqrt(np.mean(np.sum(a.command[..., :2] ** 2, axis=-1)))
