@@ -236,13 +236,6 @@ class DriveDescription:
             if key not in allowed and value is not None:
                 raise DriveError(f"geometry.{key} = {value!r}: a {kind} drive has no {key}")
         deg = g.max_steer_deg
-        if deg is not None:
-            top = 90.0 if kind == "tricycle" else math.nextafter(90.0, 0.0)
-            if isinstance(deg, bool) or not (math.isfinite(deg) and 0 < deg <= top):
-                bound = "<= 90" if kind == "tricycle" else "< 90"
-                raise DriveError(
-                    f"geometry.max_steer_deg = {deg!r}: must be in (0, {bound}] degrees"
-                )
         track, base = cast(float, g.track), cast(float, g.wheelbase)  # present where needed
         try:
             if kind == "differential":
@@ -255,7 +248,10 @@ class DriveDescription:
             steer = math.radians(35.0 if deg is None else deg)
             return ackermann(g.wheel_radius, base, track, steer, dtype)
         except DriveError as err:
-            raise DriveError(f"geometry.{err}") from None
+            message = str(err)
+            if message.startswith("max_steer ="):  # the file's field, in the unit it was given
+                message = f"max_steer_deg = {deg!r}: {message.split(': ', 1)[1]}"
+            raise DriveError(f"geometry.{message}") from None
 
     def max_wheel_rate(self) -> float:
         """The driven wheels' rate limit, rad/s, from the motor limit and the gear ratio."""
