@@ -17,7 +17,7 @@ import jax
 import numpy as np
 
 from mecanum_jax.kinematics import limits
-from mecanum_jax.task.env import EnvConfig, MecanumEnv, TrainingEnv, baseline_policy
+from mecanum_jax.task import EnvConfig, MecanumEnv, TrainingEnv, baseline_policy
 
 _KEY = jax.random.PRNGKey(0)
 

@@ -28,7 +28,7 @@ import jax
 import numpy as np
 
 from mecanum_jax.kinematics import limits
-from mecanum_jax.task.env import EnvConfig, MecanumEnv
+from mecanum_jax.task import EnvConfig, MecanumEnv
 
 
 def main() -> None:

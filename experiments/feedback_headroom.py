@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mecanum_jax.task.env import EnvConfig, MecanumEnv, TrainingEnv
+from mecanum_jax.task import EnvConfig, MecanumEnv, TrainingEnv
 
 # tracking terms (w_lin, σ_lin; w_ang, σ_ang) to score: the default and wider kernels
 REWARDS = ((1.0, 0.25, 0.5, 1.0), (1.0, 0.25, 1.0, 4.0), (1.0, 1.0, 1.0, 4.0))

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mecanum_jax.sim.physics import TIPPED_UP_Z, SimState
-from mecanum_jax.task.env import EnvConfig, MecanumEnv, TrainingEnv, baseline_policy
+from mecanum_jax.task import EnvConfig, MecanumEnv, TrainingEnv, baseline_policy
 
 TWISTS = np.array(
     [[1.0, 0.0, 0.0], [0.0, 0.8, 0.0], [0.0, 0.0, 3.0], [0.6, 0.4, 1.5], [-0.5, 0.5, -2.0]],

@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mecanum_jax.task.env import EnvConfig, MecanumEnv, TrainingEnv
+from mecanum_jax.task import EnvConfig, MecanumEnv, TrainingEnv
 
 
 def play(env: MecanumEnv, delta: float, robots: int, chunks: int, steps: int) -> dict[str, float]:

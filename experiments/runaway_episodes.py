@@ -24,7 +24,7 @@ import numpy as np
 from mujoco import mjx
 
 from mecanum_jax.sim.physics import TIPPED_UP_Z
-from mecanum_jax.task.env import EnvConfig, MecanumEnv, TrainingEnv, baseline_policy
+from mecanum_jax.task import EnvConfig, MecanumEnv, TrainingEnv, baseline_policy
 
 _KEY = jax.random.PRNGKey(0)
 

@@ -22,7 +22,7 @@ import numpy as np
 from mecanum_jax.evaluation import metrics, scenarios
 from mecanum_jax.evaluation import rollout as evaluation
 from mecanum_jax.kinematics import model as kinematics
-from mecanum_jax.task.env import EnvConfig, MecanumEnv
+from mecanum_jax.task import EnvConfig, MecanumEnv
 
 TUNING_SEED = 101  # configs/eval/randomized.toml evaluates on seed 11
 

@@ -12,7 +12,7 @@ from mecanum_jax.kinematics import limits
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.sim.description import builtin_description
 from mecanum_jax.sim.physics import CPU_CHUNK, chunked_vmap, cpu_chunk
-from mecanum_jax.task.env import (
+from mecanum_jax.task import (
     REWARD_TERMS,
     EnvConfig,
     MecanumEnv,

@@ -22,7 +22,7 @@ from mecanum_jax.evaluation import rollout as evaluation
 from mecanum_jax.evaluation import scenarios
 from mecanum_jax.kinematics import singularity
 from mecanum_jax.kinematics.modes import SIX_MODES
-from mecanum_jax.task.env import EnvConfig, MecanumEnv
+from mecanum_jax.task import EnvConfig, MecanumEnv
 from train import checkpoint
 from train import evaluate as cli
 

@@ -411,7 +411,7 @@ def test_sim_impl_is_checked_and_left_out_of_the_fingerprint():
     __import__("importlib").util.find_spec("warp") is not None, reason="warp is installed"
 )
 def test_warp_without_its_extra_is_refused_naming_the_field(capsys, tmp_path):
-    from mecanum_jax.task.env import EnvConfig
+    from mecanum_jax.task import EnvConfig
     from train.cli import main
 
     # a saved task that trained under warp still loads (restoring needs only its shapes)

@@ -10,7 +10,7 @@ import pytest
 from mecanum_jax.evaluation import metrics, scenarios
 from mecanum_jax.evaluation import rollout as evaluation
 from mecanum_jax.kinematics import model as kinematics
-from mecanum_jax.task.env import REFERENCES, EnvConfig, MecanumEnv
+from mecanum_jax.task import REFERENCES, EnvConfig, MecanumEnv
 from train import checkpoint
 from train.evaluate import main as eval_main
 

@@ -21,7 +21,7 @@ from brax.training.agents.ppo.losses import PPONetworkParams
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.evaluation.metrics import Part
-from mecanum_jax.task.env import EnvConfig
+from mecanum_jax.task import EnvConfig
 from train import checkpoint, cli
 from train.config import (
     TRAIN_CONFIG_DIR,

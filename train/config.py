@@ -22,7 +22,7 @@ from mecanum_jax.config import (
     load_toml,
     require,
 )
-from mecanum_jax.task.env import EnvConfig
+from mecanum_jax.task import EnvConfig
 from train.loggers import check_wandb
 
 TRAIN_CONFIG_DIR = CONFIG_DIR / "train"

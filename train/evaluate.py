@@ -58,7 +58,7 @@ from mecanum_jax.evaluation import rollout as ev  # noqa: E402
 from mecanum_jax.kinematics import model as kinematics  # noqa: E402
 from mecanum_jax.sim.description import fingerprint  # noqa: E402
 from mecanum_jax.sim.physics import GRAVITY  # noqa: E402
-from mecanum_jax.task.env import REFERENCES, MecanumEnv  # noqa: E402
+from mecanum_jax.task import REFERENCES, MecanumEnv  # noqa: E402
 from train import checkpoint  # noqa: E402
 from train.config import load_train_config  # noqa: E402
 from train.run import write_json  # noqa: E402

@@ -38,7 +38,7 @@ import numpy as np
 from mecanum_jax.evaluation import metrics
 from mecanum_jax.evaluation.scenarios import EpisodeBatch
 from mecanum_jax.kinematics import odometry
-from mecanum_jax.task.env import REFERENCES, MecanumEnv
+from mecanum_jax.task import REFERENCES, MecanumEnv
 
 PolicyApply = Callable[[Any, dict[str, jax.Array]], jax.Array]
 METRICS = (

@@ -62,13 +62,7 @@ from mecanum_jax.config import (
 from mecanum_jax.kinematics import limits, singularity
 from mecanum_jax.kinematics.modes import SIX_MODES
 from mecanum_jax.sim.physics import RobotParams
-from mecanum_jax.task.env import (
-    CommandConfig,
-    EnvConfig,
-    MecanumEnv,
-    NoiseConfig,
-    RandomizationConfig,
-)
+from mecanum_jax.task import CommandConfig, EnvConfig, MecanumEnv, NoiseConfig, RandomizationConfig
 
 EVAL_DIR = CONFIG_DIR / "eval"
 # Domain tags of evaluation rng streams: scenario files, and the trainer's periodic

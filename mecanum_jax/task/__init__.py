@@ -12,7 +12,7 @@ from mecanum_jax.task.env import MecanumEnv, TrainingEnv
 from mecanum_jax.task.observations import NoiseConfig
 from mecanum_jax.task.randomization import RandomizationConfig
 from mecanum_jax.task.references import REFERENCES, FeedbackConfig, baseline_policy
-from mecanum_jax.task.reward import REWARD_TERMS, RewardConfig
+from mecanum_jax.task.reward import REWARD_TERMS, RewardConfig, reward_terms, scaled_reward_terms
 
 __all__ = [
     "REFERENCES",
@@ -27,4 +27,6 @@ __all__ = [
     "TrainingEnv",
     "baseline_policy",
     "load_env_config",
+    "reward_terms",
+    "scaled_reward_terms",
 ]

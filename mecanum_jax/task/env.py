@@ -43,18 +43,11 @@ from mecanum_jax.task import observations as obs_
 from mecanum_jax.task import randomization as rand
 from mecanum_jax.task import references as refs
 from mecanum_jax.task.commands import CommandConfig
-from mecanum_jax.task.config import EnvConfig, load_env_config
+from mecanum_jax.task.config import EnvConfig
 from mecanum_jax.task.observations import NoiseConfig
 from mecanum_jax.task.randomization import RandomizationConfig
-from mecanum_jax.task.references import REFERENCES, FeedbackConfig, Policy, baseline_policy
-from mecanum_jax.task.reward import (
-    METRIC_NAMES,
-    REWARD_TERMS,
-    RewardConfig,
-    reward_terms,
-    scaled_reward_terms,
-    step_reward,
-)
+from mecanum_jax.task.references import FeedbackConfig
+from mecanum_jax.task.reward import METRIC_NAMES, step_reward
 
 
 class MecanumEnv(Env):
@@ -301,20 +294,4 @@ class TrainingEnv(Wrapper):
         return chunked_vmap(one, self.chunk)(state, action)
 
 
-__all__ = [
-    "REFERENCES",
-    "REWARD_TERMS",
-    "CommandConfig",
-    "EnvConfig",
-    "FeedbackConfig",
-    "MecanumEnv",
-    "NoiseConfig",
-    "Policy",
-    "RandomizationConfig",
-    "RewardConfig",
-    "TrainingEnv",
-    "baseline_policy",
-    "load_env_config",
-    "reward_terms",
-    "scaled_reward_terms",
-]
+__all__ = ["MecanumEnv", "TrainingEnv"]
