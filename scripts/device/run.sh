@@ -17,8 +17,9 @@
 #                           on the tuning episodes (the training distribution, its own seed)
 #   eval [MODEL]            the evaluation table: MODEL (default models/o_rectangle) against the
 #                           references on the default scenarios and 1024 randomized episodes
-#   ab MIN 'name|flags'...  variants trained concurrently for MIN minutes on one GPU, then each
-#                           evaluated on the tuning episodes
+#   ab MIN 'name|flags'...  variants trained concurrently for MIN minutes on one GPU, each
+#                           packaged as /tmp/model_NAME/o_rectangle and $OUT/model_NAME.tgz, then
+#                           each and the shipped policy evaluated on the tuning episodes
 #   multi-gpu EPOCHS [VARIANT...]  throughput over several GPUs: sh1gpu sh2gpu sh2gpu_64k mp2gpu
 #                           (default) and pmap2gpu
 #   experiment SCRIPT ARGS...      python experiments/SCRIPT ARGS
@@ -64,31 +65,36 @@ evaluate() {  # MODEL SCENARIOS OUT_DIR [flags]
   /usr/bin/time -f "wall %e s" python3 -m train.evaluate "$model" --scenarios "$set" --out "$dir" "$@"
 }
 
-ship() {  # MINUTES [flags]
-  local min=$1; shift
+package() {  # RUN_DIR MODEL_DIR MINUTES "flags": the run's policy as a model, with provenance
   local commit device
   commit="${COMMIT:-$(git rev-parse --short HEAD 2>/dev/null || echo unknown)}"
   device=$(nvidia-smi --query-gpu=name --format=csv,noheader | head -1)
-  echo "device: $device; commit $commit; $(date -u +%Y-%m-%dT%H:%M:%SZ)"
-  rm -rf /tmp/gpu /tmp/model  # scratch of an earlier call on this warm machine
-  train /tmp/gpu "$min" "$@" 2>&1 | quiet | tail -22
-  python3 - "$min" "$commit" "$device" "$*" <<'PY'
+  rm -rf "$2"
+  python3 - "$@" "$commit" "$device" <<'PY'
 import json, sys
 from train.evaluate import export_main
-minutes, commit, device, extra = sys.argv[1:5]
-s = json.load(open("/tmp/gpu/summary.json"))
+run, model, minutes, extra, commit, device = sys.argv[1:7]
+s = json.load(open(f"{run}/summary.json"))
 command = f"mecanum-train --config gpu --max-minutes {minutes} {extra}".strip()
 prov = [f"command={command}", f"commit={commit}", f"device={device}",
-        f"session_wall_s={s['session_s']:.0f}", "script=scripts/device/run.sh ship"]
-raise SystemExit(export_main(["/tmp/gpu", "/tmp/model/o_rectangle", "--model", "--provenance", *prov]))
+        f"session_wall_s={s['session_s']:.0f}", "script=scripts/device/run.sh"]
+raise SystemExit(export_main([run, f"{model}/o_rectangle", "--model", "--provenance", *prov]))
 PY
-  [ -d /tmp/model/o_rectangle ] || { echo "ship: no model was written"; return 1; }
+  [ -d "$2/o_rectangle" ] || { echo "package: no model was written for $1"; return 1; }
+}
+
+ship() {  # MINUTES [flags]
+  local min=$1; shift
+  echo "device: $(nvidia-smi --query-gpu=name --format=csv,noheader | head -1); $(date -u +%Y-%m-%dT%H:%M:%SZ)"
+  rm -rf /tmp/gpu  # scratch of an earlier call on this warm machine
+  train /tmp/gpu "$min" "$@" 2>&1 | quiet | tail -22
+  package /tmp/gpu /tmp/model "$min" "$*" || return 1
   tar czf "$O/model.tgz" -C /tmp/model o_rectangle
   cp /tmp/gpu/metrics.jsonl /tmp/gpu/summary.json "$O/"
 }
 
-ab() {  # MINUTES 'name|flags'...
-  local min=$1; shift
+ab() {  # MINUTES 'name|flags'...: trained side by side, packaged, and compared on the tuning
+  local min=$1; shift  # episodes with the shipped policy (models/o_rectangle)
   local names=() spec name
   for spec in "$@"; do
     name="${spec%%|*}"; names+=("$name")
@@ -98,11 +104,19 @@ ab() {  # MINUTES 'name|flags'...
     train "/tmp/run_$name" "$min" ${spec#*|} > "/tmp/train_$name.log" 2>&1 &
   done
   wait
-  for name in "${names[@]}"; do
+  for spec in "$@"; do
+    name="${spec%%|*}"
     echo "== $name"; quiet < "/tmp/train_$name.log" | tail -8
-    evaluate "/tmp/run_$name" tuning "/tmp/eval_$name" --no-plots 2>&1 | quiet | tail -24
-    cp "/tmp/eval_$name/report.json" "$O/${name}_report.json" || true
+    package "/tmp/run_$name" "/tmp/model_$name" "$min" "${spec#*|}" \
+      && tar czf "$O/model_$name.tgz" -C "/tmp/model_$name" o_rectangle
     cp "/tmp/run_$name/metrics.jsonl" "$O/${name}_metrics.jsonl" || true
+  done
+  for name in "${names[@]}" shipped; do
+    local model="/tmp/model_$name/o_rectangle"
+    [ "$name" = shipped ] && model=models/o_rectangle
+    echo "== $name on the tuning episodes"
+    evaluate "$model" tuning "/tmp/eval_$name" --no-plots 2>&1 | quiet | tail -30
+    cp "/tmp/eval_$name/report.json" "$O/tune_$name.json" || true
   done
 }
 
