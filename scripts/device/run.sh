@@ -13,13 +13,13 @@
 #   train-bench ARGS...     PPO env steps/s of the gpu config, --variant 'name flags' side by side
 #   train MIN ARGS...       mecanum-train --config gpu for MIN minutes (+ mecanum-train flags)
 #   ship MIN ARGS...        train, then package the policy as $OUT/model.tgz with provenance
-#   tune [MODEL]            MODEL (default /tmp/model/o_rectangle) against models/o_rectangle
-#                           on the tuning episodes (the training distribution, its own seed)
+#   tune [MODEL...]         each MODEL (default /tmp/model/o_rectangle) and models/o_rectangle
+#                           on the tuning episodes (configs/eval/tuning.toml, a seed of its own)
 #   eval [MODEL]            the evaluation table: MODEL (default models/o_rectangle) against the
 #                           references on the default scenarios and 1024 randomized episodes
 #   ab MIN 'name|flags'...  variants trained concurrently for MIN minutes on one GPU, each
-#                           packaged as /tmp/model_NAME/o_rectangle and $OUT/model_NAME.tgz, then
-#                           each and the shipped policy evaluated on the tuning episodes
+#                           packaged as /tmp/model_NAME/o_rectangle and $OUT/model_NAME.tgz
+#                           (compare them next with: tune /tmp/model_NAME/o_rectangle ...)
 #   multi-gpu EPOCHS [VARIANT...]  throughput over several GPUs: sh1gpu sh2gpu sh2gpu_64k mp2gpu
 #                           (default) and pmap2gpu
 #   experiment SCRIPT ARGS...      python experiments/SCRIPT ARGS
@@ -93,11 +93,11 @@ ship() {  # MINUTES [flags]
   cp /tmp/gpu/metrics.jsonl /tmp/gpu/summary.json "$O/"
 }
 
-ab() {  # MINUTES 'name|flags'...: trained side by side, packaged, and compared on the tuning
-  local min=$1; shift  # episodes with the shipped policy (models/o_rectangle)
-  local names=() spec name
+ab() {  # MINUTES 'name|flags'...: trained side by side on one GPU, each packaged
+  local min=$1; shift
+  local spec name
   for spec in "$@"; do
-    name="${spec%%|*}"; names+=("$name")
+    name="${spec%%|*}"
     rm -rf "/tmp/run_$name"
     echo "== variant $name: ${spec#*|}"
     # shellcheck disable=SC2086
@@ -110,13 +110,6 @@ ab() {  # MINUTES 'name|flags'...: trained side by side, packaged, and compared 
     package "/tmp/run_$name" "/tmp/model_$name" "$min" "${spec#*|}" \
       && tar czf "$O/model_$name.tgz" -C "/tmp/model_$name" o_rectangle
     cp "/tmp/run_$name/metrics.jsonl" "$O/${name}_metrics.jsonl" || true
-  done
-  for name in "${names[@]}" shipped; do
-    local model="/tmp/model_$name/o_rectangle"
-    [ "$name" = shipped ] && model=models/o_rectangle
-    echo "== $name on the tuning episodes"
-    evaluate "$model" tuning "/tmp/eval_$name" --no-plots 2>&1 | quiet | tail -30
-    cp "/tmp/eval_$name/report.json" "$O/tune_$name.json" || true
   done
 }
 
@@ -164,10 +157,13 @@ case "$TASK" in
     cp /tmp/gpu/metrics.jsonl /tmp/gpu/summary.json "$O/" ;;
   ship) ship "$@" ;;
   tune)
-    for pair in "candidate:${1:-/tmp/model/o_rectangle}" "shipped:models/o_rectangle"; do
-      echo "== ${pair%%:*} (${pair#*:}) on the tuning episodes"
-      evaluate "${pair#*:}" tuning "/tmp/tune-${pair%%:*}" --no-plots 2>&1 | quiet | tail -30
-      cp "/tmp/tune-${pair%%:*}/report.json" "$O/tune_${pair%%:*}.json"
+    i=0
+    for model in "${@:-/tmp/model/o_rectangle}" models/o_rectangle; do
+      i=$((i + 1)); name=$(basename "$(dirname "$model")")_$i
+      [ "$model" = models/o_rectangle ] && name=shipped
+      echo "== $name ($model) on the tuning episodes"
+      evaluate "$model" tuning "/tmp/tune-$name" --no-plots 2>&1 | quiet | tail -34
+      cp "/tmp/tune-$name/report.json" "$O/tune_$name.json"
     done ;;
   eval)
     for set in default randomized; do
