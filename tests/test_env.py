@@ -213,6 +213,8 @@ def test_nominal_scenario_is_deterministic_and_unrandomized():
         ({"reward": {"energy": -1}}, "env.reward.energy = -1"),
         ({"robot": "no_such_robot"}, "env.robot = 'no_such_robot'"),
         ({"noise": {"gyro": "big"}}, "env.noise.gyro = 'big'"),
+        ({"action_filter": 1.0}, "env.action_filter = 1.0"),
+        ({"action_filter": -0.1}, "env.action_filter = -0.1"),
         ({"colour": "red"}, "env.colour = 'red': unknown key"),
     ],
 )
@@ -246,6 +248,33 @@ def test_twist_residual_acts_only_through_the_inverse_model():
     action, _ = policy(state.obs, None)
     assert action.shape == (3,)
     assert not np.any(np.asarray(action))
+
+
+def test_action_filter_applies_and_observes_the_low_passed_action():
+    """action_filter = f: the action applied is f·previous + (1 − f)·new, it is what the
+    next observation's last_action carries, and the setpoints are those of that action."""
+    f = 0.75
+    env = MecanumEnv(EnvConfig(action_filter=f).nominal())
+    plain = MecanumEnv(EnvConfig().nominal())
+    state = env.reset(jax.random.PRNGKey(4))
+    state = env.set_command(state, jnp.array([0.3, 0.0, 0.0]))
+    twin = plain.set_command(plain.reset(jax.random.PRNGKey(4)), jnp.array([0.3, 0.0, 0.0]))
+    step, plain_step = jax.jit(env.step), jax.jit(plain.step)
+    names = [name for name, _ in env.layout]
+    start = sum(size for _, size in env.layout[: names.index("last_action")])
+    last = slice(start, start + env.action_size)
+    applied = np.zeros(env.action_size, np.float32)
+    for new in ([1.0, -1.0, 0.5, 0.0], [0.0, 0.0, 0.0, 0.0], [2.0, 0.2, -0.4, 1.0]):
+        applied = f * applied + (1 - f) * np.clip(np.asarray(new, np.float32), -1, 1)
+        state = step(state, jnp.asarray(new))
+        twin = plain_step(twin, jnp.asarray(applied))  # the same action, unfiltered
+        np.testing.assert_allclose(state.info["last_action"], applied, rtol=1e-6)
+        np.testing.assert_allclose(state.obs["state"][last], applied, rtol=1e-6)
+        np.testing.assert_allclose(
+            np.asarray(state.pipeline_state.data.qvel), np.asarray(twin.pipeline_state.data.qvel),
+            rtol=1e-5, atol=1e-5,
+        )  # fmt: skip
+    assert abs(applied[0]) < 1.0  # the filter held the first step back
 
 
 def test_twist_residual_needs_residual_actions():

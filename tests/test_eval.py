@@ -522,6 +522,35 @@ def test_exported_twist_residual_setpoints_match_the_environment():
         )
 
 
+def test_exported_action_filter_matches_the_environment_in_numpy_and_onnx():
+    """action_filter = f: the NumPy policy and its ONNX graph return f·last_action (read
+    from the observation) + (1 − f)·network, the action the environment applies."""
+    f = 0.8
+    env = MecanumEnv(EnvConfig(action_filter=f).nominal())
+    policy = _control_loop_only(env)  # no hidden layer: network = tanh(first entries)
+    rng = np.random.default_rng(6)
+    obs = rng.normal(size=(64, env.observation_size["state"][0])).astype(np.float32)
+    names = [name for name, _ in env.layout]
+    start = sum(size for _, size in env.layout[: names.index("last_action")])
+    last = obs[:, start : start + env.action_size]
+    network = np.tanh(obs[:, : env.action_size])
+    expected = f * last + (1 - f) * network
+    np.testing.assert_allclose(policy.action(obs), expected, rtol=1e-5, atol=1e-6)
+    # the environment applies the same blend of its last action and a new one
+    state = env.reset(jax.random.PRNGKey(0))
+    state = state.replace(info={**state.info, "last_action": jnp.asarray(last[0])})
+    stepped = env.step(state, jnp.asarray(network[0]))
+    np.testing.assert_allclose(stepped.info["last_action"], expected[0], rtol=1e-5, atol=1e-6)
+    ort = pytest.importorskip("onnxruntime")
+    from mecanum_jax.deploy.onnx import to_onnx
+
+    session = ort.InferenceSession(
+        to_onnx(policy).SerializeToString(), providers=["CPUExecutionProvider"]
+    )
+    (action,) = session.run(["action"], {"observation": obs})
+    np.testing.assert_allclose(action, expected, rtol=1e-5, atol=1e-6)
+
+
 def _control_loop_only(env: MecanumEnv) -> deploy.NumpyPolicy:
     """An exported policy's control-loop half (no network) for ``env``'s task."""
     from mecanum_jax.kinematics import model as kinematics
@@ -535,6 +564,8 @@ def _control_loop_only(env: MecanumEnv) -> deploy.NumpyPolicy:
         "residual_scale": cfg.residual_scale,
         "residual_space": cfg.residual_space,
         "yaw_integral_tau": cfg.yaw_integral_tau,
+        "action_filter": cfg.action_filter,
+        "observation_layout": [list(x) for x in env.layout],
         "control_dt": cfg.control_dt,
         "gravity": GRAVITY,
         "max_rates": np.asarray(env.max_rates).tolist(),

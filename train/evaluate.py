@@ -428,6 +428,7 @@ def _policy_arrays(
         "residual_scale": cfg.env.residual_scale,
         "residual_space": cfg.env.residual_space,
         "yaw_integral_tau": cfg.env.yaw_integral_tau,
+        "action_filter": cfg.env.action_filter,
         "clip_observations": cfg.ppo.clip_observations,
         "max_rates": np.asarray(env.max_rates).tolist(),
         "command_scale": np.asarray(env.command_scale).tolist(),

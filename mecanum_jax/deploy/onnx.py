@@ -82,7 +82,24 @@ def to_onnx(policy: NumpyPolicy) -> Any:
     start = g.const("zero", [0], np.int64)
     axis = g.const("last_axis", [-1], np.int64)
     loc = g.op("Slice", x, start, g.const("n_act", [n_act], np.int64), axis)
-    action = g.op("Tanh", loc, name="action")
+    f = float(meta.get("action_filter") or 0.0)
+    if f > 0:  # low-passed with the last action the observation carries
+        offset = 0
+        for name, size in meta["observation_layout"]:
+            if name == "last_action":
+                break
+            offset += int(size)
+        last = g.op(
+            "Slice",
+            "observation",
+            g.const("last_start", [offset], np.int64),
+            g.const("last_end", [offset + n_act], np.int64),
+            axis,
+        )
+        new = g.op("Mul", g.op("Tanh", loc), g.const("keep_new", 1.0 - f))
+        action = g.op("Add", g.op("Mul", last, g.const("keep_last", f)), new, name="action")
+    else:
+        action = g.op("Tanh", loc, name="action")
 
     # the control loop: command from the observation, the desaturated baseline, the residual
     jt = g.const("jacobian_t", policy.jacobian.T)

@@ -35,6 +35,12 @@ class EnvConfig:
     gyro)·dt`` (gyro as observed: noisy, delayed), in units of ``τ`` times the largest
     feasible ωz. It gives a feedforward policy the memory an integral controller needs
     (experiments/feedback_headroom.py); ``0`` leaves it out.
+
+    ``action_filter`` = f > 0 low-passes the actions: the action applied (and observed as
+    ``last_action`` next step) is ``f·previous + (1 − f)·new``. The wheels' reflected
+    rotor inertia turns step-to-step changes of the setpoints into torque spikes that
+    shake the chassis; a policy whose actions flicker by 0.03 makes the yaw rate swing by
+    0.3 rad/s where a constant correction makes it swing by none.
     """
 
     robot: str = "o_rectangle"
@@ -59,6 +65,8 @@ class EnvConfig:
     """Where the residual acts: "wheel" (one per wheel) or "twist" (vx, vy, ωz)."""
     yaw_integral_tau: float = 0.0
     """Time constant of the observed leaky yaw-rate error integral, s (>= 0; 0: off)."""
+    action_filter: float = 0.0
+    """Low-pass factor of the actions, f in [0, 1): applied = f·previous + (1 − f)·new (0: off)."""
     commands: CommandConfig = CommandConfig()
     """How commands are drawn."""
     randomization: RandomizationConfig = RandomizationConfig()
@@ -115,6 +123,7 @@ class EnvConfig:
             "must be >= 0 (0: the robot description's sim.iterations)",
         )
         require(self, where, ("yaw_integral_tau",), lambda v: v >= 0, "must be >= 0 (0: off)")
+        require(self, where, ("action_filter",), lambda v: 0 <= v < 1, "must be in [0, 1) (0: off)")
 
     def description(self, where: str = "env") -> RobotDescription:
         """The robot description, with this task's physics timestep and contact time constant."""

@@ -146,6 +146,9 @@ class MecanumEnv(Env):
         when ``reference`` is given."""
         info = dict(state.info)
         action = jnp.clip(action, -1.0, 1.0)
+        if self.config.action_filter > 0:  # the applied action, low-passed (EnvConfig)
+            f = self.config.action_filter
+            action = f * info["last_action"] + (1.0 - f) * action
         params: RobotParams = info["params"]
         command = info["command"]
         rates = self.wheel_setpoints(command, action)

@@ -145,7 +145,7 @@ multi_gpu() {  # EPOCHS [VARIANT...]: one process per variant, so a crash loses 
 {
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
 date -u +%Y-%m-%dT%H:%M:%SZ
-[ "$WARP" = 1 ] && warp_install
+if [ "$WARP" = 1 ]; then warp_install || exit 3; fi
 case "$TASK" in
   bench) python3 -m mecanum_jax.bench "$@" 2>&1 | quiet ;;
   validate) python3 -m mecanum_jax.sim.validation "$@" 2>&1 | quiet | tail -40 ;;
