@@ -66,15 +66,31 @@ class NumpyPolicy:
     def observation_size(self) -> int:
         return int(self.mean.shape[-1])
 
+    @property
+    def action_filter(self) -> float:
+        """The actions' low-pass factor f (0: none): :meth:`action` returns
+        ``f·last_action + (1 − f)·network``, with ``last_action`` read from ``obs``."""
+        return float(self.meta.get("action_filter") or 0.0)
+
+    def _last_action(self, obs: np.ndarray) -> np.ndarray:
+        start = 0
+        for name, size in self.meta["observation_layout"]:
+            if name == "last_action":
+                return obs[..., start : start + int(size)]
+            start += int(size)
+        raise ExportError("observation_layout has no last_action entry")
+
     def action(self, obs: np.ndarray) -> np.ndarray:
         """Actions (..., action_size) in [-1, 1] for policy observations: a correction per
-        wheel, or of the body twist (``meta["residual_space"]``)."""
+        wheel, or of the body twist (``meta["residual_space"]``), low-passed with the last
+        action when the policy was trained so (:attr:`action_filter`)."""
         x = np.asarray(obs, np.float32)
         if x.shape[-1:] != (self.observation_size,):
             raise ValueError(
                 f"obs: shape {x.shape}, expected (..., {self.observation_size}) "
                 f"(layout {self.meta['observation_layout']})"
             )
+        raw = x
         x = (x - self.mean) / self.std
         clip = float(self.meta.get("clip_observations") or 0.0)
         if clip > 0:
@@ -83,7 +99,11 @@ class NumpyPolicy:
             x = x @ w + b
             if i < len(self.layers) - 1:
                 x = self.activation(x)
-        return np.tanh(x[..., : self.action_size])
+        action = np.tanh(x[..., : self.action_size])
+        f = np.float32(self.action_filter)
+        if f > 0:
+            action = f * self._last_action(raw) + (np.float32(1.0) - f) * action
+        return action
 
     @property
     def yaw_integral_tau(self) -> float:
@@ -116,7 +136,8 @@ class NumpyPolicy:
           wheel_rate: (n,) encoder rates, rad/s of the wheel.
           gyro_z: yaw rate, rad/s.
           accel: (3,) accelerometer, specific force in the body frame, m/s² (+9.81 z at rest).
-          last_action: (action_size,) the previous action returned by :meth:`action`.
+          last_action: (action_size,) the previous action returned by :meth:`action`
+            (zeros at start).
           yaw_integral: the state of :meth:`yaw_integral_step`, required when the policy
             observes it (``yaw_integral_tau > 0``), rad.
         """

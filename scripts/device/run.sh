@@ -95,13 +95,14 @@ ship() {  # MINUTES [flags]
 
 ab() {  # MINUTES 'name|flags'...: trained side by side on one GPU, each packaged
   local min=$1; shift
-  local spec name
+  local spec name evals=$((4096 / $#))  # the periodic evaluations share the GPU's memory
   for spec in "$@"; do
     name="${spec%%|*}"
     rm -rf "/tmp/run_$name"
     echo "== variant $name: ${spec#*|}"
     # shellcheck disable=SC2086
-    train "/tmp/run_$name" "$min" ${spec#*|} > "/tmp/train_$name.log" 2>&1 &
+    train "/tmp/run_$name" "$min" --run.num-eval-envs "$evals" ${spec#*|} \
+      > "/tmp/train_$name.log" 2>&1 &
   done
   wait
   for spec in "$@"; do
