@@ -84,16 +84,12 @@ def to_onnx(policy: NumpyPolicy) -> Any:
     loc = g.op("Slice", x, start, g.const("n_act", [n_act], np.int64), axis)
     f = float(meta.get("action_filter") or 0.0)
     if f > 0:  # low-passed with the last action the observation carries
-        offset = 0
-        for name, size in meta["observation_layout"]:
-            if name == "last_action":
-                break
-            offset += int(size)
+        where = policy.entry("last_action")
         last = g.op(
             "Slice",
             "observation",
-            g.const("last_start", [offset], np.int64),
-            g.const("last_end", [offset + n_act], np.int64),
+            g.const("last_start", [where.start], np.int64),
+            g.const("last_end", [where.stop], np.int64),
             axis,
         )
         new = g.op("Mul", g.op("Tanh", loc), g.const("keep_new", 1.0 - f))

@@ -72,13 +72,14 @@ class NumpyPolicy:
         ``f·last_action + (1 − f)·network``, with ``last_action`` read from ``obs``."""
         return float(self.meta.get("action_filter") or 0.0)
 
-    def _last_action(self, obs: np.ndarray) -> np.ndarray:
+    def entry(self, name: str) -> slice:
+        """Where the observation entry ``name`` lies in the observation vector."""
         start = 0
-        for name, size in self.meta["observation_layout"]:
-            if name == "last_action":
-                return obs[..., start : start + int(size)]
+        for entry, size in self.meta["observation_layout"]:
+            if entry == name:
+                return slice(start, start + int(size))
             start += int(size)
-        raise ExportError("observation_layout has no last_action entry")
+        raise ExportError(f"observation_layout has no {name} entry")
 
     def action(self, obs: np.ndarray) -> np.ndarray:
         """Actions (..., action_size) in [-1, 1] for policy observations: a correction per
@@ -102,7 +103,7 @@ class NumpyPolicy:
         action = np.tanh(x[..., : self.action_size])
         f = np.float32(self.action_filter)
         if f > 0:
-            action = f * self._last_action(raw) + (np.float32(1.0) - f) * action
+            action = f * raw[..., self.entry("last_action")] + (np.float32(1.0) - f) * action
         return action
 
     @property
