@@ -43,6 +43,7 @@ from rich.table import Table
 from mecanum_jax.config import ConfigError
 from mecanum_jax.kinematics import geometry, odometry
 from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.precision import set_matmul_precision
 
 DEFAULT_SIZES = (1_000, 10_000, 100_000, 1_000_000, 10_000_000, 100_000_000)
 
@@ -540,6 +541,7 @@ def _ensure_malloc_tuning(argv: list[str] | None) -> None:
 def main(argv: list[str] | None = None) -> None:
     """Entry point of ``mecanum-bench``."""
     _ensure_malloc_tuning(argv)
+    set_matmul_precision("highest")  # one number on every device (mecanum_jax.precision)
     cmd = tyro.extras.subcommand_cli_from_dict(
         {"kinematics": KinematicsBench, "physics": PhysicsBench, "drives": DrivesComparison},
         args=argv,

@@ -15,6 +15,7 @@ from rich.table import Table
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.kinematics import motors
 from mecanum_jax.kinematics.modes import SIX_MODES
+from mecanum_jax.precision import set_matmul_precision
 from mecanum_jax.sim.description import resolve_description
 
 
@@ -30,6 +31,7 @@ class DemoArgs:
 
 def main(argv: list[str] | None = None) -> None:
     args = tyro.cli(DemoArgs, args=argv)
+    set_matmul_precision("highest")
     if not args.speed > 0:
         raise SystemExit(f"--speed = {args.speed!r}: must be > 0")
     desc = resolve_description(args.robot)

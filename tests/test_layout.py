@@ -35,7 +35,14 @@ def test_sub_package_imports_only_earlier_ones(package):
 
 def test_shared_modules_import_no_sub_package():
     """config, _checks and the other shared modules sit below every sub-package."""
-    for name in ("config.py", "_checks.py", "_lazy.py", "_quiet_mjx.py", "compat.py"):
+    for name in (
+        "config.py",
+        "_checks.py",
+        "_lazy.py",
+        "_quiet_mjx.py",
+        "compat.py",
+        "precision.py",
+    ):
         assert not imported_packages(LIBRARY / name), name
 
 

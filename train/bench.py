@@ -30,16 +30,14 @@ from rich.console import Console
 from rich.table import Table
 
 from mecanum_jax.config import ConfigError
+from mecanum_jax.precision import set_matmul_precision
 from train.config import TrainConfig, apply_flags, load_train_config
 from train.distributed import init_distributed
 from train.ppo import Learner, to_host
 
 
 def measure(cfg: TrainConfig, epochs: int) -> dict[str, Any]:
-    if cfg.run.matmul_precision != "default":
-        jax.config.update("jax_default_matmul_precision", cfg.run.matmul_precision)
-    else:
-        jax.config.update("jax_default_matmul_precision", None)
+    set_matmul_precision(cfg.run.matmul_precision)
     t0 = time.perf_counter()
     learner = Learner(cfg)
     state, env_state = learner.init()

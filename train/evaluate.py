@@ -56,6 +56,7 @@ from mecanum_jax.deploy import policy as deploy  # noqa: E402
 from mecanum_jax.evaluation import metrics, scenarios  # noqa: E402
 from mecanum_jax.evaluation import rollout as ev  # noqa: E402
 from mecanum_jax.kinematics import model as kinematics  # noqa: E402
+from mecanum_jax.precision import set_matmul_precision  # noqa: E402
 from mecanum_jax.sim.description import fingerprint  # noqa: E402
 from mecanum_jax.sim.physics import GRAVITY  # noqa: E402
 from mecanum_jax.task import REFERENCES, MecanumEnv  # noqa: E402
@@ -120,6 +121,10 @@ class EvalArgs:
     """Bootstrap resamples of the paired intervals."""
     export: bool = False
     """Also write the deployable policy (policy.npz + mecanum_policy.py) to the output."""
+    matmul_precision: Literal["default", "high", "highest"] | None = None
+    """jax's matmul precision for the evaluation (default: the run's ``run.matmul_precision``,
+    ``highest`` unless the run chose otherwise). ``default`` is TF32 on A100/H100 GPUs and
+    makes the figures depend on the device (mecanum_jax.precision)."""
 
 
 class Target:
@@ -135,6 +140,7 @@ class Target:
                 if getattr(args, name) is not None:
                     raise ConfigError(f"--{name} = {getattr(args, name)}: only for a checkpoint")
             self.label = "references"
+            precision = load_train_config(args.config or "quick").run.matmul_precision
         else:
             for name in ("robot", "config"):
                 if getattr(args, name) is not None:
@@ -147,7 +153,11 @@ class Target:
                 raise ConfigError(f"--epoch = {args.epoch}: the target names epoch {epoch}")
             self.restored = checkpoint.restore_policy(run_dir, args.seed, epoch or args.epoch)
             base = self.restored.cfg.env
+            precision = self.restored.cfg.run.matmul_precision
             self.label = f"{run_dir} (epoch {self.restored.epoch}, seed {self.restored.seed})"
+        # before anything is traced: one number on every device (mecanum_jax.precision)
+        self.precision = args.matmul_precision or precision
+        set_matmul_precision(self.precision, "--matmul-precision")
         max_batch = args.max_batch or (64 if jax.default_backend() == "cpu" else 16384)
         impl = args.physics_impl
         if not impl and base.physics_impl == "warp" and importlib.util.find_spec("warp") is None:
@@ -560,6 +570,7 @@ def _evaluate_into(
         "robot": target.env.desc.robot.name,
         "scenario_file": scenario_set.source,
         "device": str(jax.devices()[0]),
+        "matmul_precision": target.precision,
         "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
         "wall_s": round(time.time() - t_start, 2),
         "timing": timing,

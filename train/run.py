@@ -36,6 +36,7 @@ from rich.progress import (
 )
 
 from mecanum_jax.config import ConfigError
+from mecanum_jax.precision import set_matmul_precision
 from mecanum_jax.sim.description import fingerprint
 from train import checkpoint
 from train.config import TrainConfig, config_diff, load_train_config
@@ -353,8 +354,7 @@ class Run:
         baseline's evaluation started in a thread (it compiles the evaluation programs while
         the first epoch compiles)."""
         cfg = self.cfg
-        if cfg.run.matmul_precision != "default":
-            jax.config.update("jax_default_matmul_precision", cfg.run.matmul_precision)
+        set_matmul_precision(cfg.run.matmul_precision)  # before anything is traced
         t_start = time.time()
         if learner is not None:
             differs = [f for f in config_diff(learner.cfg, cfg) if f not in LOGGING_ONLY]

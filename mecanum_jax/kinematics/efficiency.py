@@ -24,6 +24,7 @@ import jax.numpy as jnp
 
 from mecanum_jax.kinematics.geometry import WheelGeometry
 from mecanum_jax.kinematics.model import jacobian, roller_axes
+from mecanum_jax.precision import HIGHEST
 
 
 class Efficiency(NamedTuple):
@@ -37,7 +38,7 @@ class Efficiency(NamedTuple):
 def _one_heading(geometry: WheelGeometry, heading: jax.Array) -> Efficiency:
     v = jnp.stack([jnp.cos(heading), jnp.sin(heading)]).astype(geometry.dtype)
     twist = jnp.concatenate([v, jnp.zeros((1,), v.dtype)])
-    rates = jacobian(geometry) @ twist
+    rates = jnp.matmul(jacobian(geometry), twist, precision=HIGHEST)
     rim = geometry.radii * rates
     psi = geometry.drive_angles
     d = jnp.stack([jnp.cos(psi), jnp.sin(psi)], -1)
@@ -49,7 +50,7 @@ def _one_heading(geometry: WheelGeometry, heading: jax.Array) -> Efficiency:
     p = geometry.positions
     G = jnp.stack([u[:, 0], u[:, 1], p[:, 0] * u[:, 1] - p[:, 1] * u[:, 0]], axis=0)
     f = jnp.linalg.lstsq(G, jnp.concatenate([v, jnp.zeros((1,), v.dtype)]))[0]
-    net = jnp.linalg.norm(G[:2] @ f)
+    net = jnp.linalg.norm(jnp.matmul(G[:2], f, precision=HIGHEST))
     return Efficiency(
         speed_per_rim_speed=1.0 / jnp.max(jnp.abs(rim)),
         roller_speed_per_speed=jnp.sqrt(jnp.mean(s**2)),

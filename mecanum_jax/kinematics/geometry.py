@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mecanum_jax._checks import InputError, as_float_array, check_finite, fmt, is_concrete
+from mecanum_jax.precision import HIGHEST
 
 FOUR_WHEEL_NAMES = ("left_front", "left_back", "right_back", "right_front")
 DEFAULT_ROLLER_ANGLE = math.pi / 4
@@ -350,6 +351,6 @@ def rotated(geometry: WheelGeometry, angle: jax.typing.ArrayLike) -> WheelGeomet
     c, s = jnp.cos(angle), jnp.sin(angle)
     rot = jnp.stack([jnp.stack([c, -s]), jnp.stack([s, c])]).astype(geometry.dtype)
     return geometry.replace(
-        positions=geometry.positions @ rot.T,
+        positions=jnp.matmul(geometry.positions, rot.T, precision=HIGHEST),
         drive_angles=geometry.drive_angles + jnp.asarray(angle, geometry.dtype),
     )

@@ -31,6 +31,7 @@ from mecanum_jax._checks import (
 )
 from mecanum_jax.kinematics.geometry import WheelGeometry
 from mecanum_jax.kinematics.model import apply_rows, jacobian
+from mecanum_jax.precision import HIGHEST
 
 
 def _limits(geometry: WheelGeometry, max_rates: jax.typing.ArrayLike) -> jax.Array:
@@ -122,20 +123,20 @@ def _nearest(t: jax.Array, A: jax.Array, b: jax.Array, omega_weight: float) -> j
     for k in (1, 2, 3):
         idx = np.asarray(list(itertools.combinations(range(A.shape[0]), k)))
         As, bs = Au[idx], b[idx]  # (C, k, 3), (C, k)
-        G = jnp.einsum("cij,clj->cil", As, As)
+        G = jnp.einsum("cij,clj->cil", As, As, precision=HIGHEST)
         det = jnp.linalg.det(G)
-        scale = jnp.prod(jnp.einsum("cij,cij->ci", As, As), axis=-1)
+        scale = jnp.prod(jnp.einsum("cij,cij->ci", As, As, precision=HIGHEST), axis=-1)
         ok = jnp.abs(det) > 1e-8 * scale  # rows independent: a real edge or vertex
         Ginv = jnp.linalg.inv(jnp.where(ok[:, None, None], G, jnp.eye(k, dtype=G.dtype)))
-        r = jnp.einsum("cij,...j->...ci", As, c) - bs  # (..., C, k)
-        u = c[..., None, :] - jnp.einsum("cji,cjl,...cl->...ci", As, Ginv, r)
+        r = jnp.einsum("cij,...j->...ci", As, c, precision=HIGHEST) - bs  # (..., C, k)
+        u = c[..., None, :] - jnp.einsum("cji,cjl,...cl->...ci", As, Ginv, r, precision=HIGHEST)
         u = jnp.where(ok[:, None], u, jnp.inf)
         candidates.append(u)
     u = jnp.concatenate(candidates, axis=-2)  # (..., K, 3)
-    feasible = jnp.all(jnp.einsum("ij,...kj->...ki", Au, u) <= b + tol, axis=-1)
+    feasible = jnp.all(jnp.einsum("ij,...kj->...ki", Au, u, precision=HIGHEST) <= b + tol, axis=-1)
     dist = jnp.where(feasible, jnp.sum((u - c[..., None, :]) ** 2, axis=-1), jnp.inf)
     best = jnp.take_along_axis(u, jnp.argmin(dist, axis=-1)[..., None, None], axis=-2)[..., 0, :]
-    inside = jnp.all(jnp.einsum("ij,...j->...i", Au, c) <= b, axis=-1)
+    inside = jnp.all(jnp.einsum("ij,...j->...i", Au, c, precision=HIGHEST) <= b, axis=-1)
     return jnp.where(inside[..., None], t, best / d)
 
 

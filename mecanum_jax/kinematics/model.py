@@ -58,6 +58,7 @@ from mecanum_jax.kinematics.geometry import (
 from mecanum_jax.kinematics.geometry import (
     singular_values as singular_values,
 )
+from mecanum_jax.precision import HIGHEST
 
 
 def apply_rows(matrix: jax.Array, x: jax.Array) -> jax.Array:
@@ -115,7 +116,7 @@ def inverse_soa(geometry: WheelGeometry, twist_components: jax.typing.ArrayLike)
 
 def _gram_adjugate(J: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     """(JᵀJ, adj(JᵀJ), det(JᵀJ)) in closed form: elementwise ops XLA fuses, no solver call."""
-    G = J.T @ J
+    G = jnp.matmul(J.T, J, precision=HIGHEST)
     a, b, c = G[0, 0], G[0, 1], G[0, 2]
     d, e, f = G[1, 1], G[1, 2], G[2, 2]
     adj = jnp.stack(
@@ -161,7 +162,7 @@ def forward_matrix(geometry: WheelGeometry) -> jax.Array:
     J = jacobian(geometry)
     G, adj, det = _gram_adjugate(J)
     singular = jax.lax.stop_gradient(_gram_singular(G, det, geometry))
-    F = (adj @ J.T) / jnp.where(singular, 1.0, det)
+    F = jnp.matmul(adj, J.T, precision=HIGHEST) / jnp.where(singular, 1.0, det)
     return jnp.where(singular, jnp.nan, F)
 
 

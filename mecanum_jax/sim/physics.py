@@ -40,6 +40,7 @@ import numpy as np
 from mujoco import mjx
 
 from mecanum_jax.kinematics.geometry import WheelGeometry
+from mecanum_jax.precision import HIGHEST
 from mecanum_jax.sim import mjcf
 from mecanum_jax.sim.description import RobotDescription, require_impl
 
@@ -411,7 +412,7 @@ class Robot:
         v1 = self._linear_velocity_world(state.data)
         R = _quat_to_mat(state.data.qpos[self.index.free_qpos + 3 : self.index.free_qpos + 7])
         accel_world = (v1 - v0) / (substeps * self.dt) + jnp.array([0.0, 0.0, GRAVITY])
-        return state.replace(accel=R.T @ accel_world)
+        return state.replace(accel=jnp.matmul(R.T, accel_world, precision=HIGHEST))
 
     def _linear_velocity_world(self, data: mjx.Data) -> jax.Array:
         d = self.index.free_dof
@@ -423,7 +424,7 @@ class Robot:
         f, d = self.index.free_qpos, self.index.free_dof
         q = data.qpos[f + 3 : f + 7]
         R = _quat_to_mat(q)
-        v_body = R.T @ data.qvel[d : d + 3]
+        v_body = jnp.matmul(R.T, data.qvel[d : d + 3], precision=HIGHEST)
         omega_body = data.qvel[d + 3 : d + 6]  # free-joint angular velocity is body-frame
         yaw = _quat_to_yaw(q)
         return Sensors(

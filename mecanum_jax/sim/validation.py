@@ -39,6 +39,7 @@ from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.kinematics import odometry
 from mecanum_jax.kinematics.geometry import SingularLayoutWarning
 from mecanum_jax.kinematics.modes import SIX_MODES
+from mecanum_jax.precision import set_matmul_precision
 from mecanum_jax.sim import physics
 from mecanum_jax.sim.description import (
     IMPLS,
@@ -382,6 +383,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--iterations", type=int, help="override sim.iterations")
     parser.add_argument("--impl", choices=list(IMPLS), help="override sim.impl (MJX backend)")
     args = parser.parse_args(argv)
+    set_matmul_precision("highest")  # one number on every device (mecanum_jax.precision)
     overrides = (("solver", args.solver), ("iterations", args.iterations), ("impl", args.impl))
     sim = {k: v for k, v in overrides if v is not None}
     try:

@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 
 from mecanum_jax.config import require
+from mecanum_jax.precision import HIGHEST
 from mecanum_jax.sim.physics import GRAVITY, RobotParams, Sensors
 
 if TYPE_CHECKING:
@@ -87,7 +88,7 @@ def sensor_vector(env: MecanumEnv, s: Sensors, key: jax.Array, noise_std: jax.Ar
     rate = s.wheel_rate + noise_std[0] * jax.random.normal(k1, (n,))
     gyro = s.gyro_z + noise_std[1] * jax.random.normal(k2)
     accel = s.accel + noise_std[2] * jax.random.normal(k3, (3,))
-    odom = env.forward_matrix @ rate
+    odom = jnp.matmul(env.forward_matrix, rate, precision=HIGHEST)
     return jnp.concatenate(
         [
             rate / env.max_rates,

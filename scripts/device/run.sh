@@ -16,7 +16,10 @@
 #   tune [MODEL...]         each MODEL (default /tmp/model/o_rectangle) and models/o_rectangle
 #                           on the tuning episodes (configs/eval/tuning.toml, a seed of its own)
 #   eval [MODEL]            the evaluation table: MODEL (default models/o_rectangle) against the
-#                           references on the default scenarios and 1024 randomized episodes
+#                           references on the default scenarios and 1024 randomized episodes,
+#                           then `agree MODEL`
+#   agree [MODEL]           nominal on the GPU and on the CPU of the same machine: do the
+#                           steady-state figures agree to 1%? (scripts/eval_agreement.py)
 #   ab MIN 'name|flags'...  variants trained concurrently for MIN minutes on one GPU, each
 #                           packaged as /tmp/model_NAME/o_rectangle and $OUT/model_NAME.tgz
 #                           (compare them next with: tune /tmp/model_NAME/o_rectangle ...)
@@ -143,6 +146,15 @@ multi_gpu() {  # EPOCHS [VARIANT...]: one process per variant, so a crash loses 
   done
 }
 
+agree() {  # MODEL: the nominal scenario on this GPU and on this machine's CPU (JAX physics)
+  echo "== GPU/CPU agreement of the steady-state figures: $1, nominal, JAX physics"
+  evaluate "$1" default /tmp/agree-gpu --only nominal --physics-impl jax --no-plots 2>&1 | quiet | tail -3
+  JAX_PLATFORMS=cpu evaluate "$1" default /tmp/agree-cpu --only nominal --physics-impl jax \
+    --no-plots 2>&1 | quiet | tail -3
+  cp /tmp/agree-gpu/report.json "$O/agree_gpu.json"; cp /tmp/agree-cpu/report.json "$O/agree_cpu.json"
+  python3 scripts/eval_agreement.py /tmp/agree-gpu/report.json /tmp/agree-cpu/report.json
+}
+
 {
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
 date -u +%Y-%m-%dT%H:%M:%SZ
@@ -172,7 +184,9 @@ case "$TASK" in
       evaluate "${1:-models/o_rectangle}" "$set" "/tmp/eval-$set" 2>&1 | quiet
       cp "/tmp/eval-$set/report.json" "$O/report_$set.json"
     done
-    (cd /tmp && tar czf "$O/plots.tgz" eval-default/*.png eval-randomized/*.png) ;;
+    (cd /tmp && tar czf "$O/plots.tgz" eval-default/*.png eval-randomized/*.png)
+    agree "${1:-models/o_rectangle}" ;;
+  agree) agree "${1:-models/o_rectangle}" ;;
   ab) ab "$@" ;;
   multi-gpu) multi_gpu "$@" ;;
   experiment) script=$1; shift; python3 "experiments/$script" "$@" 2>&1 | quiet ;;
