@@ -39,7 +39,7 @@ def set_matmul_precision(name: str, where: str = "run.matmul_precision") -> None
 
 def matmul_precision() -> str:
     """The precision now in force (``default`` when JAX's own)."""
-    value = jax.config.jax_default_matmul_precision
+    value = getattr(jax.config, "jax_default_matmul_precision", None)
     return "default" if value is None else str(value)
 
 
