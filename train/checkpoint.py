@@ -326,7 +326,10 @@ def restore_policy(
             f"checkpoint {str(run_dir)!r}: bad config in metadata: {err}"
         ) from err
     seeds = list(cfg.run.seeds)
-    seed = seeds[0] if seed is None else seed
+    if seed is None:  # a model directory evaluates the seed it was packaged from
+        packaged = run_dir / PROVENANCE
+        seed = json.loads(packaged.read_text()).get("seed") if packaged.exists() else None
+    seed = seeds[0] if seed is None else int(seed)
     if seed not in seeds:
         raise CheckpointError(f"seed = {seed}: this run trained seeds {seeds}")
     from mecanum_jax.task.env import MecanumEnv

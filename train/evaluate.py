@@ -437,6 +437,8 @@ def _policy_arrays(
         "residual": cfg.env.residual,
         "residual_scale": cfg.env.residual_scale,
         "residual_space": cfg.env.residual_space,
+        "residual_base": cfg.env.residual_base,
+        "feedback": dataclasses.asdict(cfg.env.feedback),
         "yaw_integral_tau": cfg.env.yaw_integral_tau,
         "action_filter": cfg.env.action_filter,
         "clip_observations": cfg.ppo.clip_observations,

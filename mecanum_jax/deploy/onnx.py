@@ -13,7 +13,11 @@ The graph holds everything between the observation vector and the servos:
 Inputs: ``observation`` (batch, observation_size), float32, laid out as
 ``meta["observation_layout"]`` (what :meth:`NumpyPolicy.observation` builds). Outputs:
 ``action`` (batch, action_size) in [-1, 1] and ``wheel_setpoints`` (batch, n) in rad/s of
-the wheel. The export's metadata (robot, wheel order, layout, scales) is stored as the
+the wheel. A policy whose residual corrects the ``feedback`` controller has that
+controller inside too (the PI-corrected twist, projected onto the nearest feasible twist
+by :class:`NearestFeasible`'s precomputed maps) and a third output, ``feedback_integral``
+(batch, 1): the controller's integrator after this step, which the next observation
+carries (rad/s). The export's metadata (robot, wheel order, layout, scales) is stored as the
 model's ``metadata_props``. Needs the ``onnx`` extra (``pip install mecanum-jax[onnx]``).
 """
 
@@ -25,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from mecanum_jax.deploy.policy import NumpyPolicy
+from mecanum_jax.deploy.policy import NearestFeasible, NumpyPolicy
 
 OPSET = 17
 
@@ -101,10 +105,16 @@ def to_onnx(policy: NumpyPolicy) -> Any:
     jt = g.const("jacobian_t", policy.jacobian.T)
     scaled = g.op("Slice", "observation", start, g.const("three", [3], np.int64), axis)
     command = g.op("Mul", scaled, g.const("command_scale", policy.command_scale))
-    rates = g.op("MatMul", command, jt)
     m = g.const("max_rates", max_rates)
-    excess = g.op("ReduceMax", g.op("Div", g.op("Abs", rates), m), axes=[-1], keepdims=1)
-    base = g.op("Div", rates, g.op("Max", excess, g.const("one", 1.0)))
+    g.const("one", 1.0)
+    outputs = []
+    if policy.feedback_base:
+        base = _feedback_base(g, policy, command, jt, m)
+        outputs.append(("feedback_integral", 1))
+    else:
+        rates = g.op("MatMul", command, jt)
+        excess = g.op("ReduceMax", g.op("Div", g.op("Abs", rates), m), axes=[-1], keepdims=1)
+        base = g.op("Div", rates, g.op("Max", excess, "one"))
     scale = np.float32(meta["residual_scale"])
     if meta["residual"] and meta.get("residual_space", "wheel") == "twist":
         twist = g.op("Mul", action, g.const("twist_step", scale * policy.command_scale))
@@ -123,6 +133,7 @@ def to_onnx(policy: NumpyPolicy) -> Any:
         [
             oh.make_tensor_value_info("action", f32, ["batch", n_act]),
             oh.make_tensor_value_info("wheel_setpoints", f32, ["batch", len(max_rates)]),
+            *(oh.make_tensor_value_info(name, f32, ["batch", size]) for name, size in outputs),
         ],
         g.initializers,
     )
@@ -133,6 +144,64 @@ def to_onnx(policy: NumpyPolicy) -> Any:
     oh.set_model_props(model, {"mecanum_policy_meta": json.dumps(meta)})
     onnx.checker.check_model(model)
     return model
+
+
+def _entry(g: _Graph, policy: NumpyPolicy, name: str, scale: str) -> str:
+    """Observation entry ``name`` (batch, size), times ``scale``."""
+    where = policy.entry(name)
+    lo = g.const(f"{name}_start", [where.start], np.int64)
+    hi = g.const(f"{name}_end", [where.stop], np.int64)
+    return g.op("Mul", g.op("Slice", "observation", lo, hi, "last_axis"), scale)
+
+
+def _feedback_base(g: _Graph, policy: NumpyPolicy, command: str, jt: str, m: str) -> str:
+    """The ``feedback`` controller's setpoints (batch, n), and its next integrator as the
+    graph output ``feedback_integral`` (see :meth:`NumpyPolicy.feedback_integral_step`)."""
+    fb = policy.feedback
+    wz_scale = g.const("wz_scale", policy.command_scale[2])
+    gyro = _entry(g, policy, "gyro_z", wz_scale)
+    integral = _entry(g, policy, "feedback_integral", wz_scale)
+    wz = g.op("Slice", command, g.const("two", [2], np.int64), "three", "last_axis")
+    err = g.op("Sub", wz, gyro)  # (batch, 1)
+    u = g.op("Add", g.op("Mul", err, g.const("kp", fb["kp"])), integral)
+    twist = g.op("Add", command, g.op("Mul", u, g.const("z_axis", [0.0, 0.0, 1.0])))
+    # anti-windup: hold while the corrected twist is out of reach and e would push further
+    reach = g.op("ReduceMax", g.op("Div", g.op("Abs", g.op("MatMul", twist, jt)), m),
+                 axes=[-1], keepdims=1)  # fmt: skip
+    saturated = g.op("Greater", reach, "one")
+    g.const("zero_f", 0.0)
+    pushing = g.op("Greater", g.op("Mul", err, u), "zero_f")
+    step = g.op("Mul", err, g.const("ki_dt", fb["ki"] * float(policy.meta["control_dt"])))
+    i_max = float(fb["i_max"])
+    grown = g.op(
+        "Clip", g.op("Add", integral, step), g.const("i_lo", -i_max), g.const("i_hi", i_max)
+    )
+    g.op("Where", g.op("And", saturated, pushing), integral, grown, name="feedback_integral")
+    # the nearest feasible twist: every facet/edge/vertex projection, the nearest feasible
+    near = NearestFeasible(policy.jacobian, policy.max_rates, float(fb["omega_weight"]))
+    k = len(near.q)
+    c = g.op("Mul", twist, g.const("weights", near.d))  # (batch, 3)
+    maps = g.const("projections", near.P.transpose(2, 0, 1).reshape(3, 3 * k))  # c @ Pᵀ
+    cand = g.op("Add", g.op("Reshape", g.op("MatMul", c, maps), g.const("k_by_3", [-1, k, 3],
+                np.int64)), g.const("offsets", near.q))  # fmt: skip
+    au_t = g.const("facets_t", near.Au.T)
+    b = g.const("bounds", near.b)
+    slack = g.op("Sub", g.const("bounds_tol", near.b + near.tol), g.op("MatMul", cand, au_t))
+    feasible = g.op("GreaterOrEqual", g.op("ReduceMin", slack, axes=[-1], keepdims=0), "zero_f")
+    diff = g.op("Sub", cand, g.op("Unsqueeze", c, g.const("axis1", [1], np.int64)))
+    dist = g.op("ReduceSum", g.op("Mul", diff, diff), g.const("axis_last", [-1], np.int64),
+                keepdims=0)  # fmt: skip
+    dist = g.op("Where", feasible, dist, g.const("inf", np.inf))
+    # the nearest point of a convex set is unique: average the (equal) minimizers
+    best = g.op("Cast", g.op("Equal", dist, g.op("ReduceMin", dist, axes=[-1], keepdims=1)),
+                to=1)  # fmt: skip
+    weight = g.op("Unsqueeze", g.op("Div", best, g.op("ReduceSum", best, "axis_last",
+                  keepdims=1)), "axis_last")  # fmt: skip
+    nearest = g.op("ReduceSum", g.op("Mul", cand, weight), "axis1", keepdims=0)
+    inside = g.op("GreaterOrEqual", g.op("ReduceMin", g.op("Sub", b, g.op("MatMul", c, au_t)),
+                  axes=[-1], keepdims=1), "zero_f")  # fmt: skip
+    feasible_twist = g.op("Where", inside, twist, g.op("Div", nearest, "weights"))
+    return g.op("MatMul", feasible_twist, jt)
 
 
 def write_onnx(policy: NumpyPolicy, path: str | Path) -> Path:

@@ -15,6 +15,7 @@ from mecanum_jax.task.references import FeedbackConfig
 from mecanum_jax.task.reward import RewardConfig
 
 RESIDUAL_SPACES = ("wheel", "twist")
+RESIDUAL_BASES = ("analytic", "feedback")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -26,6 +27,15 @@ class EnvConfig:
     (``± residual_scale`` of the largest feasible vx, vy, ωz) mapped through the nominal
     inverse model, so the policy cannot drive the wheels against each other (the
     inverse model's null space, which squeezes the rollers and only costs energy).
+
+    ``residual_base`` (with ``residual = true``): the controller the residual corrects.
+    ``"analytic"``: the nominal inverse model, desaturated uniformly (the baseline).
+    ``"feedback"``: the ``feedback`` reference controller (:class:`FeedbackConfig`): the
+    inverse model on the command plus a yaw-rate integral correction from the gyro, with
+    anti-windup, projected onto the nearest feasible twist; the policy then also observes
+    that integrator (``feedback_integral``), so the zero action *is* that controller and
+    the policy carries a true integrator instead of a leaky one (residual RL on a classical
+    loop, Johannink et al. 2019).
 
     ``solver_iterations`` > 0 overrides the description's Newton iterations (``0``: keep
     them); fewer than 12 let robots on slippery floors tip over (SimSpec.iterations).
@@ -63,6 +73,8 @@ class EnvConfig:
     """Largest residual correction, as a fraction of the largest wheel rate or twist (> 0)."""
     residual_space: str = "wheel"
     """Where the residual acts: "wheel" (one per wheel) or "twist" (vx, vy, ωz)."""
+    residual_base: str = "analytic"
+    """What the residual corrects: "analytic" (the baseline) or "feedback" (the PI loop)."""
     yaw_integral_tau: float = 0.0
     """Time constant of the observed leaky yaw-rate error integral, s (>= 0; 0: off)."""
     action_filter: float = 0.0
@@ -91,6 +103,12 @@ class EnvConfig:
             )
         if self.residual_space == "twist" and not self.residual:
             raise invalid(f"{where}.residual_space", self.residual_space, "needs residual = true")
+        if self.residual_base not in RESIDUAL_BASES:
+            raise invalid(
+                f"{where}.residual_base", self.residual_base, f"expected one of {RESIDUAL_BASES}"
+            )
+        if self.residual_base == "feedback" and not self.residual:
+            raise invalid(f"{where}.residual_base", self.residual_base, "needs residual = true")
         self.commands.validate(f"{where}.commands")
         self.randomization.validate(f"{where}.randomization")
         self.noise.validate(f"{where}.noise")
@@ -152,6 +170,7 @@ def load_env_config(path: str | Path) -> EnvConfig:
 
 
 __all__ = [
+    "RESIDUAL_BASES",
     "RESIDUAL_SPACES",
     "CommandConfig",
     "EnvConfig",

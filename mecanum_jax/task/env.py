@@ -81,7 +81,8 @@ class MecanumEnv(Env):
         self.sensor_size = n + 1 + 3 + 3
         tau = config.yaw_integral_tau
         self.yaw_decay = float(np.exp(-config.control_dt / tau)) if tau > 0 else 0.0
-        self.layout = obs_.policy_layout(n, self._action_size, tau > 0)
+        self.feedback_base = config.residual and config.residual_base == "feedback"
+        self.layout = obs_.policy_layout(n, self._action_size, tau > 0, self.feedback_base)
         self.privileged_layout = obs_.privileged_layout(self.layout, n)
 
     # --- Brax interface ---------------------------------------------------------------------
@@ -151,11 +152,12 @@ class MecanumEnv(Env):
             action = f * info["last_action"] + (1.0 - f) * action
         params: RobotParams = info["params"]
         command = info["command"]
-        rates = self.wheel_setpoints(command, action)
+        rates = self.wheel_setpoints(command, action, state.info)
         if reference is not None:
             rates = jnp.where(reference >= 0, self.reference_rates(reference, state.info), rates)
-            # the feedback reference's integrator runs only where a reference may act
-            # (evaluation), not in training, whose actions never use it
+        if reference is not None or self.feedback_base:
+            # the feedback controller's integrator runs where it may act: a reference in
+            # evaluation, or the base of the policy's residual
             info["feedback_integral"] = refs.feedback_integral(self, state.info)
         sim = self.robot.step(state.pipeline_state, rates, params, self.substeps)
         sens = self.robot.sensors(sim)
@@ -189,15 +191,22 @@ class MecanumEnv(Env):
         obs = {k: v.at[:3].set(scaled) for k, v in state.obs.items()}  # command comes first
         return state.replace(obs=obs, info=info)
 
-    def wheel_setpoints(self, command: jax.Array, action: jax.Array) -> jax.Array:
-        """Wheel-rate setpoints (rad/s) for an action in [-1, 1]^action_size under ``command``."""
+    def wheel_setpoints(
+        self, command: jax.Array, action: jax.Array, info: dict[str, Any] | None = None
+    ) -> jax.Array:
+        """Wheel-rate setpoints (rad/s) for an action in [-1, 1]^action_size under ``command``
+        (``info``: the state, for a residual on the ``feedback`` controller)."""
+        if self.feedback_base:
+            if info is None:
+                raise ValueError("wheel_setpoints: residual_base = 'feedback' needs the state")
+            base = refs.feedback_rates(self, dict(info, command=command))
+        elif self.config.residual:
+            base = self.baseline_rates(command)
         if self.twist_residual:
             correction = action * (self.config.residual_scale * self.command_scale)
-            rates = self.baseline_rates(command) + kinematics.apply_rows(self.jacobian, correction)
+            rates = base + kinematics.apply_rows(self.jacobian, correction)
         elif self.config.residual:
-            rates = self.baseline_rates(command) + action * (
-                self.config.residual_scale * self.max_rates
-            )
+            rates = base + action * (self.config.residual_scale * self.max_rates)
         else:
             rates = action * self.max_rates
         return jnp.clip(rates, -self.max_rates, self.max_rates)

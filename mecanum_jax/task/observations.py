@@ -3,7 +3,8 @@
 The policy's ``obs["state"]``: the command, encoder rates, IMU gyro z and accelerometer,
 the wheel-odometry body twist, and the last action, with sensor noise
 (:class:`NoiseConfig`) and an observation latency of whole control steps; optionally the
-leaky integral of the measured yaw-rate error. The critic's ``obs["privileged_state"]``
+leaky integral of the measured yaw-rate error, and, when the residual corrects the
+``feedback`` controller, that controller's integrator. The critic's ``obs["privileged_state"]``
 adds the true twist and the randomized physical parameters. Every entry is scaled to
 about unit size (by the rate limits, the largest feasible twist, or gravity).
 """
@@ -52,7 +53,9 @@ class NoiseConfig:
         )
 
 
-def policy_layout(n_wheels: int, action_size: int, yaw_integral: bool) -> Layout:
+def policy_layout(
+    n_wheels: int, action_size: int, yaw_integral: bool, feedback_integral: bool = False
+) -> Layout:
     """The policy observation's entries and their sizes, in order."""
     layout: Layout = (
         ("command", 3),
@@ -62,7 +65,9 @@ def policy_layout(n_wheels: int, action_size: int, yaw_integral: bool) -> Layout
         ("odometry_twist", 3),
         ("last_action", action_size),
     )
-    return (*layout, ("yaw_error_integral", 1)) if yaw_integral else layout
+    if yaw_integral:
+        layout = (*layout, ("yaw_error_integral", 1))
+    return (*layout, ("feedback_integral", 1)) if feedback_integral else layout
 
 
 def privileged_layout(layout: Layout, n_wheels: int) -> Layout:
@@ -121,6 +126,8 @@ def observe(env: MecanumEnv, sens: Sensors, info: dict[str, Any]) -> dict[str, j
     tau = env.config.yaw_integral_tau
     if tau > 0:
         parts.append((info["yaw_integral"] / (tau * env.command_scale[2]))[None])
+    if env.feedback_base:  # the integrator of the controller the residual corrects, rad/s
+        parts.append((info["feedback_integral"] / env.command_scale[2])[None])
     state = jnp.concatenate(parts)
     p: RobotParams = info["params"]
     nom = env.nominal_params

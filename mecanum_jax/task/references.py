@@ -114,13 +114,18 @@ def feedback_integral(env: MecanumEnv, info: dict[str, Any]) -> jax.Array:
     return jnp.where(hold, info["feedback_integral"], grown)
 
 
+def feedback_rates(env: MecanumEnv, info: dict[str, Any]) -> jax.Array:
+    """The ``feedback`` reference's wheel-rate setpoints for the state's ``info``."""
+    return nearest_rates(env, feedback_twist(env, info)[0])
+
+
 def reference_rates(env: MecanumEnv, reference: int | jax.Array, info: dict[str, Any]) -> jax.Array:
     """Wheel-rate setpoints of reference controller ``reference`` (an index into
     :data:`REFERENCES`; a Python int computes only that one) for the state's ``info``."""
     candidates = (
         lambda: baseline_rates(env, info["command"]),
         lambda: nearest_rates(env, info["command"]),
-        lambda: nearest_rates(env, feedback_twist(env, info)[0]),
+        lambda: feedback_rates(env, info),
     )
     if isinstance(reference, int):
         return candidates[reference]()
@@ -154,6 +159,7 @@ __all__ = [
     "baseline_rates",
     "feasible_target",
     "feedback_integral",
+    "feedback_rates",
     "feedback_twist",
     "nearest_rates",
     "reference_rates",

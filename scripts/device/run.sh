@@ -13,6 +13,8 @@
 #   train-bench ARGS...     PPO env steps/s of the gpu config, --variant 'name flags' side by side
 #   train MIN ARGS...       mecanum-train --config gpu for MIN minutes (+ mecanum-train flags)
 #   ship MIN ARGS...        train, then package the policy as $OUT/model.tgz with provenance
+#   seeds MIN 'K ...' ARGS  one run of MIN minutes training seeds K... side by side (vmapped),
+#                           each packaged as /tmp/model_sK/o_rectangle and $OUT/model_sK.tgz
 #   tune [MODEL...]         each MODEL (default /tmp/model/o_rectangle) and models/o_rectangle
 #                           on the tuning episodes (configs/eval/tuning.toml, a seed of its own)
 #   eval [MODEL]            the evaluation table: MODEL (default models/o_rectangle) against the
@@ -68,20 +70,22 @@ evaluate() {  # MODEL SCENARIOS OUT_DIR [flags]
   /usr/bin/time -f "wall %e s" python3 -m train.evaluate "$model" --scenarios "$set" --out "$dir" "$@"
 }
 
-package() {  # RUN_DIR MODEL_DIR MINUTES "flags": the run's policy as a model, with provenance
-  local commit device
+package() {  # RUN_DIR MODEL_DIR MINUTES "flags" [SEED]: the run's policy (of training seed
+  # SEED, default the first) as a model, with provenance
+  local commit device seed=${5:-}
   commit="${COMMIT:-$(git rev-parse --short HEAD 2>/dev/null || echo unknown)}"
   device=$(nvidia-smi --query-gpu=name --format=csv,noheader | head -1)
   rm -rf "$2"
-  python3 - "$@" "$commit" "$device" <<'PY'
+  python3 - "$1" "$2" "$3" "$4" "$commit" "$device" "$seed" <<'PY'
 import json, sys
 from train.evaluate import export_main
-run, model, minutes, extra, commit, device = sys.argv[1:7]
+run, model, minutes, extra, commit, device, seed = sys.argv[1:8]
 s = json.load(open(f"{run}/summary.json"))
 command = f"mecanum-train --config gpu --max-minutes {minutes} {extra}".strip()
 prov = [f"command={command}", f"commit={commit}", f"device={device}",
         f"session_wall_s={s['session_s']:.0f}", "script=scripts/device/run.sh"]
-raise SystemExit(export_main([run, f"{model}/o_rectangle", "--model", "--provenance", *prov]))
+args = [run, f"{model}/o_rectangle", "--model", "--provenance", *prov]
+raise SystemExit(export_main(args + (["--seed", seed] if seed else [])))
 PY
   [ -d "$2/o_rectangle" ] || { echo "package: no model was written for $1"; return 1; }
 }
@@ -93,6 +97,20 @@ ship() {  # MINUTES [flags]
   train /tmp/gpu "$min" "$@" 2>&1 | quiet | tail -22
   package /tmp/gpu /tmp/model "$min" "$*" || return 1
   tar czf "$O/model.tgz" -C /tmp/model o_rectangle
+  cp /tmp/gpu/metrics.jsonl /tmp/gpu/summary.json "$O/"
+}
+
+seeds() {  # MINUTES SEEDS [flags]: one run training the seeds (e.g. "0 1 2") side by side,
+  # each packaged as /tmp/model_sK/o_rectangle and $OUT/model_sK.tgz
+  local min=$1 list=$2 k; shift 2
+  echo "device: $(nvidia-smi --query-gpu=name --format=csv,noheader | head -1); $(date -u +%Y-%m-%dT%H:%M:%SZ)"
+  rm -rf /tmp/gpu
+  # shellcheck disable=SC2086
+  train /tmp/gpu "$min" --run.seeds $list "$@" 2>&1 | quiet | tail -22
+  for k in $list; do
+    package /tmp/gpu "/tmp/model_s$k" "$min" "--run.seeds $list $*" "$k" || return 1
+    tar czf "$O/model_s$k.tgz" -C "/tmp/model_s$k" o_rectangle
+  done
   cp /tmp/gpu/metrics.jsonl /tmp/gpu/summary.json "$O/"
 }
 
@@ -169,6 +187,7 @@ case "$TASK" in
     train /tmp/gpu "$min" "$@" 2>&1 | quiet | tail -30
     cp /tmp/gpu/metrics.jsonl /tmp/gpu/summary.json "$O/" ;;
   ship) ship "$@" ;;
+  seeds) seeds "$@" ;;
   tune)
     i=0
     for model in "${@:-/tmp/model/o_rectangle}" models/o_rectangle; do

@@ -1,0 +1,178 @@
+"""A residual on the ``feedback`` controller: its zero action is that controller, and the
+policy observes the controller's integrator."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mecanum_jax.config import ConfigError
+from mecanum_jax.task import EnvConfig, MecanumEnv, RandomizationConfig
+
+FEEDBACK = jnp.asarray(2)  # index of "feedback" in REFERENCES
+
+
+@pytest.fixture(scope="module")
+def env():
+    # wheels 4% small: the yaw rate falls short, so the integrator has work to do
+    rand = RandomizationConfig(enabled=True, radius_scale=(0.96, 0.96), latency_steps=(1, 1))
+    cfg = EnvConfig(residual_space="twist", residual_base="feedback", randomization=rand)
+    return MecanumEnv(cfg)
+
+
+def test_the_zero_residual_is_the_feedback_controller(env):
+    step = jax.jit(env.step)
+    state = jax.jit(env.reset)(jax.random.PRNGKey(3))
+    state = env.set_command(state, jnp.asarray([0.3, 0.1, 1.5]))
+    ref = state
+    zero = jnp.zeros(env.action_size)
+    for _ in range(40):
+        state = step(state, zero)
+        ref = step(ref, zero, FEEDBACK)
+        np.testing.assert_allclose(
+            state.pipeline_state.data.qpos, ref.pipeline_state.data.qpos, atol=1e-6
+        )
+        np.testing.assert_allclose(
+            state.info["feedback_integral"], ref.info["feedback_integral"], rtol=1e-5, atol=1e-6
+        )
+    assert abs(float(state.info["feedback_integral"])) > 0.02  # it integrated something
+
+
+def test_the_policy_observes_the_integrator(env):
+    names = [name for name, _ in env.layout]
+    assert names[-1] == "feedback_integral"
+    state = jax.jit(env.reset)(jax.random.PRNGKey(0))
+    state = env.set_command(state, jnp.asarray([0.0, 0.0, 2.0]))
+    step = jax.jit(env.step)
+    for _ in range(10):
+        state = step(state, jnp.zeros(env.action_size))
+    observed = float(state.obs["state"][-1]) * float(env.command_scale[2])
+    assert observed == pytest.approx(float(state.info["feedback_integral"]), rel=1e-5)
+    assert observed != 0.0
+
+
+def test_a_residual_changes_the_setpoints_around_the_feedback_controller(env):
+    state = jax.jit(env.reset)(jax.random.PRNGKey(1))
+    cmd = jnp.asarray([0.2, 0.0, 0.5])
+    base = env.wheel_setpoints(cmd, jnp.zeros(3), state.info)
+    up = env.wheel_setpoints(cmd, jnp.asarray([0.0, 0.0, 0.5]), state.info)
+    assert not np.allclose(base, up)
+    with pytest.raises(ValueError, match="needs the state"):
+        env.wheel_setpoints(cmd, jnp.zeros(3))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"residual_base": "pid"}, r"env\.residual_base = 'pid'"),
+        ({"residual_base": "feedback", "residual": False}, r"env\.residual_base = 'feedback'"),
+    ],
+)
+def test_bad_residual_base_is_rejected(kwargs, message):
+    with pytest.raises(ConfigError, match=message):
+        EnvConfig(**kwargs).validate()
+
+
+def _exported_loop(env: MecanumEnv):
+    """The control-loop half of an export (no hidden layer) for ``env``'s task."""
+    import dataclasses
+
+    from mecanum_jax.deploy import policy as deploy
+    from mecanum_jax.kinematics import model as kinematics
+    from mecanum_jax.sim.physics import GRAVITY
+
+    cfg = env.config
+    meta = {
+        "activation": "tanh",
+        "action_size": env.action_size,
+        "residual": cfg.residual,
+        "residual_scale": cfg.residual_scale,
+        "residual_space": cfg.residual_space,
+        "residual_base": cfg.residual_base,
+        "feedback": dataclasses.asdict(cfg.feedback),
+        "yaw_integral_tau": cfg.yaw_integral_tau,
+        "action_filter": cfg.action_filter,
+        "observation_layout": [list(x) for x in env.layout],
+        "control_dt": cfg.control_dt,
+        "gravity": GRAVITY,
+        "max_rates": np.asarray(env.max_rates).tolist(),
+        "command_scale": np.asarray(env.command_scale).tolist(),
+        "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),
+        "forward_matrix": np.asarray(kinematics.forward_matrix(env.geometry)).tolist(),
+    }
+    size = env.observation_size["state"][0]
+    return deploy.NumpyPolicy([], np.zeros(size), np.ones(size), meta)
+
+
+def test_numpy_nearest_feasible_matches_the_library(env):
+    from mecanum_jax.deploy.policy import NearestFeasible
+    from mecanum_jax.kinematics import limits
+
+    w = env.config.feedback.omega_weight
+    near = NearestFeasible(np.asarray(env.jacobian), np.asarray(env.max_rates), w)
+    rng = np.random.default_rng(0)
+    twists = (rng.normal(size=(500, 3)) * 1.5 * np.asarray(env.command_scale)).astype(np.float32)
+    expected = limits.nearest_feasible(env.geometry, jnp.asarray(twists), env.max_rates, w)
+    assert np.mean(np.any(np.abs(twists - np.asarray(expected)) > 1e-3, axis=1)) > 0.3
+    np.testing.assert_allclose(near(twists), expected, rtol=1e-4, atol=1e-4)
+
+
+def test_environment_numpy_and_onnx_agree_step_by_step():
+    """Setpoints, the integrator and the observation, step by step, through a command
+    change and commands beyond the wheels' reach (the anti-windup and the projection)."""
+    rand = RandomizationConfig(enabled=True, radius_scale=(0.95, 0.95), latency_steps=(0, 0))
+    cfg = EnvConfig(residual_space="twist", residual_base="feedback", randomization=rand)
+    env = MecanumEnv(dataclasses_replace_noise_off(cfg))
+    policy = _exported_loop(env)
+    ort = pytest.importorskip("onnxruntime")
+    from mecanum_jax.deploy.onnx import to_onnx
+
+    session = ort.InferenceSession(
+        to_onnx(policy).SerializeToString(), providers=["CPUExecutionProvider"]
+    )
+    step = jax.jit(env.step)
+    state = jax.jit(env.reset)(jax.random.PRNGKey(4))
+    scale = np.asarray(env.command_scale)
+    commands = [np.asarray([0.2, 0.0, 0.6]) * scale, np.asarray([1.1, 0.0, 0.9]) * scale]
+    rng = np.random.default_rng(1)
+    integral, seen_hold = 0.0, False
+    for k in range(30):
+        if k % 15 == 0:
+            state = env.set_command(state, jnp.asarray(commands[k // 15], jnp.float32))
+        obs = np.asarray(state.obs["state"])
+        action = rng.uniform(-0.3, 0.3, env.action_size).astype(np.float32)
+        command = np.asarray(state.info["command"])
+        expected = np.asarray(env.wheel_setpoints(jnp.asarray(command), action, state.info))
+        np.testing.assert_allclose(
+            policy.wheel_setpoints(command, action, obs), expected, rtol=1e-4, atol=2e-3
+        )
+        nxt = step(state, jnp.asarray(action))
+        integral = float(policy.feedback_integral_step(obs))
+        seen_hold |= integral == float(state.info["feedback_integral"]) and k % 15 > 0
+        assert integral == pytest.approx(float(nxt.info["feedback_integral"]), abs=1e-5)
+        sens = env.robot.sensors(nxt.pipeline_state)
+        rebuilt = policy.observation(
+            nxt.info["command"], sens.wheel_rate, sens.gyro_z, sens.accel, action,
+            feedback_integral=integral,
+        )  # fmt: skip
+        np.testing.assert_allclose(rebuilt, np.asarray(nxt.obs["state"]), rtol=1e-5, atol=1e-5)
+        # ONNX: the action of a network-free graph is tanh of the first entries; feed the
+        # graph's own action back through NumPy's loop for the setpoints
+        onnx_action, onnx_setpoints, onnx_integral = session.run(
+            ["action", "wheel_setpoints", "feedback_integral"], {"observation": obs[None]}
+        )
+        np.testing.assert_allclose(
+            onnx_setpoints[0], policy.wheel_setpoints(command, onnx_action[0], obs), atol=2e-3
+        )
+        assert float(onnx_integral[0, 0]) == pytest.approx(integral, abs=1e-5)
+        state = nxt
+    assert abs(integral) > 0.05
+    assert seen_hold  # beyond reach, the anti-windup held the integrator at least once
+
+
+def dataclasses_replace_noise_off(cfg: EnvConfig) -> EnvConfig:
+    import dataclasses
+
+    return dataclasses.replace(cfg, noise=dataclasses.replace(cfg.noise, scale=0.0))
