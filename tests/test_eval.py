@@ -494,6 +494,7 @@ def test_run_many_chunks_and_pads_like_single_runs(env, shipped, baseline_evalua
         (["--video-scenarios", "nominal"], "--video-scenarios: needs --video"),
         (["--max-batch", 0], "--max-batch = 0: must be >= 1"),
         (["--fps", 0], "--fps = 0: must be in [1, 50]"),
+        (["--progress-every-s", 0], "--progress-every-s = 0.0: must be > 0 seconds"),
         (["--export"], "--export: the baseline has no weights"),
         (["--seed", 1], "--seed = 1: only for a checkpoint"),
         (["--scenarios", "missing.toml"], "scenarios = 'missing.toml': no such file"),

@@ -340,6 +340,8 @@ def test_beating_the_baseline_takes_a_paired_interval_below_one():
         (["--ppo.learning-rate", "-1"], "ppo.learning_rate = -1.0"),
         (["--run.seeds", "1", "1"], "run.seeds"),
         (["--env.randomization.friction", "0.5", "0.1"], "env.randomization.friction"),
+        (["--run.progress-every-s", "0"], "run.progress_every_s = 0.0: must be > 0 seconds"),
+        (["--run.progress-every-s", "inf"], "run.progress_every_s = inf: must be > 0 seconds"),
     ],
 )
 def test_cli_rejects_bad_overrides_before_compiling(args, message, tmp_path, capsys):

@@ -28,7 +28,7 @@ from rich.table import Table
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.sim.description import require_impl
-from train import checkpoint
+from train import checkpoint, curve
 from train.config import TrainConfig, apply_flags, load_train_config
 from train.distributed import init_distributed
 from train.run import Run, RunDirError, TrainingDiverged, write_json
@@ -138,9 +138,21 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         console.print("[yellow]interrupted[/]: checkpoint written; resume with --resume")
         return 130
-    Console().print(results_table(summary, f"{summary['name']}: policy vs analytic baseline"))
+    out = Console()
+    out.print(results_table(summary, f"{summary['name']}: policy vs analytic baseline"))
+    learned = curve.learned_table(run.dir, summary["name"])
+    if learned is not None:
+        out.print(learned)
+    _plot(run)
     console.log(f"summary: {run.dir / 'summary.json'}")
     return 0
+
+
+def _plot(run: Run) -> None:
+    """Write the run's learning curve (process 0 only) and say where."""
+    path = curve.write_plot(run.dir) if run.is_writer else None
+    if path is not None:
+        console.log(f"learning curve: {path}")
 
 
 def batch_main(argv: list[str] | None = None) -> int:
@@ -181,6 +193,7 @@ def batch_main(argv: list[str] | None = None) -> int:
         try:
             limit = None if meta.max_minutes is None else 60 * meta.max_minutes
             summaries.append(run.train(time_limit_s=limit))
+            _plot(run)
         except TrainingDiverged as err:
             console.print(f"[red]{run.dir}: diverged[/]: {err}")
             summaries.append({"name": run.cfg.name, "run_dir": str(run.dir), "diverged": str(err)})

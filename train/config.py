@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 from typing import Any, Literal
 
@@ -130,6 +131,9 @@ class RunConfig:
     """How the program spreads over devices: "pmap", "sharded", or "auto"."""
     wandb_project: str = ""
     """Also log to this Weights & Biases project (needs ``pip install wandb``; empty: off)."""
+    progress_every_s: float = 30.0
+    """Where the log stream is not a terminal (``> log 2>&1``, nohup, SLURM): a plain
+    progress line every this many seconds, and one at each evaluation (> 0)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -207,6 +211,7 @@ class TrainConfig:
         )
         require(r, "run", cadences, lambda v: v >= 1, "must be >= 1")
         require(r, "run", ("max_devices",), lambda v: v >= 0, "must be >= 0 (0: all local devices)")
+        require(r, "run", ("progress_every_s",), _positive_finite, "must be > 0 seconds")
         return self
 
     def check_devices(self, device_count: int) -> None:
@@ -237,6 +242,10 @@ class TrainConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+
+def _positive_finite(v: float) -> bool:
+    return 0 < v < math.inf
 
 
 def _drop_retired_keys(data: Any) -> Any:

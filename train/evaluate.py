@@ -42,13 +42,6 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 import tyro  # noqa: E402
 from rich.console import Console  # noqa: E402
-from rich.progress import (  # noqa: E402
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    TextColumn,
-    TimeElapsedColumn,
-)
 from rich.table import Table  # noqa: E402
 
 from mecanum_jax.config import ConfigError  # noqa: E402
@@ -62,6 +55,7 @@ from mecanum_jax.sim.physics import GRAVITY  # noqa: E402
 from mecanum_jax.task import REFERENCES, MecanumEnv  # noqa: E402
 from train import checkpoint  # noqa: E402
 from train.config import load_train_config  # noqa: E402
+from train.progress import rollout_progress  # noqa: E402
 from train.run import write_json  # noqa: E402
 
 console = Console(stderr=True)
@@ -125,6 +119,9 @@ class EvalArgs:
     """jax's matmul precision for the evaluation (default: the run's ``run.matmul_precision``,
     ``highest`` unless the run chose otherwise). ``default`` is TF32 on A100/H100 GPUs and
     makes the figures depend on the device (mecanum_jax.precision)."""
+    progress_every_s: float = 30.0
+    """Where stderr is not a terminal: a plain progress line of the rollouts every this many
+    seconds, and one per finished chunk (> 0)."""
 
 
 class Target:
@@ -233,12 +230,8 @@ def evaluate(
     t_prepare = time.time() - t0
     players = whos(target, args)
     jobs = [(b, who) for b in batches for who in players]
-    columns = (TextColumn("rollouts"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-    with Progress(*columns, console=console, transient=True) as bar:
-        task = bar.add_task("rollouts", total=None)
-        out = target.evaluator.run_many(
-            jobs, target.params, lambda done, total: bar.update(task, completed=done, total=total)
-        )
+    with rollout_progress(console, args.progress_every_s) as progress:
+        out = target.evaluator.run_many(jobs, target.params, progress)
     t_rollout = time.time() - t0 - t_prepare
     results: dict[str, Any] = {}
     traces: dict[str, dict[str, ev.Trace]] = {}
@@ -478,6 +471,8 @@ def _check_args(args: EvalArgs) -> None:
         raise ConfigError(f"--references = {list(args.references)}: expected some of {REFERENCES}")
     if not args.settle_s >= 0:
         raise ConfigError(f"--settle-s = {args.settle_s}: must be >= 0")
+    if not 0 < args.progress_every_s < float("inf"):
+        raise ConfigError(f"--progress-every-s = {args.progress_every_s}: must be > 0 seconds")
     if args.bootstrap < 100:
         raise ConfigError(f"--bootstrap = {args.bootstrap}: must be >= 100")
     if args.export and args.target == "baseline":

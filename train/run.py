@@ -8,6 +8,7 @@ A run directory holds::
     tb/seed_<k>/       TensorBoard event files
     checkpoints/<e>/   orbax checkpoints (full state; see train.checkpoint)
     summary.json       final figures per seed (when finished)
+    learning_curve.png the learning curve (written by mecanum-train; train.curve)
 
 Rules: a run directory is never overwritten (an existing one is only *resumed*); a NaN
 stops the run with a message and keeps the last good checkpoint; Ctrl-C writes a
@@ -44,6 +45,8 @@ from train.distributed import barrier
 from train.loggers import MetricLogger, TensorBoardLogger, WandbLogger
 from train.periodic import Result, beats, compare
 from train.ppo import Learner, first_device, to_host
+from train.progress import TrainLines, evaluation_text, wants_lines
+from train.progress import count as _si
 
 # Fields a resumed run may change: its length and its logging/evaluation cadence.
 RESUMABLE_CHANGES = {
@@ -52,9 +55,10 @@ RESUMABLE_CHANGES = {
     "run.checkpoint_every",
     "run.max_checkpoints",
     "run.wandb_project",
+    "run.progress_every_s",
 }
 # Fields the compiled learner never reads: a learner built without them serves the run.
-LOGGING_ONLY = {"run.wandb_project"}
+LOGGING_ONLY = {"run.wandb_project", "run.progress_every_s"}
 
 
 class TrainingDiverged(RuntimeError):  # noqa: N818 (reads as the event it reports)
@@ -173,10 +177,21 @@ class _Loop:
 
 
 class _Progress:
-    """The progress line: steps, env steps/s, time left, the last evaluation's figures."""
+    """The progress line: steps, env steps/s, time left, the last evaluation's figures; on
+    a terminal rich's live display, elsewhere plain lines (train.progress)."""
 
-    def __init__(self, run: Run, loop: _Loop):
+    def __init__(self, run: Run, loop: _Loop, time_limit_s: float | None = None):
         self.total = loop.steps(run.cfg.num_epochs)
+        self.lines = TrainLines(
+            run.console,
+            run.cfg.run.progress_every_s,
+            run.is_writer and wants_lines(run.console),
+            label=run.cfg.name,
+            total_steps=self.total,
+            t_start=loop.t_start,
+            time_limit_s=time_limit_s,
+            done_steps=loop.steps(loop.epoch),
+        )
         self.bar = Progress(
             TextColumn("[bold]{task.description}"),
             BarColumn(bar_width=8),
@@ -185,7 +200,7 @@ class _Progress:
             TimeRemainingColumn(),
             TextColumn("{task.fields[info]}"),
             console=run.console,
-            disable=not run.is_writer,
+            disable=not run.is_writer or self.lines.enabled,
         )
         done = loop.steps(loop.epoch)
         self.task = self.bar.add_task(
@@ -196,16 +211,18 @@ class _Progress:
             sps="-",
             info="compiling",
         )
-        if run.is_writer:
+        if run.is_writer and not self.lines.enabled:
             run.console.log(
                 "progress: steps, env steps/s, time left | steady-state error of v (m/s) and "
                 "ω (rad/s), policy/baseline, on held-out randomized episodes"
             )
 
-    def update(self, loop: _Loop, sps: float) -> None:
+    def update(self, loop: _Loop, sps: float, results: list[Result]) -> None:
         done = loop.steps(loop.epoch)
         steps = f"{_si(done)}/{_si(self.total)}"
         self.bar.update(self.task, completed=done, steps=steps, sps=_si(sps), info=loop.shown)
+        shown = evaluation_text(done, stacked(results), loop.comparisons) if results else None
+        self.lines.update(loop.epoch, done, sps, shown)
 
 
 class Run:
@@ -325,15 +342,15 @@ class Run:
         loop = self._set_up(learner)
         total = self.cfg.num_epochs
         last = total if stop_after_epochs is None else min(total, loop.epoch + stop_after_epochs)
-        progress = _Progress(self, loop)
+        progress = _Progress(self, loop, time_limit_s)
         try:
-            with progress.bar:
+            with progress.bar, progress.lines:
                 while loop.epoch < last:
                     sps, metrics = self._train_epoch(loop)
                     is_last = loop.epoch == total
                     results = self._evaluate(loop) if loop.eval_due(is_last) else []
                     self._log_epoch(loop, metrics, results, sps)
-                    progress.update(loop, sps)
+                    progress.update(loop, sps, results)
                     out_of_time = time_limit_s is not None and loop.session_s() > time_limit_s
                     if loop.checkpoint_due(is_last) or out_of_time:
                         loop.save()
@@ -557,14 +574,6 @@ def _shown(policy: dict[str, np.ndarray], baseline: dict[str, Any]) -> str:
         return f"{float(np.nanmean(policy[key])):.2f}/{baseline[key]:.2f}"
 
     return f"ss v {pair('ss_lin')} ω {pair('ss_wz')}"
-
-
-def _si(x: float) -> str:
-    """A count in three significant figures: 614k, 1.19M."""
-    for div, unit in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
-        if abs(x) >= div:
-            return f"{x / div:.3g}{unit}"
-    return f"{x:.0f}"
 
 
 def _get(cfg: Any, dotted: str) -> Any:
