@@ -6,6 +6,7 @@ import shutil
 import subprocess
 import sys
 import textwrap
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -26,6 +27,11 @@ def test_wheel_installs_and_runs_from_outside_the_clone(tmp_path):
     dist = tmp_path / "dist"
     subprocess.run([uv, "build", "--wheel", "-q", "-o", str(dist), str(ROOT)], check=True)
     (wheel,) = dist.glob("mecanum_jax-*.whl")
+    with zipfile.ZipFile(wheel) as whl:
+        names = whl.namelist()
+        metadata = whl.read(next(n for n in names if n.endswith(".dist-info/METADATA")))
+    assert b"License-Expression: Apache-2.0" in metadata
+    assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names), names
     # the locked versions of the runtime dependencies (from uv's cache, no resolution)
     reqs = tmp_path / "requirements.txt"
     subprocess.run(
