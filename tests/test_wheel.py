@@ -76,3 +76,9 @@ def test_wheel_installs_and_runs_from_outside_the_clone(tmp_path):
     run(str(bin_dir / "mecanum-train"), "--config", "tiny", "--ppo.num-timesteps", "1",
         "--run-dir", "r")  # fmt: skip
     assert (work / "r" / "summary.json").exists()
+    # the default install has no ffmpeg: mp4 is refused, naming the extra, before a rollout
+    eval_mp4 = [str(bin_dir / "mecanum-eval"), "baseline", "--video", "--out", "v"]
+    proc = subprocess.run(eval_mp4, cwd=work, env=env, capture_output=True, text=True)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "pip install 'mecanum-jax[video]'" in " ".join(proc.stderr.split())
+    assert not (work / "v").exists()
