@@ -6,6 +6,7 @@ import shutil
 import subprocess
 import sys
 import textwrap
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -26,6 +27,11 @@ def test_wheel_installs_and_runs_from_outside_the_clone(tmp_path):
     dist = tmp_path / "dist"
     subprocess.run([uv, "build", "--wheel", "-q", "-o", str(dist), str(ROOT)], check=True)
     (wheel,) = dist.glob("mecanum_jax-*.whl")
+    with zipfile.ZipFile(wheel) as whl:
+        names = whl.namelist()
+        metadata = whl.read(next(n for n in names if n.endswith(".dist-info/METADATA")))
+    assert b"License-Expression: Apache-2.0" in metadata
+    assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names), names
     # the locked versions of the runtime dependencies (from uv's cache, no resolution)
     reqs = tmp_path / "requirements.txt"
     subprocess.run(
@@ -70,3 +76,9 @@ def test_wheel_installs_and_runs_from_outside_the_clone(tmp_path):
     run(str(bin_dir / "mecanum-train"), "--config", "tiny", "--ppo.num-timesteps", "1",
         "--run-dir", "r")  # fmt: skip
     assert (work / "r" / "summary.json").exists()
+    # the default install has no ffmpeg: mp4 is refused, naming the extra, before a rollout
+    eval_mp4 = [str(bin_dir / "mecanum-eval"), "baseline", "--video", "--out", "v"]
+    proc = subprocess.run(eval_mp4, cwd=work, env=env, capture_output=True, text=True)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "pip install 'mecanum-jax[video]'" in " ".join(proc.stderr.split())
+    assert not (work / "v").exists()

@@ -26,7 +26,7 @@ file, checkpoint), 130 interrupted.
 
 from __future__ import annotations
 
-from mecanum_jax.sim.render import ensure_gl_backend
+from mecanum_jax.sim.render import ensure_gl_backend, video_writer_missing
 
 ensure_gl_backend()  # before MuJoCo is imported: OSMesa when there is no display
 
@@ -42,6 +42,7 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 import tyro  # noqa: E402
 from rich.console import Console  # noqa: E402
+from rich.markup import escape  # noqa: E402
 from rich.table import Table  # noqa: E402
 
 from mecanum_jax.config import ConfigError  # noqa: E402
@@ -99,7 +100,7 @@ class EvalArgs:
     fps: int = 25
     """Video frame rate (frames are taken from the 50 Hz control steps)."""
     video_format: Literal["mp4", "gif"] = "mp4"
-    """mp4 (H.264 through imageio-ffmpeg) or gif (Pillow; no ffmpeg needed)."""
+    """mp4 (H.264 through imageio-ffmpeg: pip install 'mecanum-jax[video]') or gif (Pillow)."""
     max_batch: int | None = None
     """Robots per compiled rollout (default: 64 on CPU, where larger MJX batches deadlock
     jaxlib 0.10.2; 16384 on GPU, so a whole evaluation is one rollout)."""
@@ -447,7 +448,8 @@ def _policy_arrays(
 
 
 def _error(err: BaseException) -> None:
-    console.print(f"[bold red]error:[/] {err}", soft_wrap=True, markup=True, highlight=False)
+    text = f"[bold red]error:[/] {escape(str(err))}"  # a message may hold [brackets]
+    console.print(text, soft_wrap=True, markup=True, highlight=False)
 
 
 def _parse(argv: list[str], prog: str, cls: type) -> Any:
@@ -466,6 +468,8 @@ def _check_args(args: EvalArgs) -> None:
         raise ConfigError(f"--max-batch = {args.max_batch}: must be >= 1")
     if args.video_scenarios and not args.video:
         raise ConfigError("--video-scenarios: needs --video")
+    if args.video and (missing := video_writer_missing(args.video_format)):
+        raise ConfigError(f"--video (--video-format {args.video_format}): {missing}, or use gif")
     unknown = [r for r in args.references if r not in REFERENCES]
     if unknown or not args.references:
         raise ConfigError(f"--references = {list(args.references)}: expected some of {REFERENCES}")

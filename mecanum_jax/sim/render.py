@@ -95,6 +95,20 @@ def render_frames(
     return np.stack(frames)
 
 
+def video_writer_missing(fmt: str) -> str | None:
+    """``None`` where videos of format ``fmt`` ("mp4" or "gif") can be written, else what to
+    install: mp4 goes through imageio-ffmpeg (the optional ``video`` extra, 165 MB with its
+    ffmpeg binary); gif needs only imageio."""
+    import importlib.util
+
+    if fmt == "mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
+        return (
+            "writing mp4 needs imageio-ffmpeg, the optional 'video' extra, which is not "
+            "installed: pip install 'mecanum-jax[video]'"
+        )
+    return None
+
+
 def write_video(frames: np.ndarray, path: Path, fps: int) -> Path:
     """Write frames to ``path`` (.mp4 via imageio-ffmpeg, .gif via Pillow), atomically."""
     import imageio.v3 as iio
@@ -183,6 +197,8 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if args.out.suffix not in (".mp4", ".gif"):
         parser.error(f"--out = {str(args.out)!r}: expected a .mp4 or .gif file")
+    if missing := video_writer_missing(args.out.suffix[1:]):
+        parser.error(f"--out = {str(args.out)!r}: {missing} (or write a .gif)")
     for name in ("seconds_per_mode", "fps", "width", "height"):
         if getattr(args, name) <= 0:
             parser.error(f"--{name.replace('_', '-')} = {getattr(args, name)}: must be > 0")
