@@ -75,7 +75,7 @@ package() {  # RUN_DIR MODEL_DIR MINUTES "flags": the run's policy as a model, w
   rm -rf "$2"
   python3 - "$@" "$commit" "$device" <<'PY'
 import json, sys
-from train.evaluate import export_main
+from train.export import export_main
 run, model, minutes, extra, commit, device = sys.argv[1:7]
 s = json.load(open(f"{run}/summary.json"))
 command = f"mecanum-train --config gpu --max-minutes {minutes} {extra}".strip()
