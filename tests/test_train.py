@@ -31,8 +31,9 @@ from train.config import (
     parse_train_config,
 )
 from train.periodic import COMPARED, Result, beats, compare
-from train.ppo import Learner, gradient_clip, make_optimizer, to_host
+from train.ppo import Learner, to_host
 from train.run import Run, RunDirError, TrainingDiverged
+from train.state import gradient_clip, make_optimizer
 
 
 def _final_train_state(run, learner):

@@ -2,7 +2,7 @@
 
 A checkpoint at ``<run>/checkpoints/<epoch>/`` holds three items:
 
-- ``train``: the :class:`~train.ppo.TrainingState` of every seed and device (optimizer
+- ``train``: the :class:`~train.state.TrainingState` of every seed and device (optimizer
   state, parameters, observation normalizer, rng keys);
 - ``env``: the environment state of every robot (so resuming continues the same episodes);
 - ``meta``: JSON — epoch, environment steps, wall time, the resolved config, the robot
@@ -330,7 +330,7 @@ def restore_policy(
     if seed not in seeds:
         raise CheckpointError(f"seed = {seed}: this run trained seeds {seeds}")
     from mecanum_jax.task.env import MecanumEnv
-    from train.ppo import make_networks, state_template
+    from train.state import make_networks, state_template
 
     # the networks need the task's shapes only: whichever MJX implementation trained it,
     # restoring needs no Warp
@@ -431,7 +431,7 @@ def load_policy(
       ``(policy, meta)``; ``meta["policy_params"]`` holds the host arrays
       ``(normalizer, policy_params)`` for export.
     """
-    from train.ppo import allow_rank_promotion
+    from train.state import allow_rank_promotion
 
     restored = restore_policy(run_dir, seed, epoch)
     params = (restored.normalizer, restored.params)
