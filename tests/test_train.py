@@ -549,6 +549,6 @@ def test_checkpoints_hold_only_numpy_arrays(learner):
     rebuild their leaves as jax arrays, so the packing converts leaf by leaf."""
     state, env_state = learner.init()
     for tree in (to_host(state), to_host(env_state)):
-        packed = checkpoint._host_pack(tree)
+        packed = checkpoint.pack(tree)
         assert packed
         assert all(isinstance(v, np.ndarray) for v in packed.values())

@@ -40,7 +40,7 @@ from brax.training.agents.ppo import networks as ppo_networks
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from mecanum_jax.task.env import MecanumEnv, TrainingEnv
-from train import checkpoint
+from train import leaves
 from train.config import TrainConfig
 from train.periodic import PeriodicEvaluation, Result
 from train.state import (
@@ -171,36 +171,35 @@ class Learner:
         """Compile :meth:`epoch` for these states now, ahead of its first call."""
         self._compiled_epoch = self._parallel_epoch.lower(ts, env_state).compile()
 
-    def _shared_buffers(self) -> dict[str, np.ndarray]:
+    def _shared_buffers(self) -> dict[int, np.ndarray]:
         """The environment state's leaves that belong to the whole batch rather than to a
         robot (MuJoCo Warp's contact buffer and its sizes; none under MJX's JAX), by
-        :func:`train.checkpoint.pack` key: leaves without the robot axis. They are scratch
+        position in ``jax.tree.leaves``: leaves without the robot axis. They are scratch
         space each physics step refills, so they stay out of the ``(D, S, E)`` layout and
         every program starts from fresh ones: the small ones (counts, capacities) as the
         reset made them, the buffers as zeros."""
         E = self.envs_per_device
-        leaves = jax.tree.leaves(self._env_template)
-        shared = [i for i, x in enumerate(leaves) if x.shape[:1] != (E,) and math.prod(x.shape)]
+        template = jax.tree.leaves(self._env_template)
+        shared = [i for i, x in enumerate(template) if x.shape[:1] != (E,) and math.prod(x.shape)]
         if not shared:
             return {}
         # one robot's reset holds the same batch-wide leaves, and compiles faster
         fresh = jax.tree.leaves(jax.jit(self.env.reset)(jnp.zeros((2,), jnp.uint32)))
         return {
-            f"{i:05d}": np.asarray(fresh[i]) if fresh[i].size <= 64 else np.zeros_like(fresh[i])
+            i: np.asarray(fresh[i]) if fresh[i].size <= 64 else np.zeros_like(fresh[i])
             for i in shared
         }
 
-    def pack_env(self, env_state: Any) -> dict[str, Any]:
-        """The environment state without its zero-size leaves (MJX has several) and its
-        batch-wide buffers (:meth:`_shared_buffers`), as it crosses device programs
-        (:func:`train.checkpoint.pack`)."""
-        packed = checkpoint.pack(env_state)
-        return {k: v for k, v in packed.items() if k not in self._shared}
+    def pack_env(self, env_state: Any) -> Any:
+        """The environment state as it crosses device programs and is checkpointed: its
+        zero-size leaves (MJX has several) and batch-wide buffers (:meth:`_shared_buffers`)
+        pruned to ``None`` (:func:`train.leaves.prune`)."""
+        return leaves.prune(env_state, self._shared)
 
-    def unpack_env(self, packed: dict[str, Any]) -> Any:
+    def unpack_env(self, packed: Any) -> Any:
         """Inverse of :meth:`pack_env` for one seed's per-device batch (inside the program)."""
-        fresh = {k: jnp.asarray(v) for k, v in self._shared.items()}
-        return checkpoint.unpack(self._env_template, {**packed, **fresh}, host=False)
+        fresh = {i: jnp.asarray(v) for i, v in self._shared.items()}
+        return leaves.graft(self._env_template, packed, fresh)
 
     def place(self, ts: TrainingState, env_state: Any) -> tuple[TrainingState, Any]:
         """Put host ``(D, ...)`` states on the devices exactly as :meth:`epoch` returns them
