@@ -23,7 +23,7 @@ from mecanum_jax.evaluation import scenarios
 from mecanum_jax.kinematics import singularity
 from mecanum_jax.kinematics.modes import SIX_MODES
 from mecanum_jax.task import EnvConfig, MecanumEnv
-from train import checkpoint
+from train import checkpoint, export
 from train import evaluate as cli
 
 
@@ -333,7 +333,7 @@ def test_export_round_trip_in_numpy_alone(full_run, tmp_path, learner):
     computes the JAX policy's actions."""
     run, _ = full_run
     path = tmp_path / "export" / "policy.npz"
-    assert cli.export_main([str(run.dir), str(path)]) == 0
+    assert export.main([str(run.dir), str(path)]) == 0
     act, _ = checkpoint.load_policy(run.dir)
     rng = np.random.default_rng(3)
     obs = {
@@ -375,7 +375,7 @@ def test_export_round_trip_in_numpy_alone(full_run, tmp_path, learner):
 def test_exported_control_loop_matches_the_environment(full_run, tmp_path, learner):
     run, _ = full_run
     path = tmp_path / "policy.npz"
-    assert cli.export_main([str(run.dir), str(path)]) == 0
+    assert export.main([str(run.dir), str(path)]) == 0
     policy = deploy.load(path)
     env = learner.env
     rng = np.random.default_rng(5)
@@ -467,7 +467,7 @@ def test_exported_file_errors(tmp_path):
     np.savez(tmp_path / "other.npz", x=np.zeros(3))
     with pytest.raises(deploy.ExportError, match="not an export"):
         deploy.load(tmp_path / "other.npz")
-    assert cli.export_main(["baseline", str(tmp_path / "p.txt")]) == 2
+    assert export.main(["baseline", str(tmp_path / "p.txt")]) == 2
 
 
 @pytest.mark.full
@@ -611,8 +611,8 @@ def test_onnx_export_matches_the_jax_policy_and_the_control_loop(full_run, tmp_p
     ort = pytest.importorskip("onnxruntime")
     run, _ = full_run
     path = tmp_path / "policy.onnx"
-    assert cli.export_main([str(run.dir), str(path), "--format", "onnx"]) == 0
-    assert cli.export_main([str(run.dir), str(tmp_path / "p.npz")]) == 0
+    assert export.main([str(run.dir), str(path), "--format", "onnx"]) == 0
+    assert export.main([str(run.dir), str(tmp_path / "p.npz")]) == 0
     act, _ = checkpoint.load_policy(run.dir)
     rng = np.random.default_rng(5)
     obs = {
@@ -633,7 +633,7 @@ def test_onnx_export_matches_the_jax_policy_and_the_control_loop(full_run, tmp_p
     meta = json.loads({p.key: p.value for p in _onnx_props(path)}["mecanum_policy_meta"])
     assert meta["observation_layout"] == [list(x) for x in learner.env.layout]
     # wrong suffix: refused naming the field and the value, nothing written
-    assert cli.export_main([str(run.dir), str(tmp_path / "x.npz"), "--format", "onnx"]) == 2
+    assert export.main([str(run.dir), str(tmp_path / "x.npz"), "--format", "onnx"]) == 2
     assert not (tmp_path / "x.npz").exists()
 
 

@@ -31,8 +31,9 @@ from train.config import (
     parse_train_config,
 )
 from train.periodic import COMPARED, Result, beats, compare
-from train.ppo import Learner, gradient_clip, make_optimizer, to_host
+from train.ppo import Learner, to_host
 from train.run import Run, RunDirError, TrainingDiverged
+from train.state import gradient_clip, make_optimizer
 
 
 def _final_train_state(run, learner):
@@ -550,6 +551,6 @@ def test_checkpoints_hold_only_numpy_arrays(learner):
     rebuild their leaves as jax arrays, so the packing converts leaf by leaf."""
     state, env_state = learner.init()
     for tree in (to_host(state), to_host(env_state)):
-        packed = checkpoint._host_pack(tree)
+        packed = checkpoint.pack(tree)
         assert packed
         assert all(isinstance(v, np.ndarray) for v in packed.values())

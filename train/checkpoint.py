@@ -2,11 +2,15 @@
 
 A checkpoint at ``<run>/checkpoints/<epoch>/`` holds three items:
 
-- ``train``: the :class:`~train.ppo.TrainingState` of every seed and device (optimizer
+- ``train``: the :class:`~train.state.TrainingState` of every seed and device (optimizer
   state, parameters, observation normalizer, rng keys);
 - ``env``: the environment state of every robot (so resuming continues the same episodes);
 - ``meta``: JSON — epoch, environment steps, wall time, the resolved config, the robot
   and the observation layout (so a checkpoint from another robot or layout is refused).
+
+``train`` and ``env`` are stored as flat dicts of named leaves with checksums, and
+restored by name (:mod:`train.leaves`); the leaf-index format of earlier versions
+(the shipped model's among them) is recognised and restored by index.
 
 :func:`load_policy` restores only ``train`` and ``meta`` and returns a jitted
 deterministic ``obs -> action`` function for evaluation and deployment.
@@ -16,7 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
 import shutil
 import sys
@@ -25,17 +28,13 @@ from pathlib import Path
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
 from mecanum_jax.config import ConfigError
+from train.leaves import CheckpointError, pack, unpack
 
 CHECKPOINT_DIR = "checkpoints"
-
-
-class CheckpointError(ValueError):
-    """A checkpoint is missing, corrupt, or does not match what is being loaded."""
 
 
 def quiet_closed_loop_noise() -> None:
@@ -74,46 +73,6 @@ def manager(run_dir: Path, max_to_keep: int = 3, create: bool = True) -> ocp.Che
     return ocp.CheckpointManager(root, options=options)
 
 
-def pack(tree: Any) -> dict[str, Any]:
-    """A pytree as a flat ``{leaf index: array}`` dict without its zero-size leaves.
-
-    MJX state has several; orbax refuses them, and inside ``pmap`` on 2 GPUs they crashed
-    XLA's compiler (jax 0.11.2). :func:`unpack` rebuilds them from a template.
-    """
-    return {f"{i:05d}": x for i, x in enumerate(jax.tree.leaves(tree)) if math.prod(np.shape(x))}
-
-
-def unpack(template: Any, flat: dict[str, Any], host: bool = True) -> Any:
-    """Inverse of :func:`pack`, shaped like ``template`` (arrays or shape structs).
-
-    ``host``: numpy leaves, each checked against the template's shape
-    (:class:`CheckpointError` for a checkpoint of another config); ``False``: inside a
-    compiled program, where the shapes are the program's own.
-    """
-    leaves, treedef = jax.tree.flatten(template)
-    out = []
-    for i, x in enumerate(leaves):
-        key = f"{i:05d}"
-        if math.prod(np.shape(x)) == 0:
-            out.append(np.zeros(x.shape, x.dtype) if host else jnp.zeros(x.shape, x.dtype))
-            continue
-        value = np.asarray(flat[key]) if host else flat[key]
-        if host and np.shape(value) != np.shape(x):
-            raise CheckpointError(
-                f"checkpoint leaf {key}: shape {np.shape(value)}, expected {np.shape(x)} "
-                "(saved with another config or device count?)"
-            )
-        out.append(value)
-    return jax.tree.unflatten(treedef, out)
-
-
-def _host_pack(tree: Any) -> dict[str, np.ndarray]:
-    """:func:`pack` with every leaf a numpy array (orbax refuses a process-local jax.Array in
-    a multi-process run). Converted leaf by leaf: some optimizer states turn leaves back into
-    jax arrays when rebuilt, so ``jax.tree.map(np.asarray, tree)`` would not do."""
-    return {k: np.asarray(v) for k, v in pack(tree).items()}
-
-
 def save(
     mgr: ocp.CheckpointManager, epoch: int, train: Any, env: Any, meta: dict[str, Any]
 ) -> None:
@@ -121,8 +80,8 @@ def save(
     mgr.save(
         epoch,
         args=ocp.args.Composite(
-            train=ocp.args.StandardSave(_host_pack(train)),
-            env=ocp.args.StandardSave(_host_pack(env)),
+            train=ocp.args.StandardSave(pack(train)),
+            env=ocp.args.StandardSave(pack(env)),
             meta=ocp.args.JsonSave(meta),
         ),
         force=True,
@@ -145,7 +104,7 @@ def save_process(run_dir: Path, epoch: int, keys: Any, env: Any, keep: int) -> P
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{epoch}.npz"
     tmp = folder / f".{epoch}.tmp.npz"
-    arrays: dict[str, Any] = {f"env_{k}": v for k, v in _host_pack(env).items()}
+    arrays: dict[str, Any] = {f"env_{k}": v for k, v in pack(env).items()}
     arrays["key"] = np.asarray(keys)
     np.savez(tmp, **arrays)
     os.replace(tmp, path)
@@ -275,6 +234,17 @@ def read_meta(run_dir: Path, epoch: int | None = None) -> tuple[int, dict[str, A
     return epoch, dict(out["meta"])
 
 
+def read_train(run_dir: Path, epoch: int, train_like: Any) -> Any:
+    """The training state of checkpoint ``epoch``, shaped like ``train_like`` (matched by
+    leaf name; by index in the leaf-index format); a mismatch names the checkpoint."""
+    _, saved = _read_checked(run_dir, epoch, ("train",))
+    try:
+        return unpack(train_like, saved["train"])
+    except CheckpointError as err:
+        where = str(_checkpoint_path(run_dir, epoch))
+        raise CheckpointError(f"checkpoint {where!r}: {err}") from err
+
+
 @dataclasses.dataclass(frozen=True)
 class RestoredPolicy:
     """One seed's policy from a checkpoint: config, networks and host parameters."""
@@ -333,16 +303,14 @@ def restore_policy(
     if seed not in seeds:
         raise CheckpointError(f"seed = {seed}: this run trained seeds {seeds}")
     from mecanum_jax.task.env import MecanumEnv
-    from train.ppo import make_networks, state_template
+    from train.state import make_networks, state_template
 
     # the networks need the task's shapes only: whichever MJX implementation trained it,
     # restoring needs no Warp
     env = MecanumEnv(dataclasses.replace(cfg.env, physics_impl="jax"))
     networks = make_networks(env, cfg)
     check_compatible(meta, env, f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r}")
-    train_like = state_template(cfg, env, int(meta["devices"]))
-    _, saved = _read_checked(run_dir, epoch, ("train",))
-    train = unpack(train_like, saved["train"])
+    train = read_train(run_dir, epoch, state_template(cfg, env, int(meta["devices"])))
     one = jax.tree.map(lambda x: x[0, seeds.index(seed)], train)
     return RestoredPolicy(
         run_dir=run_dir,
@@ -434,7 +402,7 @@ def load_policy(
       ``(policy, meta)``; ``meta["policy_params"]`` holds the host arrays
       ``(normalizer, policy_params)`` for export.
     """
-    from train.ppo import allow_rank_promotion
+    from train.state import allow_rank_promotion
 
     restored = restore_policy(run_dir, seed, epoch)
     params = (restored.normalizer, restored.params)
@@ -457,6 +425,7 @@ __all__ = [
     "manager",
     "package_model",
     "read_meta",
+    "read_train",
     "restore",
     "restore_policy",
     "save",

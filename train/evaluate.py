@@ -8,7 +8,6 @@ Examples::
     mecanum-eval runs/gpu-.../checkpoints/40 --seed 1 --video
     mecanum-eval runs/gpu-... --only nominal slippery --episodes 8 --out runs/eval-a
     mecanum-eval runs/gpu-... --scenarios my_scenarios.toml
-    mecanum-export runs/gpu-... policy.npz              # weights + normalizer, for NumPy
 
 The reference controllers (``--references``, default all of ``env.REFERENCES``:
 ``analytic``, the baseline; ``analytic_nearest``; ``feedback``) always run on the same
@@ -22,6 +21,9 @@ Everything is written to a ``<out>.partial`` directory that is renamed to ``<out
 when complete, so an interrupted evaluation never leaves a report that looks finished;
 an existing ``<out>`` is never overwritten. Exit codes: 2 bad input (arguments, scenario
 file, checkpoint), 130 interrupted.
+
+The console tables and the plots are drawn by :mod:`train.eval_output`; ``--export`` writes
+the deployable policy as ``mecanum-export`` does (:mod:`train.export`).
 """
 
 from __future__ import annotations
@@ -43,19 +45,17 @@ import numpy as np  # noqa: E402
 import tyro  # noqa: E402
 from rich.console import Console  # noqa: E402
 from rich.markup import escape  # noqa: E402
-from rich.table import Table  # noqa: E402
 
 from mecanum_jax.config import ConfigError  # noqa: E402
-from mecanum_jax.deploy import policy as deploy  # noqa: E402
 from mecanum_jax.evaluation import metrics, scenarios  # noqa: E402
 from mecanum_jax.evaluation import rollout as ev  # noqa: E402
 from mecanum_jax.kinematics import model as kinematics  # noqa: E402
 from mecanum_jax.precision import set_matmul_precision  # noqa: E402
-from mecanum_jax.sim.description import fingerprint  # noqa: E402
-from mecanum_jax.sim.physics import GRAVITY  # noqa: E402
 from mecanum_jax.task import REFERENCES, MecanumEnv  # noqa: E402
 from train import checkpoint  # noqa: E402
 from train.config import load_train_config  # noqa: E402
+from train.eval_output import comparison_table, results_table, write_plots  # noqa: E402
+from train.export import export_policy  # noqa: E402
 from train.progress import rollout_progress  # noqa: E402
 from train.run import write_json  # noqa: E402
 
@@ -274,93 +274,6 @@ def evaluate(
     return results, traces, timing
 
 
-TABLE = (
-    ("RMSE v", "rmse_lin", "{:.3f}"),
-    ("RMSE ωz", "rmse_wz", "{:.3f}"),
-    ("ss v", "ss_lin", "{:.3f}"),
-    ("ss ωz", "ss_wz", "{:.3f}"),
-    ("settle v s", "settle_lin_s", "{:.2f}"),
-    ("settle ω s", "settle_wz_s", "{:.2f}"),
-    ("drift m", "drift_m", "{:.3f}"),
-    ("energy J", "energy_j", "{:.0f}"),
-    ("null J", "null_energy_j", "{:.1f}"),
-)
-
-
-def results_table(results: dict[str, Any], title: str) -> Table:
-    """Every controller per scenario; the best tracking figure of each scenario in green.
-
-    v in m/s, ωz in rad/s; ``ss``: steady-state error against the nearest feasible twist.
-    """
-    table = Table(title=title)
-    for c in ("scenario", "who", *(c for c, _, _ in TABLE)):
-        table.add_column(c, justify="left" if c in ("scenario", "who") else "right")
-    for name, r in results.items():
-        players = [w for w in ("policy", *REFERENCES) if w in r]
-        for i, who in enumerate(players):
-            cells = []
-            for _, key, fmt in TABLE:
-                v = r[who].get(key)
-                text = "-" if v is None else fmt.format(v)
-                values = [r[w].get(key) for w in players if r[w].get(key) is not None]
-                if (
-                    v is not None
-                    and len(values) > 1
-                    and key != "null_energy_j"
-                    and v == min(values)
-                ):
-                    text = f"[green]{text}[/]"
-                cells.append(text)
-            table.add_row(name if i == 0 else "", who, *cells)
-    return table
-
-
-def comparison_table(results: dict[str, Any], pair: str) -> Table:
-    """``pair`` (e.g. ``policy/analytic``) ratios with 95% intervals per scenario; green
-    where the interval lies wholly below 1 (better), red wholly above (worse)."""
-    keys = ("ss_lin", "ss_wz", "rmse_lin", "rmse_wz", "settle_wz_s", "drift_m", "energy_j")
-    table = Table(title=f"{pair}: ratio [95% paired bootstrap interval]")
-    table.add_column("scenario")
-    for k in keys:
-        table.add_column(k, justify="right")
-    for name, r in results.items():
-        cmp = r.get("compare", {}).get(pair)
-        if cmp is None:
-            continue
-        cells = []
-        for k in keys:
-            c = cmp.get(k)
-            if c is None:
-                cells.append("-")
-                continue
-            text = f"{c['ratio']:.2f} [{c['lo']:.2f},{c['hi']:.2f}]"
-            color = {"better": "green", "worse": "red"}.get(str(c["verdict"]))
-            cells.append(f"[{color}]{text}[/]" if color else text)
-        table.add_row(name, *cells)
-    return table
-
-
-def write_plots(
-    results: dict[str, Any], traces: dict[str, dict[str, ev.Trace]], dt: float, out: Path
-) -> list[Path]:
-    paths = [
-        ev.plot_errors(
-            {n: {w: r[w] for w in ("policy", *REFERENCES) if w in r} for n, r in results.items()},
-            out / "errors.png",
-        ),
-        ev.plot_trajectories(
-            traces, dt, {n: r["scripted"] for n, r in results.items()}, out / "trajectories.png"
-        ),
-    ]
-    for name, per in traces.items():
-        paths.append(
-            ev.plot_twist(
-                per, dt, f"{name}: {results[name]['description']}", out / f"twist_{name}.png"
-            )
-        )
-    return paths
-
-
 def write_videos(
     target: Target, traces: dict[str, dict[str, ev.Trace]], args: EvalArgs, out: Path
 ) -> list[Path]:
@@ -387,64 +300,6 @@ def write_videos(
         frames = ev.side_by_side(clips, labels)
         paths.append(write_video(frames, out / f"video_{name}.{args.video_format}", fps))
     return paths
-
-
-def export_policy(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
-    """Write ``policy.npz`` (weights, normalizer, control-loop constants) and copy the
-    NumPy inference module beside it as ``mecanum_policy.py``."""
-    path = deploy.save(path, *_policy_arrays(restored))
-    shutil.copyfile(deploy.__file__, path.with_name("mecanum_policy.py"))
-    return path
-
-
-def export_onnx(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
-    """Write the policy and its control loop as one ONNX graph (``mecanum_jax.deploy.onnx``)."""
-    from mecanum_jax.deploy import onnx as onnx_export
-
-    return onnx_export.write_onnx(deploy.NumpyPolicy(*_policy_arrays(restored)), path)
-
-
-def _policy_arrays(
-    restored: checkpoint.RestoredPolicy,
-) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray, np.ndarray, dict[str, Any]]:
-    """The exported policy's layers, normalizer mean and std, and metadata."""
-    cfg = restored.cfg
-    env = MecanumEnv(dataclasses.replace(cfg.env, physics_impl="jax"))  # shapes only
-    layers_tree = restored.params["params"]
-    names = sorted(layers_tree, key=lambda n: int(n.rsplit("_", 1)[-1]))
-    layers = [
-        (np.asarray(layers_tree[n]["kernel"]), np.asarray(layers_tree[n]["bias"])) for n in names
-    ]
-    size = env.observation_size["state"][0]
-    if cfg.ppo.normalize_observations:
-        mean = np.asarray(restored.normalizer.mean["state"])
-        std = np.asarray(restored.normalizer.std["state"])
-    else:
-        mean, std = np.zeros(size, np.float32), np.ones(size, np.float32)
-    meta = {
-        "robot": env.desc.robot.name,
-        "robot_fingerprint": fingerprint(env.desc),
-        "wheels": list(env.geometry.names),
-        "activation": cfg.network.activation,
-        "action_size": env.action_size,
-        "observation_layout": [list(x) for x in env.layout],
-        "residual": cfg.env.residual,
-        "residual_scale": cfg.env.residual_scale,
-        "residual_space": cfg.env.residual_space,
-        "residual_base": cfg.env.residual_base,
-        "feedback": dataclasses.asdict(cfg.env.feedback),
-        "yaw_integral_tau": cfg.env.yaw_integral_tau,
-        "action_filter": cfg.env.action_filter,
-        "clip_observations": cfg.ppo.clip_observations,
-        "max_rates": np.asarray(env.max_rates).tolist(),
-        "command_scale": np.asarray(env.command_scale).tolist(),
-        "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),
-        "forward_matrix": np.asarray(kinematics.forward_matrix(env.geometry)).tolist(),
-        "gravity": GRAVITY,
-        "control_dt": cfg.env.control_dt,
-        "source": {"run": str(restored.run_dir), "epoch": restored.epoch, "seed": restored.seed},
-    }
-    return layers, mean, std, meta
 
 
 def _error(err: BaseException) -> None:
@@ -582,88 +437,10 @@ def _evaluate_into(
     return results
 
 
-@dataclasses.dataclass
-class ExportArgs:
-    """Write a trained policy: a small NumPy file (weights + observation normalizer), or a
-    model directory (``--model``) that mecanum-eval and mecanum-export read like a run."""
-
-    run: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN")]
-    """A run directory (latest checkpoint) or ``<run>/checkpoints/<epoch>``."""
-    out: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="OUT")]
-    """The file to write: ``.npz`` (``mecanum_policy.py``, NumPy inference, is copied beside
-    it) or, with ``--format onnx``, ``.onnx``; with ``--model``, the directory to create."""
-    format: Literal["npz", "onnx"] = "npz"
-    """``npz``: weights and normalizer for the NumPy module; ``onnx``: one ONNX graph from
-    raw observations to actions and wheel-rate setpoints (normalizer, clip and the
-    baseline inside; needs the ``onnx`` extra)."""
-    seed: int | None = None
-    """Which of the run's training seeds (default: the first)."""
-    epoch: int | None = None
-    """Which checkpoint (default: the latest)."""
-    model: bool = False
-    """Write a model directory: the policy's checkpoint (no optimizer-free copy is made:
-    the training state of that epoch, without the environment state), the resolved config,
-    ``provenance.json`` and the NumPy export."""
-    provenance: tuple[str, ...] = ()
-    """``--model``: KEY=VALUE pairs for provenance.json (e.g. command=..., device=...)."""
-
-
-def export_main(argv: list[str] | None = None) -> int:
-    """``mecanum-export RUN OUT.npz``."""
-    checkpoint.quiet_closed_loop_noise()
-    argv = sys.argv[1:] if argv is None else argv
-    args = _parse(argv, "mecanum-export", ExportArgs)
-    try:
-        suffix = "." + args.format
-        if args.model and args.format != "npz":
-            raise ConfigError(f"--format = {args.format!r}: --model writes its own npz export")
-        if not args.model and not args.out.endswith(suffix):
-            raise ConfigError(
-                f"out = {args.out!r}: expected a {suffix} file name for --format {args.format}"
-                + (" (or --model)" if args.format == "npz" else "")
-            )
-        if Path(args.out).exists():
-            raise ConfigError(f"out = {args.out!r}: already exists; never overwritten")
-        extra = {}
-        for item in args.provenance:
-            key, sep, value = item.partition("=")
-            if not sep or not key:
-                raise ConfigError(f"--provenance {item!r}: expected KEY=VALUE")
-            extra[key] = value
-        run_dir, epoch = checkpoint.split_target(args.run)
-        restored = checkpoint.restore_policy(run_dir, args.seed, epoch or args.epoch)
-    except (ConfigError, checkpoint.CheckpointError) as err:
-        _error(err)
-        return 2
-    if args.model:
-        out = checkpoint.package_model(restored, Path(args.out), extra)
-        export_policy(restored, out / "policy.npz")
-        console.log(f"wrote model directory {out}")
-        return 0
-    if args.format == "onnx":
-        try:
-            path = export_onnx(restored, Path(args.out))
-        except ImportError as err:
-            _error(
-                ConfigError(
-                    f"--format onnx: {err}; install the extra: pip install 'mecanum-jax[onnx]'"
-                )
-            )
-            return 2
-        console.log(f"wrote {path}")
-        return 0
-    path = export_policy(restored, Path(args.out))
-    console.log(f"wrote {path} and {path.with_name('mecanum_policy.py')}")
-    return 0
-
-
 __all__ = [
     "EvalArgs",
     "comparison_table",
     "evaluate",
-    "export_main",
-    "export_onnx",
-    "export_policy",
     "main",
     "results_table",
 ]

@@ -4,7 +4,8 @@ Brax's ``ppo.train`` restores only network weights, so this module drives Brax's
 pieces (``make_ppo_networks``, ``compute_ppo_loss``, ``loss_and_pgrad``, the running
 observation normalizer) from an outer loop whose whole state is explicit:
 
-- :class:`TrainingState` (optimizer state, parameters, normalizer, rng key) and the
+- :class:`~train.state.TrainingState` (optimizer state, parameters, normalizer, rng key;
+  it, the networks and the optimizer are defined in :mod:`train.state`) and the
   environment state are the only things that change between epochs, and both go into
   every checkpoint, so a resumed run continues exactly as the uninterrupted one would have;
 - several seeds train side by side in one compiled program (``jax.vmap`` over a seed
@@ -22,128 +23,36 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable
 from typing import Any
 
 # isort: split
 import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
 
 # isort: split
-import flax
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
 from brax.training import gradients, types
-from brax.training.acme import running_statistics, specs
+from brax.training.acme import running_statistics
 from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
-from flax import linen
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from mecanum_jax.task.env import MecanumEnv, TrainingEnv
-from train import checkpoint
+from train import leaves
 from train.config import TrainConfig
 from train.periodic import PeriodicEvaluation, Result
+from train.state import (
+    TrainingState,
+    allow_rank_promotion,
+    fresh_state,
+    make_networks,
+    make_optimizer,
+)
 
 AXIS = "devices"
 MESH_AXIS = "d"  # the device mesh axis of run.parallel = "sharded"
-ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
-    "swish": linen.swish,
-    "tanh": linen.tanh,
-    "relu": linen.relu,
-    "elu": linen.elu,
-}
-# Domain tags: training and evaluation rng streams never meet, whatever the seeds are.
-TRAIN_STREAM = 0x7A1
-
-
-def allow_rank_promotion(fn: Callable[..., Any]) -> Callable[..., Any]:
-    """Trace ``fn`` with implicit rank promotion allowed: Brax's normalizer and
-    distributions rely on it (the project's own code does not)."""
-
-    @functools.wraps(fn)
-    def wrapped(*args: Any, **kwargs: Any) -> Any:
-        with jax.numpy_rank_promotion("allow"):
-            return fn(*args, **kwargs)
-
-    return wrapped
-
-
-@flax.struct.dataclass
-class TrainingState:
-    """Everything the learner updates; one seed's (leaves gain S and D axes when batched)."""
-
-    optimizer_state: Any
-    params: ppo_losses.PPONetworkParams
-    normalizer_params: running_statistics.RunningStatisticsState
-    key: jax.Array
-
-
-def make_networks(env: MecanumEnv, cfg: TrainConfig) -> ppo_networks.PPONetworks:
-    """Brax PPO networks for this task (the critic sees privileged state if configured)."""
-    normalize: Any = (
-        functools.partial(
-            running_statistics.normalize, max_abs_value=cfg.ppo.clip_observations or None
-        )
-        if cfg.ppo.normalize_observations
-        else types.identity_observation_preprocessor
-    )
-    n = cfg.network
-    return ppo_networks.make_ppo_networks(
-        env.observation_size,
-        env.action_size,
-        preprocess_observations_fn=normalize,
-        policy_hidden_layer_sizes=n.policy_hidden,
-        value_hidden_layer_sizes=n.value_hidden,
-        activation=ACTIVATIONS[n.activation],
-        policy_obs_key="state",
-        value_obs_key="privileged_state" if n.privileged_critic else "state",
-        init_noise_std=n.init_noise_std,
-    )
-
-
-def gradient_clip(cfg: TrainConfig) -> optax.GradientTransformation:
-    """Gradient-norm clipping at ``ppo.max_grad_norm``.
-
-    ``ppo.clip_per_network``: the policy's and the value function's gradients are clipped
-    each by its own norm (PPO's loss is a sum, so each network's gradient comes from its
-    own term). One global norm over both lets a large value error (the returns' tails)
-    shrink the policy's step in that minibatch by the same factor.
-    """
-    p = cfg.ppo
-    clip = optax.clip_by_global_norm(p.max_grad_norm)
-    if not p.clip_per_network:
-        return clip
-
-    return optax.multi_transform({"policy": clip, "value": clip}, _labels)
-
-
-def make_optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
-    """Adam after :func:`gradient_clip`; with ``ppo.policy_warmup_steps``, the policy's
-    updates ramp up linearly from zero (the value function's do not)."""
-    p = cfg.ppo
-    opt = optax.chain(gradient_clip(cfg), optax.adam(p.learning_rate))
-    if not p.policy_warmup_steps:
-        return opt  # (the optimizer state's tree, and so older checkpoints, stay as they were)
-    updates_per_iteration = p.num_minibatches * p.num_updates_per_batch
-    warmup_updates = max(
-        1, p.policy_warmup_steps * updates_per_iteration // cfg.steps_per_iteration
-    )
-    ramp = optax.linear_schedule(0.0, 1.0, warmup_updates)
-    return optax.chain(
-        opt,
-        optax.multi_transform(
-            {"policy": optax.scale_by_schedule(ramp), "value": optax.identity()}, _labels
-        ),
-    )
-
-
-def _labels(params: ppo_losses.PPONetworkParams) -> ppo_losses.PPONetworkParams:
-    return ppo_losses.PPONetworkParams(
-        policy=jax.tree.map(lambda _: "policy", params.policy),
-        value=jax.tree.map(lambda _: "value", params.value),
-    )
 
 
 def all_finite(tree: Any) -> jax.Array:
@@ -152,72 +61,6 @@ def all_finite(tree: Any) -> jax.Array:
         x for x in jax.tree.leaves(tree) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)
     ]
     return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
-
-
-def initial_policy(
-    networks: ppo_networks.PPONetworks, key: jax.Array, action_size: int, cfg: TrainConfig
-) -> Any:
-    """Brax's policy initialisation, with the exploration noise ``init_noise_std``.
-
-    Brax's tanh-normal policy MLP outputs the action means ``[0, a)`` and the scales
-    ``[a, 2a)``, ``std = softplus(out) + 0.001``, and ignores ``init_noise_std``: its
-    random output layer starts the std anywhere in 0.25–2 (mean ≈ 0.7) per state. Here
-    the scale outputs start state-independent at ``init_noise_std`` (zero kernel, bias
-    ``softplus⁻¹(init_noise_std − 0.001)``); they stay learnable and state-dependent.
-    ``zero_init_mean`` also zeroes the mean outputs (the untrained policy is then the
-    baseline, with residual actions).
-    """
-    params = networks.policy_network.init(key)
-    layers = params["params"]
-    last = max(layers, key=lambda name: int(name.rsplit("_", 1)[-1]))
-    a = action_size
-    out = dict(layers[last])
-    kernel, bias = out["kernel"], out["bias"]
-    std = max(cfg.network.init_noise_std - 0.001, 1e-6)
-    kernel = kernel.at[:, a:].set(0.0)
-    bias = bias.at[a:].set(math.log(math.expm1(std)))  # softplus⁻¹
-    if cfg.network.zero_init_mean:
-        kernel = kernel.at[:, :a].set(0.0)
-        bias = bias.at[:a].set(0.0)
-    out["kernel"], out["bias"] = kernel, bias
-    return {**params, "params": {**layers, last: out}}
-
-
-def fresh_state(
-    cfg: TrainConfig,
-    env: MecanumEnv,
-    networks: ppo_networks.PPONetworks,
-    optimizer: optax.GradientTransformation,
-    seed: int,
-) -> tuple[TrainingState, jax.Array]:
-    """One seed's initial training state, and the key its environments are drawn from."""
-    root = jax.random.fold_in(jax.random.PRNGKey(seed), TRAIN_STREAM)
-    k_policy, k_value, k_env, k_loop = jax.random.split(root, 4)
-    params = ppo_losses.PPONetworkParams(
-        policy=initial_policy(networks, k_policy, env.action_size, cfg),
-        value=networks.value_network.init(k_value),
-    )
-    obs_spec = {
-        k: specs.Array(shape, jnp.dtype("float32")) for k, shape in env.observation_size.items()
-    }
-    state = TrainingState(
-        optimizer_state=optimizer.init(params),
-        params=params,
-        normalizer_params=running_statistics.init_state(obs_spec),
-        key=k_loop,
-    )
-    return state, k_env
-
-
-def state_template(cfg: TrainConfig, env: MecanumEnv, devices: int) -> TrainingState:
-    """Zero arrays shaped like a saved training state ``(devices, seeds, ...)``, built from
-    shapes alone (nothing is initialised or compiled): what a checkpoint restores into."""
-    networks = make_networks(env, cfg)
-    one, _ = jax.eval_shape(
-        lambda: fresh_state(cfg, env, networks, make_optimizer(cfg), cfg.run.seeds[0])
-    )
-    lead = (devices, len(cfg.run.seeds))
-    return jax.tree.map(lambda x: np.zeros((*lead, *x.shape), x.dtype), one)
 
 
 class Learner:
@@ -328,36 +171,35 @@ class Learner:
         """Compile :meth:`epoch` for these states now, ahead of its first call."""
         self._compiled_epoch = self._parallel_epoch.lower(ts, env_state).compile()
 
-    def _shared_buffers(self) -> dict[str, np.ndarray]:
+    def _shared_buffers(self) -> dict[int, np.ndarray]:
         """The environment state's leaves that belong to the whole batch rather than to a
         robot (MuJoCo Warp's contact buffer and its sizes; none under MJX's JAX), by
-        :func:`train.checkpoint.pack` key: leaves without the robot axis. They are scratch
+        position in ``jax.tree.leaves``: leaves without the robot axis. They are scratch
         space each physics step refills, so they stay out of the ``(D, S, E)`` layout and
         every program starts from fresh ones: the small ones (counts, capacities) as the
         reset made them, the buffers as zeros."""
         E = self.envs_per_device
-        leaves = jax.tree.leaves(self._env_template)
-        shared = [i for i, x in enumerate(leaves) if x.shape[:1] != (E,) and math.prod(x.shape)]
+        template = jax.tree.leaves(self._env_template)
+        shared = [i for i, x in enumerate(template) if x.shape[:1] != (E,) and math.prod(x.shape)]
         if not shared:
             return {}
         # one robot's reset holds the same batch-wide leaves, and compiles faster
         fresh = jax.tree.leaves(jax.jit(self.env.reset)(jnp.zeros((2,), jnp.uint32)))
         return {
-            f"{i:05d}": np.asarray(fresh[i]) if fresh[i].size <= 64 else np.zeros_like(fresh[i])
+            i: np.asarray(fresh[i]) if fresh[i].size <= 64 else np.zeros_like(fresh[i])
             for i in shared
         }
 
-    def pack_env(self, env_state: Any) -> dict[str, Any]:
-        """The environment state without its zero-size leaves (MJX has several) and its
-        batch-wide buffers (:meth:`_shared_buffers`), as it crosses device programs
-        (:func:`train.checkpoint.pack`)."""
-        packed = checkpoint.pack(env_state)
-        return {k: v for k, v in packed.items() if k not in self._shared}
+    def pack_env(self, env_state: Any) -> Any:
+        """The environment state as it crosses device programs and is checkpointed: its
+        zero-size leaves (MJX has several) and batch-wide buffers (:meth:`_shared_buffers`)
+        pruned to ``None`` (:func:`train.leaves.prune`)."""
+        return leaves.prune(env_state, self._shared)
 
-    def unpack_env(self, packed: dict[str, Any]) -> Any:
+    def unpack_env(self, packed: Any) -> Any:
         """Inverse of :meth:`pack_env` for one seed's per-device batch (inside the program)."""
-        fresh = {k: jnp.asarray(v) for k, v in self._shared.items()}
-        return checkpoint.unpack(self._env_template, {**packed, **fresh}, host=False)
+        fresh = {i: jnp.asarray(v) for i, v in self._shared.items()}
+        return leaves.graft(self._env_template, packed, fresh)
 
     def place(self, ts: TrainingState, env_state: Any) -> tuple[TrainingState, Any]:
         """Put host ``(D, ...)`` states on the devices exactly as :meth:`epoch` returns them
@@ -520,12 +362,4 @@ def to_host(tree: Any) -> Any:
     return jax.tree.map(host, tree)
 
 
-__all__ = [
-    "Learner",
-    "TrainingState",
-    "all_finite",
-    "first_device",
-    "gradient_clip",
-    "make_networks",
-    "make_optimizer",
-]
+__all__ = ["Learner", "all_finite", "first_device", "strip_weak_types", "to_host"]

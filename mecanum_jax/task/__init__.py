@@ -3,7 +3,8 @@
 - :mod:`.env`: the Brax environment (:class:`MecanumEnv`) and its batched training form;
 - :mod:`.config`: :class:`EnvConfig`, the task's settings;
 - :mod:`.commands`, :mod:`.randomization`, :mod:`.observations`, :mod:`.reward`: its parts;
-- :mod:`.references`: the reference controllers (``analytic``, the baseline, among them).
+- :mod:`.references`: the reference controllers (``analytic``, the baseline, among them);
+- :mod:`.protocol`: :class:`~.protocol.TaskEnv`, what those parts read of the environment.
 """
 
 from mecanum_jax.task.commands import CommandConfig

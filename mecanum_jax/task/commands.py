@@ -18,7 +18,7 @@ from mecanum_jax.config import invalid, require
 from mecanum_jax.kinematics import limits
 
 if TYPE_CHECKING:
-    from mecanum_jax.task.env import MecanumEnv
+    from mecanum_jax.task.protocol import TaskEnv
 
 COMMAND_KINDS = ("zero", "translation", "spin", "combined", "beyond")
 """The kinds of command, in the order of :class:`CommandConfig`'s ``p_*`` weights."""
@@ -77,7 +77,7 @@ class CommandConfig:
 
 
 def sample_command(
-    env: MecanumEnv, key: jax.Array, commands: CommandConfig | None = None
+    env: TaskEnv, key: jax.Array, commands: CommandConfig | None = None
 ) -> jax.Array:
     """One command (vx, vy, ωz) from the mix of kinds of ``commands`` (default: the
     task's :class:`CommandConfig`)."""
@@ -105,7 +105,7 @@ def sample_command(
 
 
 def resample_time(
-    env: MecanumEnv, key: jax.Array, now: jax.Array, commands: CommandConfig | None = None
+    env: TaskEnv, key: jax.Array, now: jax.Array, commands: CommandConfig | None = None
 ) -> jax.Array:
     """The control step at which the command drawn at step ``now`` is replaced."""
     c = commands or env.config.commands
@@ -117,7 +117,7 @@ def resample_time(
 
 
 def command_schedule(
-    env: MecanumEnv, key: jax.Array, steps: int, commands: CommandConfig | None = None
+    env: TaskEnv, key: jax.Array, steps: int, commands: CommandConfig | None = None
 ) -> jax.Array:
     """``(steps, 3)`` commands as an episode would draw them: a first command, then a
     new one at random times (the training task's process, from ``commands``)."""

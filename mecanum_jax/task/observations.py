@@ -22,7 +22,7 @@ from mecanum_jax.precision import HIGHEST
 from mecanum_jax.sim.physics import GRAVITY, RobotParams, Sensors
 
 if TYPE_CHECKING:
-    from mecanum_jax.task.env import MecanumEnv
+    from mecanum_jax.task.protocol import TaskEnv
 
 Layout = tuple[tuple[str, int], ...]
 
@@ -86,7 +86,7 @@ def privileged_layout(layout: Layout, n_wheels: int) -> Layout:
     )
 
 
-def sensor_vector(env: MecanumEnv, s: Sensors, key: jax.Array, noise_std: jax.Array) -> jax.Array:
+def sensor_vector(env: TaskEnv, s: Sensors, key: jax.Array, noise_std: jax.Array) -> jax.Array:
     """Noisy encoder rates, gyro z, accelerometer and the odometry twist (scaled)."""
     k1, k2, k3 = jax.random.split(key, 3)
     n = env.n_wheels
@@ -109,18 +109,18 @@ def delayed(info: dict[str, Any]) -> jax.Array:
     return jnp.take(info["history"], info["latency"], axis=0)
 
 
-def measured_yaw_rate(env: MecanumEnv, info: dict[str, Any]) -> jax.Array:
+def measured_yaw_rate(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
     """The gyro's yaw rate as a controller sees it now (noisy, ``latency`` steps old)."""
     return delayed(info)[env.n_wheels] * env.command_scale[2]
 
 
-def yaw_integral(env: MecanumEnv, info: dict[str, Any], command: jax.Array) -> jax.Array:
+def yaw_integral(env: TaskEnv, info: dict[str, Any], command: jax.Array) -> jax.Array:
     """The observed leaky yaw-error integral after a step that tracked ``command``."""
     err = command[2] - measured_yaw_rate(env, info)
     return env.yaw_decay * info["yaw_integral"] + err * env.config.control_dt
 
 
-def observe(env: MecanumEnv, sens: Sensors, info: dict[str, Any]) -> dict[str, jax.Array]:
+def observe(env: TaskEnv, sens: Sensors, info: dict[str, Any]) -> dict[str, jax.Array]:
     """The policy's and the critic's observations of the state ``info`` describes."""
     parts = [info["command"] / env.command_scale, delayed(info), info["last_action"]]
     tau = env.config.yaw_integral_tau
@@ -148,7 +148,7 @@ def observe(env: MecanumEnv, sens: Sensors, info: dict[str, Any]) -> dict[str, j
     return {"state": state, "privileged_state": privileged}
 
 
-def command_from_obs(env: MecanumEnv, obs: dict[str, jax.Array]) -> jax.Array:
+def command_from_obs(env: TaskEnv, obs: dict[str, jax.Array]) -> jax.Array:
     """The (noise-free) command carried in the first three policy observations."""
     cmd = obs["state"][..., :3]
     return cmd * env.command_scale.reshape((1,) * (cmd.ndim - 1) + (3,))

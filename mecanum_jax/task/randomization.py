@@ -17,7 +17,7 @@ from mecanum_jax.config import invalid, require
 from mecanum_jax.sim.physics import RobotParams
 
 if TYPE_CHECKING:
-    from mecanum_jax.task.env import MecanumEnv
+    from mecanum_jax.task.protocol import TaskEnv
 
 
 @dataclasses.dataclass(frozen=True)
@@ -100,11 +100,11 @@ jax.tree_util.register_dataclass(
 
 
 def sample_params(
-    env: MecanumEnv, key: jax.Array, randomization: RandomizationConfig | None = None
+    env: TaskEnv, key: jax.Array, randomization: RandomizationConfig | None = None
 ) -> tuple[RobotParams, jax.Array]:
     """Per-robot physical parameters and observation latency (steps), drawn from
     ``randomization`` (default: the task's)."""
-    r = randomization or env.config.randomization
+    r: RandomizationConfig = randomization or env.config.randomization
     nom = env.nominal_params
     if not r.enabled:
         return nom, jnp.asarray(0, jnp.int32)

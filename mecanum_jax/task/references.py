@@ -24,7 +24,7 @@ from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.task.observations import command_from_obs, measured_yaw_rate
 
 if TYPE_CHECKING:
-    from mecanum_jax.task.env import MecanumEnv
+    from mecanum_jax.task.protocol import TaskEnv
 
 Policy = Callable[[Any, jax.Array], tuple[jax.Array, dict[str, Any]]]
 
@@ -70,20 +70,20 @@ desaturation (the baseline), the same with nearest-feasible desaturation, and
 :class:`FeedbackConfig`'s closed loop."""
 
 
-def baseline_rates(env: MecanumEnv, command: jax.Array) -> jax.Array:
+def baseline_rates(env: TaskEnv, command: jax.Array) -> jax.Array:
     """The analytic baseline: the nominal inverse model, desaturated to the rate limits."""
     twist, _ = limits.desaturate(env.geometry, command, env.max_rates)
     return kinematics.apply_rows(env.jacobian, twist)
 
 
-def nearest_rates(env: MecanumEnv, twist: jax.Array) -> jax.Array:
+def nearest_rates(env: TaskEnv, twist: jax.Array) -> jax.Array:
     """Wheel rates of the feasible twist nearest ``twist`` (nominal geometry)."""
     w = env.config.feedback.omega_weight
     feasible = limits.nearest_feasible(env.geometry, twist, env.max_rates, w)
     return kinematics.apply_rows(env.jacobian, feasible)
 
 
-def feasible_target(env: MecanumEnv, command: jax.Array, radius_scale: jax.Array) -> jax.Array:
+def feasible_target(env: TaskEnv, command: jax.Array, radius_scale: jax.Array) -> jax.Array:
     """The nearest feasible twist to ``command`` (..., 3) for the robot as it really is
     (wheel radii scaled by ``radius_scale`` (n,), the rate limits), in the reference
     controllers' metric: the target of the steady-state error."""
@@ -92,7 +92,7 @@ def feasible_target(env: MecanumEnv, command: jax.Array, radius_scale: jax.Array
     return limits.nearest_feasible(geom, command, env.max_rates, w)
 
 
-def feedback_twist(env: MecanumEnv, info: dict[str, Any]) -> tuple[jax.Array, jax.Array]:
+def feedback_twist(env: TaskEnv, info: dict[str, Any]) -> tuple[jax.Array, jax.Array]:
     """The PI-corrected twist command, and the yaw-rate error it corrects."""
     kp = info["feedback_gains"][0]
     command = info["command"]
@@ -101,7 +101,7 @@ def feedback_twist(env: MecanumEnv, info: dict[str, Any]) -> tuple[jax.Array, ja
     return command + jnp.asarray([0.0, 0.0, 1.0]) * u, err
 
 
-def feedback_integral(env: MecanumEnv, info: dict[str, Any]) -> jax.Array:
+def feedback_integral(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
     """The feedback controller's integrator after this step (see :class:`FeedbackConfig`)."""
     _, ki, i_max = info["feedback_gains"]
     twist, err = feedback_twist(env, info)
@@ -114,12 +114,12 @@ def feedback_integral(env: MecanumEnv, info: dict[str, Any]) -> jax.Array:
     return jnp.where(hold, info["feedback_integral"], grown)
 
 
-def feedback_rates(env: MecanumEnv, info: dict[str, Any]) -> jax.Array:
+def feedback_rates(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
     """The ``feedback`` reference's wheel-rate setpoints for the state's ``info``."""
     return nearest_rates(env, feedback_twist(env, info)[0])
 
 
-def reference_rates(env: MecanumEnv, reference: int | jax.Array, info: dict[str, Any]) -> jax.Array:
+def reference_rates(env: TaskEnv, reference: int | jax.Array, info: dict[str, Any]) -> jax.Array:
     """Wheel-rate setpoints of reference controller ``reference`` (an index into
     :data:`REFERENCES`; a Python int computes only that one) for the state's ``info``."""
     candidates = (
@@ -133,7 +133,7 @@ def reference_rates(env: MecanumEnv, reference: int | jax.Array, info: dict[str,
     return jnp.select([index == i for i in range(len(candidates))], [c() for c in candidates])
 
 
-def baseline_policy(env: MecanumEnv) -> Policy:
+def baseline_policy(env: TaskEnv) -> Policy:
     """The analytic baseline behind the learned-policy interface ``(obs, key) -> (action, {})``.
 
     With residual actions it is the zero residual; otherwise it outputs the desaturated

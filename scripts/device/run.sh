@@ -78,7 +78,7 @@ package() {  # RUN_DIR MODEL_DIR MINUTES "flags" [SEED]: the run's policy (of tr
   rm -rf "$2"
   python3 - "$1" "$2" "$3" "$4" "$commit" "$device" "$seed" <<'PY'
 import json, sys
-from train.evaluate import export_main
+from train.export import export_main
 run, model, minutes, extra, commit, device, seed = sys.argv[1:8]
 s = json.load(open(f"{run}/summary.json"))
 command = f"mecanum-train --config gpu --max-minutes {minutes} {extra}".strip()

@@ -1,0 +1,104 @@
+"""What ``mecanum-eval`` shows and draws: its console tables and its plots.
+
+``results`` is the report's ``scenarios`` mapping (:func:`train.evaluate.evaluate`): per
+scenario, each controller's summary and the paired comparisons.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from rich.table import Table
+
+from mecanum_jax.evaluation import rollout as ev
+from mecanum_jax.task import REFERENCES
+
+TABLE = (
+    ("RMSE v", "rmse_lin", "{:.3f}"),
+    ("RMSE ωz", "rmse_wz", "{:.3f}"),
+    ("ss v", "ss_lin", "{:.3f}"),
+    ("ss ωz", "ss_wz", "{:.3f}"),
+    ("settle v s", "settle_lin_s", "{:.2f}"),
+    ("settle ω s", "settle_wz_s", "{:.2f}"),
+    ("drift m", "drift_m", "{:.3f}"),
+    ("energy J", "energy_j", "{:.0f}"),
+    ("null J", "null_energy_j", "{:.1f}"),
+)
+
+
+def results_table(results: dict[str, Any], title: str) -> Table:
+    """Every controller per scenario; the best tracking figure of each scenario in green.
+
+    v in m/s, ωz in rad/s; ``ss``: steady-state error against the nearest feasible twist.
+    """
+    table = Table(title=title)
+    for c in ("scenario", "who", *(c for c, _, _ in TABLE)):
+        table.add_column(c, justify="left" if c in ("scenario", "who") else "right")
+    for name, r in results.items():
+        players = [w for w in ("policy", *REFERENCES) if w in r]
+        for i, who in enumerate(players):
+            cells = []
+            for _, key, fmt in TABLE:
+                v = r[who].get(key)
+                text = "-" if v is None else fmt.format(v)
+                values = [r[w].get(key) for w in players if r[w].get(key) is not None]
+                if (
+                    v is not None
+                    and len(values) > 1
+                    and key != "null_energy_j"
+                    and v == min(values)
+                ):
+                    text = f"[green]{text}[/]"
+                cells.append(text)
+            table.add_row(name if i == 0 else "", who, *cells)
+    return table
+
+
+def comparison_table(results: dict[str, Any], pair: str) -> Table:
+    """``pair`` (e.g. ``policy/analytic``) ratios with 95% intervals per scenario; green
+    where the interval lies wholly below 1 (better), red wholly above (worse)."""
+    keys = ("ss_lin", "ss_wz", "rmse_lin", "rmse_wz", "settle_wz_s", "drift_m", "energy_j")
+    table = Table(title=f"{pair}: ratio [95% paired bootstrap interval]")
+    table.add_column("scenario")
+    for k in keys:
+        table.add_column(k, justify="right")
+    for name, r in results.items():
+        cmp = r.get("compare", {}).get(pair)
+        if cmp is None:
+            continue
+        cells = []
+        for k in keys:
+            c = cmp.get(k)
+            if c is None:
+                cells.append("-")
+                continue
+            text = f"{c['ratio']:.2f} [{c['lo']:.2f},{c['hi']:.2f}]"
+            color = {"better": "green", "worse": "red"}.get(str(c["verdict"]))
+            cells.append(f"[{color}]{text}[/]" if color else text)
+        table.add_row(name, *cells)
+    return table
+
+
+def write_plots(
+    results: dict[str, Any], traces: dict[str, dict[str, ev.Trace]], dt: float, out: Path
+) -> list[Path]:
+    paths = [
+        ev.plot_errors(
+            {n: {w: r[w] for w in ("policy", *REFERENCES) if w in r} for n, r in results.items()},
+            out / "errors.png",
+        ),
+        ev.plot_trajectories(
+            traces, dt, {n: r["scripted"] for n, r in results.items()}, out / "trajectories.png"
+        ),
+    ]
+    for name, per in traces.items():
+        paths.append(
+            ev.plot_twist(
+                per, dt, f"{name}: {results[name]['description']}", out / f"twist_{name}.png"
+            )
+        )
+    return paths
+
+
+__all__ = ["comparison_table", "results_table", "write_plots"]

@@ -1,0 +1,188 @@
+"""``mecanum-export``: write a trained policy for deployment.
+
+Examples::
+
+    mecanum-export runs/gpu-... policy.npz                  # weights + normalizer, for NumPy
+    mecanum-export runs/gpu-.../checkpoints/40 policy.npz --seed 1
+    mecanum-export models/o_rectangle policy.onnx --format onnx  # one ONNX graph
+    mecanum-export runs/gpu-... models/mine --model         # a model directory, like a run
+
+``policy.npz`` holds the policy network's weights, the observation normalizer and the
+control loop's constants; ``mecanum_policy.py`` (NumPy inference,
+``mecanum_jax.deploy.policy``) is copied beside it. ``--format onnx`` writes one ONNX graph
+from raw observations to actions and wheel-rate setpoints (``mecanum_jax.deploy.onnx``).
+``--model`` packs one checkpoint as a model directory that ``mecanum-eval`` and
+``mecanum-export`` read like a run directory (:func:`train.checkpoint.package_model`).
+``mecanum-eval ... --export`` writes the same ``policy.npz`` beside its report.
+
+An existing output is never overwritten. Exit code 2: bad input (arguments, checkpoint).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+import sys
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import tyro
+from rich.console import Console
+
+from mecanum_jax.config import ConfigError
+from mecanum_jax.deploy import policy as deploy
+from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.sim.description import fingerprint
+from mecanum_jax.sim.physics import GRAVITY
+from mecanum_jax.task import MecanumEnv
+from train import checkpoint
+
+console = Console(stderr=True)
+
+
+@dataclasses.dataclass
+class ExportArgs:
+    """Write a trained policy: a small NumPy file (weights + observation normalizer), or a
+    model directory (``--model``) that mecanum-eval and mecanum-export read like a run."""
+
+    run: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN")]
+    """A run directory (latest checkpoint) or ``<run>/checkpoints/<epoch>``."""
+    out: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="OUT")]
+    """The file to write: ``.npz`` (``mecanum_policy.py``, NumPy inference, is copied beside
+    it) or, with ``--format onnx``, ``.onnx``; with ``--model``, the directory to create."""
+    format: Literal["npz", "onnx"] = "npz"
+    """``npz``: weights and normalizer for the NumPy module; ``onnx``: one ONNX graph from
+    raw observations to actions and wheel-rate setpoints (normalizer, clip and the
+    baseline inside; needs the ``onnx`` extra)."""
+    seed: int | None = None
+    """Which of the run's training seeds (default: the first)."""
+    epoch: int | None = None
+    """Which checkpoint (default: the latest)."""
+    model: bool = False
+    """Write a model directory: the policy's checkpoint (no optimizer-free copy is made:
+    the training state of that epoch, without the environment state), the resolved config,
+    ``provenance.json`` and the NumPy export."""
+    provenance: tuple[str, ...] = ()
+    """``--model``: KEY=VALUE pairs for provenance.json (e.g. command=..., device=...)."""
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``mecanum-export RUN OUT``: see the module docstring."""
+    checkpoint.quiet_closed_loop_noise()
+    argv = sys.argv[1:] if argv is None else argv
+    args = tyro.cli(ExportArgs, args=argv, prog="mecanum-export")
+    try:
+        suffix = "." + args.format
+        if args.model and args.format != "npz":
+            raise ConfigError(f"--format = {args.format!r}: --model writes its own npz export")
+        if not args.model and not args.out.endswith(suffix):
+            raise ConfigError(
+                f"out = {args.out!r}: expected a {suffix} file name for --format {args.format}"
+                + (" (or --model)" if args.format == "npz" else "")
+            )
+        if Path(args.out).exists():
+            raise ConfigError(f"out = {args.out!r}: already exists; never overwritten")
+        extra = {}
+        for item in args.provenance:
+            key, sep, value = item.partition("=")
+            if not sep or not key:
+                raise ConfigError(f"--provenance {item!r}: expected KEY=VALUE")
+            extra[key] = value
+        run_dir, epoch = checkpoint.split_target(args.run)
+        restored = checkpoint.restore_policy(run_dir, args.seed, epoch or args.epoch)
+    except (ConfigError, checkpoint.CheckpointError) as err:
+        _error(err)
+        return 2
+    if args.model:
+        out = checkpoint.package_model(restored, Path(args.out), extra)
+        export_policy(restored, out / "policy.npz")
+        console.log(f"wrote model directory {out}")
+        return 0
+    if args.format == "onnx":
+        try:
+            path = export_onnx(restored, Path(args.out))
+        except ImportError as err:
+            _error(
+                ConfigError(
+                    f"--format onnx: {err}; install the extra: pip install 'mecanum-jax[onnx]'"
+                )
+            )
+            return 2
+        console.log(f"wrote {path}")
+        return 0
+    path = export_policy(restored, Path(args.out))
+    console.log(f"wrote {path} and {path.with_name('mecanum_policy.py')}")
+    return 0
+
+
+def export_policy(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
+    """Write ``policy.npz`` (weights, normalizer, control-loop constants) and copy the
+    NumPy inference module beside it as ``mecanum_policy.py``."""
+    path = deploy.save(path, *_policy_arrays(restored))
+    shutil.copyfile(deploy.__file__, path.with_name("mecanum_policy.py"))
+    return path
+
+
+def export_onnx(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
+    """Write the policy and its control loop as one ONNX graph (``mecanum_jax.deploy.onnx``)."""
+    from mecanum_jax.deploy import onnx as onnx_export
+
+    return onnx_export.write_onnx(deploy.NumpyPolicy(*_policy_arrays(restored)), path)
+
+
+def _policy_arrays(
+    restored: checkpoint.RestoredPolicy,
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray, np.ndarray, dict[str, Any]]:
+    """The exported policy's layers, normalizer mean and std, and metadata."""
+    cfg = restored.cfg
+    env = MecanumEnv(dataclasses.replace(cfg.env, physics_impl="jax"))  # shapes only
+    layers_tree = restored.params["params"]
+    names = sorted(layers_tree, key=lambda n: int(n.rsplit("_", 1)[-1]))
+    layers = [
+        (np.asarray(layers_tree[n]["kernel"]), np.asarray(layers_tree[n]["bias"])) for n in names
+    ]
+    size = env.observation_size["state"][0]
+    if cfg.ppo.normalize_observations:
+        mean = np.asarray(restored.normalizer.mean["state"])
+        std = np.asarray(restored.normalizer.std["state"])
+    else:
+        mean, std = np.zeros(size, np.float32), np.ones(size, np.float32)
+    meta = {
+        "robot": env.desc.robot.name,
+        "robot_fingerprint": fingerprint(env.desc),
+        "wheels": list(env.geometry.names),
+        "activation": cfg.network.activation,
+        "action_size": env.action_size,
+        "observation_layout": [list(x) for x in env.layout],
+        "residual": cfg.env.residual,
+        "residual_scale": cfg.env.residual_scale,
+        "residual_space": cfg.env.residual_space,
+        "residual_base": cfg.env.residual_base,
+        "feedback": dataclasses.asdict(cfg.env.feedback),
+        "yaw_integral_tau": cfg.env.yaw_integral_tau,
+        "action_filter": cfg.env.action_filter,
+        "clip_observations": cfg.ppo.clip_observations,
+        "max_rates": np.asarray(env.max_rates).tolist(),
+        "command_scale": np.asarray(env.command_scale).tolist(),
+        "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),
+        "forward_matrix": np.asarray(kinematics.forward_matrix(env.geometry)).tolist(),
+        "gravity": GRAVITY,
+        "control_dt": cfg.env.control_dt,
+        "source": {"run": str(restored.run_dir), "epoch": restored.epoch, "seed": restored.seed},
+    }
+    return layers, mean, std, meta
+
+
+def _error(err: BaseException) -> None:
+    console.print(f"[bold red]error:[/] {err}", soft_wrap=True, markup=True, highlight=False)
+
+
+export_main = main
+"""``main`` under the name the device runner's ``package`` step imports."""
+
+__all__ = ["ExportArgs", "export_main", "export_onnx", "export_policy", "main"]
+
+
+if __name__ == "__main__":
+    sys.exit(main())
