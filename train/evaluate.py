@@ -397,9 +397,11 @@ def write_videos(
 
 def export_policy(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
     """Write ``policy.npz`` (weights, normalizer, control-loop constants) and copy the
-    NumPy inference module beside it as ``mecanum_policy.py``."""
+    NumPy inference module and its control loop beside it as ``mecanum_policy.py`` and
+    ``mecanum_loop.py``."""
     path = deploy.save(path, *_policy_arrays(restored))
     shutil.copyfile(deploy.__file__, path.with_name("mecanum_policy.py"))
+    shutil.copyfile(Path(deploy.__file__).with_name("loop.py"), path.with_name("mecanum_loop.py"))
     return path
 
 
