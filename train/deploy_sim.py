@@ -309,6 +309,7 @@ def table(result: dict[str, Any]) -> Table:
         title=f"mecanum-deploy-sim {result['model']}: {result['backend']} loop, "
         f"{result['fidelity']} model, {result['episodes']} episodes",
         caption=result["scenario"],
+        min_width=88,
     )
     t.add_column("metric")
     t.add_column("value", justify="right")
