@@ -245,8 +245,7 @@ def test_deploy_sim_cli_constant_command(tmp_path, capsys):
     assert 0 < s["ss_lin"] < 0.05
     assert 0 < s["ss_wz"] < 0.15
     assert s["unstable"] == 0
-    lo, hi = r["interval95"]["ss_lin"]
-    assert lo <= s["ss_lin"] <= hi
+    assert r["interval95"]["ss_lin"] is None  # no interval from one episode
 
 
 @pytest.mark.full  # mecanum-eval's rollout compiles for a minute or more on 2 cores

@@ -298,7 +298,12 @@ def report(trace: ev.Trace, eps: Episodes, args: DeploySimArgs) -> dict[str, Any
         "latency": eps.latency.tolist(),
         "noise_std": eps.noise_std[0].tolist() if len(eps.noise_std) else [],
         "summary": summary,
-        "interval95": {k: metrics.bootstrap_interval(parts[k], args.bootstrap) for k in INTERVALS},
+        "interval95": {  # none from a single episode
+            k: metrics.bootstrap_interval(parts[k], args.bootstrap)
+            if len(trace.command) > 1
+            else None
+            for k in INTERVALS
+        },
         "per_episode": per_episode,
     }
 
@@ -307,7 +312,7 @@ def table(result: dict[str, Any]) -> Table:
     """The figures in mecanum-eval's columns; the tracking ones with their interval."""
     t = Table(
         title=f"mecanum-deploy-sim {result['model']}: {result['backend']} loop, "
-        f"{result['fidelity']} model, {result['episodes']} episodes",
+        f"{result['fidelity']} model, {_count(result['episodes'], 'episode')}",
         caption=result["scenario"],
         min_width=88,
     )
@@ -322,6 +327,10 @@ def table(result: dict[str, Any]) -> Table:
     unstable = result["summary"].get("unstable") or 0
     t.add_row("unstable", f"{unstable:.0f}", "")
     return t
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
 def _error(err: BaseException) -> None:
@@ -350,7 +359,7 @@ def main(argv: list[str] | None = None) -> int:
         else Path(f"runs/deploy-sim-{Path(args.model).name}-{time.strftime('%Y%m%d-%H%M%S')}.json")
     )
     console.log(
-        f"{eps.description}: {eps.commands.shape[0]} episodes of {eps.commands.shape[1]} "
+        f"{eps.description}: {_count(eps.commands.shape[0], 'episode')} of {eps.commands.shape[1]} "
         f"control steps, {args.backend} loop, {args.fidelity} model in C MuJoCo "
         f"({round(eps.control_dt / plant.dt)} physics steps of {plant.dt * 1e3:g} ms per period)"
     )
