@@ -193,6 +193,62 @@ def test_onnx_backend_drives_the_plant_as_the_numpy_one(shipped_task, controller
     assert np.abs(runs[0]).max() > 5  # the wheels were driven
 
 
+def test_plant_writes_the_robots_parameters_into_c_mujoco(shipped_task):
+    """A payload moves the chassis' centre of mass (C MuJoCo would keep a "same frame"
+    body's at its origin), friction, torque limits and smaller wheels reach the model."""
+    import mujoco
+
+    plant = Plant(shipped_task.description(), "fast")
+    nominal = PlantParams.nominal(plant.desc, 4)
+    params = dataclasses.replace(
+        nominal, payload_mass=3.0, payload_com=np.array([0.06, 0.04, 0.03]),
+        friction=np.full(4, 0.2), torque_limit=np.full(4, 1.5), radius_scale=np.full(4, 0.96),
+    )  # fmt: skip
+    plant.reset(params)
+    m, d, c = plant.model, plant.data, plant.index.chassis_body
+    mujoco.mj_forward(m, d)
+    com = d.xipos[c] - d.xpos[c]
+    np.testing.assert_allclose(
+        com, 3.0 * params.payload_com / (3.0 + plant.nominal_model.body_mass[c])
+    )
+    g = plant.index.wheel_geoms[:, 0]
+    np.testing.assert_allclose(m.geom_friction[g, 0], 0.2)
+    np.testing.assert_allclose(m.geom_size[g, 0], 0.048, rtol=1e-6)
+    assert d.qpos[plant.index.free_qpos + 2] == pytest.approx(0.048, abs=1e-7)  # on its wheels
+    plant.reset(nominal)  # and back
+    mujoco.mj_forward(plant.model, plant.data)
+    np.testing.assert_allclose(plant.data.xipos[c], plant.data.xpos[c], atol=1e-12)
+
+
+@pytest.mark.full  # MJX compiles the robot's step for tens of seconds on 2 cores
+def test_plant_steps_as_the_mjx_robot(shipped_task):
+    """C MuJoCo and MJX step the same robot with the same servos: nominal, with a payload
+    off centre, and on wheels of unequal, smaller radii, from rest under setpoints that
+    saturate the servos; within 1e-3 over 0.2 s. (Up to 0.05 m/s apart when the payload
+    left C MuJoCo's centre of mass at the chassis origin, and 0.33 when the smaller
+    wheels' start was computed in float64: see Plant.reset.)"""
+    from mecanum_jax.kinematics import model as kinematics
+    from mecanum_jax.sim.physics import Robot
+
+    desc = shipped_task.description()
+    robot, plant = Robot(desc, "fast"), Plant(desc, "fast")
+    rates = np.asarray(kinematics.inverse(robot.geometry, jnp.array([0.4, 0.2, 1.0])))
+    step = jax.jit(lambda s, p: robot.step(s, rates, p, 4))
+    cases = [
+        {},
+        {"payload_mass": 2.75, "payload_com": jnp.array([0.06, 0.04, 0.03])},
+        {"radius_scale": jnp.array([0.96, 0.95, 0.97, 0.955])},
+    ]
+    for overrides in cases:
+        params = robot.nominal_params(**overrides)
+        state = robot.reset(params)
+        plant.reset(PlantParams.of(jax.tree.map(lambda x: x[None], params), 0))
+        for _ in range(10):
+            state = step(state, params)
+            twist = plant.step(rates, 0.02).twist
+            np.testing.assert_allclose(twist, robot.sensors(state).twist, atol=1e-3)
+
+
 def test_the_copied_loop_runs_beside_the_export_without_jax(tmp_path):
     """What mecanum-export writes beside policy.npz runs on its own: NumPy only."""
     shutil.copy(MODEL / "policy.npz", tmp_path)

@@ -15,7 +15,10 @@ and evaluated on, through another engine:
   the implicit integrator;
 - the fast model's carrier hinges set back to zero before every physics step;
 - sensors: encoder rates, gyro z, the accelerometer's specific force finite-differenced
-  over the control period (body frame), and, for the metrics only, pose and true twist.
+  over the control period (body frame), and, for the metrics only, pose and true twist;
+- per-robot parameters written into a copy of the model (``Robot.model_for``); where C
+  MuJoCo differs from MJX in how it reads them, the plant follows MJX (a payload's centre
+  of mass, the float32 start on smaller wheels: see :meth:`Plant.reset`).
 
 :class:`SensorChannel` adds what a real robot's sensors add, as the training environment
 does: Gaussian noise and a latency of whole control periods.
@@ -109,8 +112,12 @@ class Plant:
         self.model = _model_for(self.nominal_model, self.index, self.fidelity, params)
         self.data = mujoco.MjData(self.model)
         f = self.index.free_qpos
-        # wheels with a radius error stand the chassis higher or lower (Robot.reset)
-        self.data.qpos[f + 2] += np.max(params.radius_scale * self._radii) - np.max(self._radii)
+        # wheels with a radius error stand the chassis higher or lower (Robot.reset). In
+        # float32, as MJX computes it: the wheels start exactly touching the floor, and
+        # whether the first step's contact acts turns on the last bit of that distance
+        f32 = np.float32
+        r = np.max(f32(params.radius_scale) * f32(self._radii))
+        self.data.qpos[f + 2] = f32(f32(self.data.qpos[f + 2]) + (r - f32(np.max(self._radii))))
         self.initial_qpos = self.data.qpos.copy()
         mujoco.mj_forward(self.model, self.data)
         self.setpoint = np.zeros(self.n_wheels)
@@ -246,6 +253,8 @@ def _model_for(
 
     m.body_mass[c] = mb + mp
     m.body_ipos[c] = com
+    if not np.allclose(com, ipos):  # C MuJoCo takes a "same frame" body's xipos from xpos
+        m.body_sameframe[c] = mujoco.mjtSameFrame.mjSAMEFRAME_NONE
     m.body_inertia[c] = inertia + point(mb, ipos - com) + point(mp, p.payload_com - com)
     acts = idx.actuators
     m.actuator_forcerange[acts] = np.stack([-p.torque_limit, p.torque_limit], -1) * CHORD_RANGE
@@ -253,7 +262,7 @@ def _model_for(
     m.geom_rbound[g] *= scale  # the broadphase's bound grows with the wheel
     m.geom_aabb[g] *= scale[..., None]
     if fidelity == "fast":
-        m.geom_size[g[:, 0], 0] *= p.radius_scale
+        m.geom_size[g[:, 0], 0] = np.float32(m.geom_size[g[:, 0], 0]) * np.float32(p.radius_scale)
     else:  # the whole roller ring scales about the axle
         m.geom_size[g, 0] *= scale
         m.geom_size[g, 1] *= scale
