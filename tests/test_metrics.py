@@ -131,3 +131,19 @@ def test_undefined_ratios_and_bad_inputs():
         metrics.paired_ratio(_part([1, 2, 3]), _part([1, 2]))
     with pytest.raises(ValueError, match=r"metrics.settle_s = -1"):
         metrics.MetricConfig(settle_s=-1).validate()
+
+
+def test_bootstrap_interval_of_one_controller():
+    """The interval of a pooled metric over resampled episodes: it holds the pooled value,
+    is a point where every episode agrees, widens with the spread, and is undefined
+    where no step counts."""
+    rng = np.random.default_rng(3)
+    spread = metrics.Part(rng.uniform(0, 2, 40), np.ones(40), "rms")
+    lo, hi = metrics.bootstrap_interval(spread)
+    assert lo < spread.value() < hi
+    same = metrics.Part(np.full(40, 0.25), np.ones(40), "rms")
+    assert metrics.bootstrap_interval(same) == pytest.approx((0.5, 0.5))
+    wider = metrics.Part(rng.uniform(0, 8, 40), np.ones(40), "rms")
+    lo_w, hi_w = metrics.bootstrap_interval(wider)
+    assert hi_w - lo_w > hi - lo
+    assert metrics.bootstrap_interval(metrics.Part(np.zeros(5), np.zeros(5), "rms")) is None

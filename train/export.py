@@ -121,6 +121,7 @@ def export_policy(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
     NumPy inference module beside it as ``mecanum_policy.py``."""
     path = deploy.save(path, *_policy_arrays(restored))
     shutil.copyfile(deploy.__file__, path.with_name("mecanum_policy.py"))
+    shutil.copyfile(Path(deploy.__file__).with_name("loop.py"), path.with_name("mecanum_loop.py"))
     return path
 
 

@@ -288,6 +288,23 @@ def paired_ratio(
     return Comparison(va / vb, float(lo), float(hi))
 
 
+def bootstrap_interval(
+    part: Part, n_boot: int = 2000, level: float = 0.95, seed: int = 0
+) -> tuple[float, float] | None:
+    """A percentile bootstrap interval of one controller's pooled metric: its episodes
+    resampled with replacement (:func:`bootstrap_weights`). ``None`` where undefined."""
+    W = bootstrap_weights(len(part.num), n_boot, seed)
+    den = W @ part.den
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v = np.where(den > 0, (W @ part.num) / den, np.nan)
+    v = (np.sqrt(v) if part.kind == "rms" else v)[np.isfinite(v)]
+    if len(v) == 0:
+        return None
+    q = (1 - level) / 2
+    lo, hi = np.quantile(v, [q, 1 - q])
+    return float(lo), float(hi)
+
+
 def verdict(c: Comparison | None, lower_is_better: bool = True) -> str:
     """``"better"`` / ``"worse"`` only where the whole interval excludes 1; else ``"tie"``."""
     if c is None:
@@ -307,6 +324,7 @@ __all__ = [
     "Comparison",
     "MetricConfig",
     "Part",
+    "bootstrap_interval",
     "bootstrap_weights",
     "episode_parts",
     "null_space_projector",

@@ -1,0 +1,387 @@
+"""``mecanum-deploy-sim``: rehearse a deployment — the exported policy in its NumPy
+control loop (``mecanum_jax.deploy.loop``, as a robot would run it, at the control rate)
+driving the robot in plain C MuJoCo (``mecanum_jax.deploy.plant``), scored with
+mecanum-eval's metrics.
+
+Examples::
+
+    mecanum-deploy-sim                                   # models/o_rectangle, nominal scenario
+    mecanum-deploy-sim models/o_rectangle --backend onnx --fidelity reference
+    mecanum-deploy-sim --scenario sensor_noise --episodes 8
+    mecanum-deploy-sim --command 0.3 0 0.5 --seconds 5 --latency 2 --noise-scale 1
+
+The episodes are mecanum-eval's: the scenario's seeded command sequences and robots
+(``configs/eval/default.toml``; JAX prepares them, as it does for mecanum-eval, before
+the loop starts), so the figures are comparable episode for episode: ``ss v``, ``ss ωz``
+(steady-state error against the nearest feasible twist of the true robot) and the rest
+of mecanum-eval's table, each pooled figure with a 95% bootstrap interval over the
+episodes. Sensors are exact unless the scenario or ``--noise-scale`` / ``--latency`` add
+noise and delay. Nothing in the loop imports JAX: the controller sees only readings.
+Exit codes: 2 bad input, 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import tyro
+from rich.console import Console
+from rich.table import Table
+
+from mecanum_jax.config import ConfigError
+from mecanum_jax.deploy.loop import Controller
+from mecanum_jax.deploy.plant import Plant, PlantParams, SensorChannel
+from mecanum_jax.deploy.policy import ExportError
+from mecanum_jax.evaluation import metrics
+from mecanum_jax.evaluation import rollout as ev
+
+console = Console(stderr=True)
+DEFAULT_MODEL = "models/o_rectangle"
+
+
+@dataclasses.dataclass
+class DeploySimArgs:
+    """Run an exported policy's NumPy control loop against the robot in C MuJoCo."""
+
+    model: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="MODEL")] = DEFAULT_MODEL
+    """A model directory: ``config.json`` (the task) and ``policy.npz`` (and
+    ``policy.onnx`` for ``--backend onnx``), as ``mecanum-export --model`` writes it."""
+    backend: Literal["numpy", "onnx"] = "numpy"
+    """The policy's runtime: the NumPy module, or the ONNX graph in onnxruntime."""
+    fidelity: Literal["fast", "reference"] = "fast"
+    """The robot model: ``fast`` (the one the policy was trained and is evaluated on) or
+    ``reference`` (10 passive rollers per wheel, 1 ms steps)."""
+    scenarios: str = "default"
+    """Scenario file: a name in configs/eval/ or a path to a .toml file."""
+    scenario: str | None = None
+    """The scenario whose episodes (robots, commands, sensors) are played (default:
+    ``nominal``)."""
+    episodes: int | None = None
+    """Override the scenario's number of episodes."""
+    seconds: float | None = None
+    """Override the episode length (with --command: its length, default 5 s)."""
+    command: tuple[float, float, float] | None = None
+    """A constant command (vx m/s, vy m/s, ωz rad/s) instead of the scenario's; the
+    nominal robot."""
+    noise_scale: float | None = None
+    """Sensor noise: this multiple of the task's [env.noise] (default: the scenario's)."""
+    latency: int | None = None
+    """Sensor latency, control periods (default: the scenario's)."""
+    seed: int = 0
+    """Seed of the sensor noise."""
+    settle_s: float = 0.5
+    """Steady-state error counts control steps at least this long after a command change."""
+    bootstrap: int = 2000
+    """Bootstrap resamples of the intervals."""
+    out: str | None = None
+    """Write the figures as JSON here (never overwritten)."""
+
+
+@dataclasses.dataclass
+class Episodes:
+    """What the rehearsal plays, per episode (NumPy)."""
+
+    commands: np.ndarray  # (E, T, 3)
+    params: list[PlantParams]
+    latency: np.ndarray  # (E,) control periods
+    noise_std: np.ndarray  # (E, 3) wheel rate, gyro, accel
+    targets: np.ndarray  # (E, T, 3) the nearest feasible twist of the true robot
+    scripted: bool
+    jacobian: np.ndarray
+    control_dt: float
+    description: str
+
+
+def _check(args: DeploySimArgs) -> None:
+    for name in ("episodes", "latency"):
+        v = getattr(args, name)
+        if v is not None and not (
+            isinstance(v, int) and 0 <= v <= 4096 and v >= (name == "episodes")
+        ):
+            raise ConfigError(
+                f"--{name} = {v}: must be an integer in [{int(name == 'episodes')}, 4096]"
+            )
+    if args.seconds is not None and not 0 < args.seconds <= 600:
+        raise ConfigError(f"--seconds = {args.seconds}: must be in (0, 600]")
+    if args.noise_scale is not None and not (
+        np.isfinite(args.noise_scale) and args.noise_scale >= 0
+    ):
+        raise ConfigError(f"--noise-scale = {args.noise_scale}: must be finite and >= 0")
+    if args.command is not None and not all(np.isfinite(args.command)):
+        raise ConfigError(f"--command = {list(args.command)}: must be finite (m/s, m/s, rad/s)")
+    if args.command is not None and args.scenario is not None:
+        raise ConfigError(
+            f"--scenario = {args.scenario!r}: not with --command (a constant command)"
+        )
+    if not (np.isfinite(args.settle_s) and args.settle_s >= 0):
+        raise ConfigError(f"--settle-s = {args.settle_s}: must be >= 0")
+    if args.bootstrap < 100:
+        raise ConfigError(f"--bootstrap = {args.bootstrap}: must be >= 100")
+    if args.out is not None and Path(args.out).exists():
+        raise ConfigError(f"--out = {args.out!r}: already exists; never overwritten")
+
+
+def load_model(args: DeploySimArgs) -> tuple[Any, Controller]:
+    """The model directory's task config and a controller on the chosen backend."""
+    from train.config import load_train_config
+
+    model = Path(args.model)
+    if not model.is_dir():
+        raise ConfigError(f"model = {args.model!r}: no such directory")
+    suffix = "onnx" if args.backend == "onnx" else "npz"
+    for name in ("config.json", f"policy.{suffix}"):
+        if not (model / name).is_file():
+            raise ConfigError(
+                f"model = {args.model!r}: no {name} (a model directory from "
+                "`mecanum-export RUN DIR --model`"
+                + (
+                    ", with `mecanum-export DIR DIR/policy.onnx --format onnx`)"
+                    if suffix == "onnx"
+                    else ")"
+                )
+            )
+    cfg = load_train_config(model / "config.json")
+    controller = Controller.load(model / f"policy.{suffix}")
+    if controller.policy.meta.get("robot") not in (None, cfg.env.description().robot.name):
+        raise ConfigError(
+            f"model = {args.model!r}: policy for robot {controller.policy.meta['robot']!r}, "
+            f"config.json for {cfg.env.description().robot.name!r}"
+        )
+    return cfg, controller
+
+
+def episodes(args: DeploySimArgs, cfg: Any) -> Episodes:
+    """The scenario's episodes (or ``--command``'s), prepared as mecanum-eval prepares
+    them (JAX, before any control loop runs), with ``--latency`` and ``--noise-scale``."""
+    from mecanum_jax.precision import set_matmul_precision
+    from mecanum_jax.task import NoiseConfig
+
+    set_matmul_precision(cfg.run.matmul_precision, "run.matmul_precision")
+    eps = _scenario_episodes(args, cfg) if args.command is None else _command_episodes(args, cfg)
+    if args.latency is not None:
+        eps.latency = np.full(len(eps.commands), args.latency)
+    if args.noise_scale is not None:
+        std = np.asarray(NoiseConfig(scale=args.noise_scale).std(), float)
+        eps.noise_std = np.broadcast_to(std, eps.noise_std.shape).copy()
+    return eps
+
+
+def _scenario_episodes(args: DeploySimArgs, cfg: Any) -> Episodes:
+    import jax
+    import jax.numpy as jnp
+
+    from mecanum_jax.evaluation import scenarios
+    from mecanum_jax.task import MecanumEnv
+
+    chosen = scenarios.load_scenarios(args.scenarios).select(
+        [args.scenario or "nominal"], args.episodes, args.seconds
+    )
+    sc = chosen.scenarios[0]
+    task = dataclasses.replace(cfg.env, physics_impl="jax")
+    env = MecanumEnv(scenarios.eval_env_config(task, chosen))
+    batch = scenarios.prepare(env, sc)
+    commands = np.asarray(batch.commands, np.float32)
+    targets = jax.vmap(env.feasible_target)(jnp.asarray(commands), batch.params.radius_scale)
+    return Episodes(
+        commands=commands,
+        params=[PlantParams.of(batch.params, i) for i in range(len(commands))],
+        latency=np.asarray(batch.latency, int),
+        noise_std=np.asarray(batch.noise_std, float),
+        targets=np.asarray(targets),
+        scripted=sc.scripted,
+        jacobian=np.asarray(env.jacobian),
+        control_dt=env.config.control_dt,
+        description=f"{sc.name}: {sc.description}",
+    )
+
+
+def _command_episodes(args: DeploySimArgs, cfg: Any) -> Episodes:
+    """``--command`` held on the nominal robot; its target as ``MecanumEnv.feasible_target``
+    gives it (without building the MJX environment)."""
+    import jax.numpy as jnp
+
+    from mecanum_jax.kinematics import limits
+    from mecanum_jax.kinematics import model as kinematics
+
+    assert args.command is not None
+    desc = dataclasses.replace(cfg.env, physics_impl="jax").description()
+    geom = desc.build_geometry(warn_singular=False)
+    max_rates = desc.max_wheel_rates(geom).astype(jnp.float32)
+    command = jnp.asarray(args.command, jnp.float32)
+    target = limits.nearest_feasible(geom, command, max_rates, cfg.env.feedback.omega_weight)
+    E = args.episodes or 1
+    T = max(1, round((args.seconds or 5.0) / cfg.env.control_dt))
+    return Episodes(
+        commands=np.broadcast_to(np.asarray(command), (E, T, 3)).copy(),
+        params=[PlantParams.nominal(desc, geom.n_wheels)] * E,
+        latency=np.zeros(E, int),
+        noise_std=np.zeros((E, 3)),
+        targets=np.broadcast_to(np.asarray(target, np.float32), (E, T, 3)).copy(),
+        scripted=True,
+        jacobian=np.asarray(kinematics.jacobian(geom), np.float32),
+        control_dt=cfg.env.control_dt,
+        description=f"constant command {list(args.command)} on the nominal robot",
+    )
+
+
+def play(plant: Plant, controller: Controller, eps: Episodes, seed: int = 0) -> ev.Trace:
+    """Every episode through the control loop, one after another: a :class:`Trace` as
+    mecanum-eval records it (twist, pose, torques at the end of each control period)."""
+    E, T, _ = eps.commands.shape
+    n = plant.n_wheels
+    out = {k: np.zeros((E, T, 3)) for k in ("twist", "pose")}
+    out |= {k: np.zeros((E, T)) for k in ("energy_j", "saturated", "unstable")}
+    out |= {k: np.zeros((E, T, n)) for k in ("wheel_torque", "wheel_rate")}
+    start = np.zeros((E, 3))
+    for e in range(E):
+        m = plant.reset(eps.params[e])
+        channel = SensorChannel(eps.noise_std[e], int(eps.latency[e]), seed=seed * 100_003 + e)
+        reading = channel.reset(m)
+        controller.reset()
+        start[e] = m.pose
+        for t in range(T):
+            setpoints, _ = controller.step(eps.commands[e, t], *reading)
+            m = plant.step(setpoints, eps.control_dt)
+            reading = channel.read(m)
+            out["twist"][e, t], out["pose"][e, t] = m.twist, m.pose
+            out["wheel_torque"][e, t], out["wheel_rate"][e, t] = m.wheel_torque, m.wheel_rate
+            power = np.sum(np.abs(m.wheel_torque * m.wheel_rate))
+            out["energy_j"][e, t] = power * eps.control_dt
+            limit = plant.params.torque_limit
+            out["saturated"][e, t] = np.mean(np.abs(m.wheel_torque) >= 0.99 * limit)
+            out["unstable"][e, t] = plant.unstable
+    return ev.Trace(
+        command=eps.commands, target=eps.targets, start=start, qpos=np.zeros((E, T, 0)), **out
+    )
+
+
+TABLE = (
+    ("RMSE v", "rmse_lin", "{:.3f}"),
+    ("RMSE ωz", "rmse_wz", "{:.3f}"),
+    ("ss v", "ss_lin", "{:.3f}"),
+    ("ss ωz", "ss_wz", "{:.3f}"),
+    ("settle v s", "settle_lin_s", "{:.2f}"),
+    ("settle ω s", "settle_wz_s", "{:.2f}"),
+    ("drift m", "drift_m", "{:.3f}"),
+    ("energy J", "energy_j", "{:.0f}"),
+    ("null J", "null_energy_j", "{:.1f}"),
+)
+"""mecanum-eval's table columns (train/evaluate.py TABLE)."""
+INTERVALS = ("rmse_lin", "rmse_wz", "ss_lin", "ss_wz")
+
+
+def report(trace: ev.Trace, eps: Episodes, args: DeploySimArgs) -> dict[str, Any]:
+    """mecanum-eval's summary of the rehearsal, 95% bootstrap intervals over the episodes
+    of the tracking figures, and the per-episode steady-state errors."""
+    mcfg = metrics.MetricConfig(settle_s=args.settle_s)
+    dt = eps.control_dt
+    parts = ev.trace_parts(trace, eps.jacobian, dt, mcfg)
+    summary = ev.summarize(trace, dt, eps.scripted, eps.jacobian, mcfg, parts)
+    per_episode = {}
+    for key in ("ss_lin", "ss_wz"):
+        p = parts[key]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            per_episode[key] = np.sqrt(np.where(p.den > 0, p.num / p.den, np.nan)).tolist()
+    return {
+        "model": args.model,
+        "backend": args.backend,
+        "fidelity": args.fidelity,
+        "scenario": eps.description,
+        "episodes": int(eps.commands.shape[0]),
+        "seconds": round(eps.commands.shape[1] * dt, 6),
+        "latency": eps.latency.tolist(),
+        "noise_std": eps.noise_std[0].tolist() if len(eps.noise_std) else [],
+        "summary": summary,
+        "interval95": {  # none from a single episode
+            k: metrics.bootstrap_interval(parts[k], args.bootstrap)
+            if len(trace.command) > 1
+            else None
+            for k in INTERVALS
+        },
+        "per_episode": per_episode,
+    }
+
+
+def table(result: dict[str, Any]) -> Table:
+    """The figures in mecanum-eval's columns; the tracking ones with their interval."""
+    t = Table(
+        title=f"mecanum-deploy-sim {result['model']}: {result['backend']} loop, "
+        f"{result['fidelity']} model, {_count(result['episodes'], 'episode')}",
+        caption=result["scenario"],
+        min_width=88,
+    )
+    t.add_column("metric")
+    t.add_column("value", justify="right")
+    t.add_column("95% interval", justify="right")
+    for label, key, fmt in TABLE:
+        v = result["summary"].get(key)
+        ci = result["interval95"].get(key)
+        span = "" if ci is None else f"[{fmt.format(ci[0])}, {fmt.format(ci[1])}]"
+        t.add_row(label, "-" if v is None else fmt.format(v), span)
+    unstable = result["summary"].get("unstable") or 0
+    t.add_row("unstable", f"{unstable:.0f}", "")
+    return t
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
+def _error(err: BaseException) -> None:
+    console.print(f"[bold red]error:[/] {err}", soft_wrap=True, markup=True, highlight=False)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``mecanum-deploy-sim``: see the module docstring."""
+    argv = sys.argv[1:] if argv is None else argv
+    args = tyro.cli(DeploySimArgs, args=argv, prog="mecanum-deploy-sim")
+    t0 = time.time()
+    try:
+        _check(args)
+        cfg, controller = load_model(args)
+        eps = episodes(args, cfg)
+        plant = Plant(dataclasses.replace(cfg.env, physics_impl="jax").description(), args.fidelity)
+    except (ConfigError, ExportError) as err:
+        _error(err)
+        return 2
+    except ImportError as err:  # onnxruntime for --backend onnx
+        _error(ConfigError(f"--backend = {args.backend!r}: {err}"))
+        return 2
+    out = (
+        Path(args.out)
+        if args.out
+        else Path(f"runs/deploy-sim-{Path(args.model).name}-{time.strftime('%Y%m%d-%H%M%S')}.json")
+    )
+    console.log(
+        f"{eps.description}: {_count(eps.commands.shape[0], 'episode')} of {eps.commands.shape[1]} "
+        f"control steps, {args.backend} loop, {args.fidelity} model in C MuJoCo "
+        f"({round(eps.control_dt / plant.dt)} physics steps of {plant.dt * 1e3:g} ms per period)"
+    )
+    try:
+        t1 = time.time()
+        trace = play(plant, controller, eps, args.seed)
+    except KeyboardInterrupt:
+        console.print("[yellow]interrupted[/]: nothing written")
+        return 130
+    result = report(trace, eps, args)
+    result["wall_s"] = {"prepare": round(t1 - t0, 2), "loop": round(time.time() - t1, 2)}
+    Console(width=None if sys.stdout.isatty() else 120).print(table(result))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_name(out.name + ".partial")
+    partial.write_text(json.dumps(result, indent=1) + "\n")
+    partial.replace(out)
+    console.log(f"figures: {out} ({time.time() - t0:.0f} s)")
+    return 0
+
+
+__all__ = ["DeploySimArgs", "Episodes", "episodes", "load_model", "main", "play", "report"]
+
+
+if __name__ == "__main__":
+    sys.exit(main())
