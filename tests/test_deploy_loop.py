@@ -93,26 +93,71 @@ def _lockstep(env, ctrl, commands, latency, seed=0):
             raw = (action - f * np.asarray(state.info["last_action"])) / (1 - f)
             state = env.step(state, jnp.asarray(raw))  # applies f·last + (1 − f)·raw
             set_err = max(set_err, np.abs(robot.setpoints[-1] - setpoints).max())
-            integral = max(integral, abs(ctrl.values["yaw_error_integral"]))
+            integral = max(integral, *(abs(v) for v in ctrl.values.values()))
         return obs_err, set_err, integral
     finally:
         env.robot = robot.robot
 
 
 def test_the_loop_builds_the_environments_observations_tick_by_tick(shipped_task, controller):
-    """The shipped policy's task (twist residual, action filter 0.8, yaw integral τ = 1 s)
-    with sensor noise and one period of latency; the command changes twice. The loop's
-    observations and setpoints are the environment's, its yaw integral advanced with the
-    command tracked during the period that ended; a loop that advances it with the new
-    command is caught."""
+    """The shipped policy's task (a twist residual on the feedback controller, whose
+    integrator it observes; action filter 0.8) with sensor noise and one period of
+    latency; the command changes twice. The loop's observations and setpoints are the
+    environment's; a loop that does not advance the integrator is caught."""
     env = MecanumEnv(shipped_task)
     assert env.config.action_filter > 0
-    assert env.config.yaw_integral_tau > 0
+    assert "feedback_integral" in controller.states
     commands = np.repeat(np.array([[0.3, 0.0, 0.5], [0.0, -0.4, -1.5], [0.5, 0.2, 2.0]]), 4, 0)
     obs_err, set_err, integral = _lockstep(env, controller, commands.astype(np.float32), 1)
     assert obs_err < 1e-5
     assert set_err < 1e-3
-    assert integral > 0.01  # the integral (observed, so compared above) is exercised
+    assert integral > 0.01  # the integrator (observed, so compared above) is exercised
+
+    class FrozenIntegrator(Controller):
+        @policy_state("feedback_integral", "feedback_integral")
+        def _feedback_integral(self, value, tracked, reading):
+            return value
+
+    wrong = FrozenIntegrator(controller.policy)
+    obs_err, _, _ = _lockstep(env, wrong, commands.astype(np.float32), 1)
+    assert obs_err > 1e-3
+
+
+def _network_free(env):
+    """An export of ``env``'s task without a network (the action is tanh of the first
+    observation entries): the control loop's half, for tasks no shipped policy has."""
+    from mecanum_jax.kinematics import model as kinematics
+    from mecanum_jax.sim.physics import GRAVITY
+
+    cfg = env.config
+    meta = {
+        "activation": "tanh", "action_size": env.action_size, "residual": cfg.residual,
+        "residual_scale": cfg.residual_scale, "residual_space": cfg.residual_space,
+        "residual_base": cfg.residual_base, "feedback": dataclasses.asdict(cfg.feedback),
+        "yaw_integral_tau": cfg.yaw_integral_tau, "action_filter": cfg.action_filter,
+        "observation_layout": [list(x) for x in env.layout], "control_dt": cfg.control_dt,
+        "gravity": GRAVITY, "max_rates": np.asarray(env.max_rates).tolist(),
+        "command_scale": np.asarray(env.command_scale).tolist(),
+        "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),
+        "forward_matrix": np.asarray(kinematics.forward_matrix(env.geometry)).tolist(),
+    }  # fmt: skip
+    size = env.observation_size["state"][0]
+    return policy.NumpyPolicy([], np.zeros(size), np.ones(size), meta)
+
+
+def test_the_loop_keeps_the_leaky_yaw_integral_with_the_tracked_command(shipped_task):
+    """A policy that observes the leaky yaw-error integral (yaw_integral_tau = 1 s): the
+    loop advances it with the command tracked during the period that ended; a loop that
+    advances it with the new command is caught."""
+    task = dataclasses.replace(shipped_task, residual_base="analytic", yaw_integral_tau=1.0)
+    env = MecanumEnv(task)
+    ctrl = Controller(_network_free(env))
+    assert "yaw_error_integral" in ctrl.states
+    commands = np.repeat(np.array([[0.3, 0.0, 0.5], [0.0, -0.4, -1.5], [0.5, 0.2, 2.0]]), 4, 0)
+    obs_err, set_err, integral = _lockstep(env, ctrl, commands.astype(np.float32), 1)
+    assert obs_err < 1e-5
+    assert set_err < 1e-3
+    assert integral > 0.01
 
     class NewCommandInIntegral(Controller):
         def step(self, command, *readings):
@@ -120,7 +165,7 @@ def test_the_loop_builds_the_environments_observations_tick_by_tick(shipped_task
                 self.tracked = np.asarray(command, np.float32)
             return super().step(command, *readings)
 
-    wrong = NewCommandInIntegral(controller.policy)
+    wrong = NewCommandInIntegral(ctrl.policy)
     obs_err, _, _ = _lockstep(env, wrong, commands.astype(np.float32), 1)
     assert obs_err > 1e-3
 
@@ -148,7 +193,7 @@ def test_a_new_policy_state_is_one_method(controller):
     for expected in (1.0, 1.08, 1.16):  # no update on the first tick after a reset
         ctrl.step([0.2, 0.0, 0.0], *readings)
         assert ctrl.observation[-1] == pytest.approx(expected)
-        assert "yaw_error_integral" in ctrl.values  # the existing state is kept too
+        assert "feedback_integral" in ctrl.values  # the existing state is kept too
     ctrl.reset()
     assert ctrl.values["wheel_error_integral"] == 1.0
 
@@ -331,13 +376,12 @@ def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
     plant = Plant(dataclasses.replace(cfg.env, physics_impl="jax").description(), "fast")
     deployed = ev.trace_parts(deploy_sim.play(plant, ctrl, eps), jac, dt)
 
-    class NewCommandInIntegral(Controller):
-        def step(self, command, *readings):
-            if self.tracked is not None:
-                self.tracked = np.asarray(command, np.float32)
-            return super().step(command, *readings)
+    class FrozenIntegrator(Controller):  # a loop that never advances the policy's state
+        @policy_state("feedback_integral", "feedback_integral")
+        def _feedback_integral(self, value, tracked, reading):
+            return value
 
-    wrong = ev.trace_parts(deploy_sim.play(plant, NewCommandInIntegral(ctrl.policy), eps), jac, dt)
+    wrong = ev.trace_parts(deploy_sim.play(plant, FrozenIntegrator(ctrl.policy), eps), jac, dt)
 
     def per_episode(p):
         return np.sqrt(p.num / p.den)

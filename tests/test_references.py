@@ -83,10 +83,34 @@ def test_shipped_model_loads_evaluates_and_exports(tmp_path):
     s = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 16))
     params = (restored.normalizer, restored.params)
     step = jax.jit(jax.vmap(env.step))
-    for _ in range(2):  # after a step, last_action (the action filter's state) is not zero
+    try:
+        import onnxruntime as ort
+
+        onnx_path = str(checkpoint.Path(MODEL) / "policy.onnx")
+        session = ort.InferenceSession(onnx_path, providers=["CPUExecutionProvider"])
+    except ImportError:
+        ort = None
+    for _ in range(3):  # after a step, last_action (the action filter's state) is not zero
         with jax.numpy_rank_promotion("allow"):
             raw = restored.apply(params, s.obs)
-        got = np.stack([policy.action(np.asarray(o)) for o in s.obs["state"]])
+        obs = np.asarray(s.obs["state"])
+        got = np.stack([policy.action(o) for o in obs])
+        command = np.asarray(s.info["command"])
+        setpoints = policy.wheel_setpoints(command, got, obs)
+        integral = policy.feedback_integral_step(obs) if policy.feedback_base else None
+        before = s
         s = step(s, raw)
         # NumPy returns the action the environment applies (low-passed, if trained so)
         np.testing.assert_allclose(got, np.asarray(s.info["last_action"]), atol=1e-4)
+        # ... and the setpoints and the feedback integrator it applies
+        applied = jax.vmap(env.wheel_setpoints)(before.info["command"], s.info["last_action"],
+                                                before.info)  # fmt: skip
+        np.testing.assert_allclose(setpoints, np.asarray(applied), atol=2e-3)
+        if integral is not None:
+            np.testing.assert_allclose(integral, s.info["feedback_integral"], atol=1e-5)
+        if ort is not None:  # the ONNX graph shipped beside it does the same
+            onnx_action, onnx_setpoints, *rest = session.run(None, {"observation": obs})
+            np.testing.assert_allclose(onnx_action, got, atol=1e-4)
+            np.testing.assert_allclose(onnx_setpoints, setpoints, atol=2e-3)
+            if integral is not None:
+                np.testing.assert_allclose(rest[0][:, 0], integral, atol=1e-5)

@@ -80,6 +80,58 @@ def comparison_table(results: dict[str, Any], pair: str) -> Table:
     return table
 
 
+LOSS_MARGIN = {
+    "ss_lin": 0.01,
+    "rmse_lin": 0.01,
+    "ss_wz": 0.02,
+    "rmse_wz": 0.02,
+    "drift_m": 0.05,
+    "settle_lin_s": 0.05,
+    "settle_wz_s": 0.05,
+}
+"""The tracking metrics a scorecard counts, and the excess (m/s, rad/s, m, s) below which
+a difference whose interval lies on one side is still called a tie."""
+
+
+def score(results: dict[str, Any], pair: str) -> dict[str, dict[str, list[str]]]:
+    """Per scenario, ``pair``'s tracking metrics (:data:`LOSS_MARGIN`) as wins, ties and
+    losses: a win or a loss needs the paired 95% interval on one side of 1 *and* a mean
+    difference above the metric's margin; anything else is a tie."""
+    who, ref = pair.split("/")
+    out: dict[str, dict[str, list[str]]] = {}
+    for name, r in results.items():
+        cmp = r.get("compare", {}).get(pair)
+        if cmp is None:
+            continue
+        card: dict[str, list[str]] = {"wins": [], "ties": [], "losses": []}
+        for key, margin in LOSS_MARGIN.items():
+            c, a, b = cmp.get(key), r[who].get(key), r[ref].get(key)
+            if c is None or a is None or b is None:
+                continue
+            kind = "ties"
+            if c["verdict"] == "worse" and a - b > margin:
+                kind = "losses"
+            elif c["verdict"] == "better" and b - a > margin:
+                kind = "wins"
+            card[kind].append(key)
+        out[name] = card
+    return out
+
+
+def scorecard_table(results: dict[str, Any], pair: str) -> Table:
+    """:func:`score` as a table: counts per scenario and the metrics lost."""
+    table = Table(title=f"{pair}: wins, ties and losses of the tracking metrics")
+    for column in ("scenario", "wins", "ties", "losses", "lost"):
+        table.add_column(column, justify="left" if column in ("scenario", "lost") else "right")
+    for name, card in score(results, pair).items():
+        lost = ", ".join(card["losses"]) or "-"
+        table.add_row(
+            name, str(len(card["wins"])), str(len(card["ties"])),
+            f"[red]{len(card['losses'])}[/]" if card["losses"] else "0", lost,
+        )  # fmt: skip
+    return table
+
+
 def write_plots(
     results: dict[str, Any], traces: dict[str, dict[str, ev.Trace]], dt: float, out: Path
 ) -> list[Path]:

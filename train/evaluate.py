@@ -54,7 +54,12 @@ from mecanum_jax.precision import set_matmul_precision  # noqa: E402
 from mecanum_jax.task import REFERENCES, MecanumEnv  # noqa: E402
 from train import checkpoint  # noqa: E402
 from train.config import load_train_config  # noqa: E402
-from train.eval_output import comparison_table, results_table, write_plots  # noqa: E402
+from train.eval_output import (  # noqa: E402
+    comparison_table,
+    results_table,
+    scorecard_table,
+    write_plots,
+)
 from train.export import export_policy  # noqa: E402
 from train.progress import rollout_progress  # noqa: E402
 from train.run import write_json  # noqa: E402
@@ -374,6 +379,8 @@ def main(argv: list[str] | None = None) -> int:
     for ref in args.references:
         if ref != first:
             out_console.print(comparison_table(results, f"{first}/{ref}"))
+    if first == "policy" and "analytic" in args.references:
+        out_console.print(scorecard_table(results, "policy/analytic"))
     console.log(f"report: {out / 'report.json'} ({time.time() - t_start:.0f} s)")
     return 0
 

@@ -24,7 +24,8 @@ them 0 to 2 ticks old, as a real robot's latency makes them; nothing is delayed 
 It then does what the environment does between two policy calls, in its order:
 
 1. advances the policy's own states with the command tracked *since the last tick* and
-   the new readings (the leaky yaw-rate error integral, ``yaw_integral_step``; none on
+   the new readings (the leaky yaw-rate error integral, ``yaw_integral_step``; the
+   ``feedback`` controller's integrator, ``feedback_integral_step``; none on
    the first tick after :meth:`Controller.reset`, where they start at 0);
 2. builds the observation (``NumpyPolicy.observation``) from the new command, the
    readings, the last *applied* action and those states;
@@ -166,7 +167,7 @@ class Controller:
         )
         if self.session is None:
             action = self.policy.action(obs)
-            setpoints = self.policy.wheel_setpoints(cmd, action)
+            setpoints = self.policy.wheel_setpoints(cmd, action, obs)
         else:
             action, setpoints = (
                 x[0]
@@ -184,6 +185,14 @@ class Controller:
     def _yaw_integral(self, value: float, tracked: np.ndarray, reading: Reading) -> float:
         """The leaky yaw-rate error integral (``yaw_integral_tau``)."""
         return self.policy.yaw_integral_step(value, tracked, reading.gyro_z)
+
+    @policy_state("feedback_integral", "feedback_integral")
+    def _feedback_integral(self, value: float, tracked: np.ndarray, reading: Reading) -> float:
+        """The integrator of the ``feedback`` controller the residual corrects: advanced
+        from the last tick's observation (its command, gyro and integrator), as the
+        environment advances it from the state its action answered."""
+        assert self.observation is not None  # updates run from the second tick on
+        return float(self.policy.feedback_integral_step(self.observation))
 
 
 def _vector(name: str, value: Any, size: int | tuple[()], unit: str) -> np.ndarray:

@@ -7,7 +7,12 @@ This file depends only on NumPy and the standard library. Copy it next to the ex
     policy = load("policy.npz")
     obs = policy.observation(command, wheel_rate, gyro_z, accel, last_action)
     action = policy.action(obs)                # the trained policy, deterministic
-    setpoints = policy.wheel_setpoints(command, action)   # rad/s per wheel, to the servos
+    setpoints = policy.wheel_setpoints(command, action, obs)   # rad/s per wheel, to the servos
+
+A policy whose residual corrects the ``feedback`` controller (``meta["residual_base"]``)
+observes that controller's integrator: keep it with ``integral =
+policy.feedback_integral_step(obs)`` after each step (0 at start) and pass it to the next
+``observation(..., feedback_integral=integral)``.
 
 The export holds the policy network's weights, the observation normalizer (mean and
 standard deviation, as Brax's running statistics apply it) and what the control loop
@@ -20,6 +25,7 @@ Wheel order, units and signs are those of the robot description used for trainin
 
 from __future__ import annotations
 
+import itertools
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -61,6 +67,12 @@ class NumpyPolicy:
         self.command_scale = np.asarray(meta["command_scale"], np.float32)
         self.jacobian = np.asarray(meta["jacobian"], np.float32)
         self.forward = np.asarray(meta["forward_matrix"], np.float32)
+        self.feedback = meta.get("feedback") or {}
+        self._nearest = (
+            NearestFeasible(self.jacobian, self.max_rates, float(self.feedback["omega_weight"]))
+            if self.feedback_base
+            else None
+        )
 
     @property
     def observation_size(self) -> int:
@@ -72,13 +84,14 @@ class NumpyPolicy:
         ``f·last_action + (1 − f)·network``, with ``last_action`` read from ``obs``."""
         return float(self.meta.get("action_filter") or 0.0)
 
-    def _last_action(self, obs: np.ndarray) -> np.ndarray:
+    def entry(self, name: str) -> slice:
+        """Where the observation entry ``name`` lies in the observation vector."""
         start = 0
-        for name, size in self.meta["observation_layout"]:
-            if name == "last_action":
-                return obs[..., start : start + int(size)]
+        for entry, size in self.meta["observation_layout"]:
+            if entry == name:
+                return slice(start, start + int(size))
             start += int(size)
-        raise ExportError("observation_layout has no last_action entry")
+        raise ExportError(f"observation_layout has no {name} entry")
 
     def action(self, obs: np.ndarray) -> np.ndarray:
         """Actions (..., action_size) in [-1, 1] for policy observations: a correction per
@@ -102,8 +115,40 @@ class NumpyPolicy:
         action = np.tanh(x[..., : self.action_size])
         f = np.float32(self.action_filter)
         if f > 0:
-            action = f * self._last_action(raw) + (np.float32(1.0) - f) * action
+            action = f * raw[..., self.entry("last_action")] + (np.float32(1.0) - f) * action
         return action
+
+    @property
+    def feedback_base(self) -> bool:
+        """Whether the residual corrects the ``feedback`` controller (its zero action *is*
+        that controller), whose integrator the policy observes (``feedback_integral``)."""
+        return bool(self.meta["residual"]) and self.meta.get("residual_base") == "feedback"
+
+    def feedback_twist(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The ``feedback`` controller's PI-corrected twist (..., 3) for observations, with
+        the yaw-rate error and the integrator (rad/s) it read from them."""
+        x = np.asarray(obs, np.float32)
+        scale = self.command_scale
+        command = x[..., :3] * scale
+        gyro = x[..., self.entry("gyro_z")][..., 0] * scale[2]
+        integral = x[..., self.entry("feedback_integral")][..., 0] * scale[2]
+        err = command[..., 2] - gyro
+        u = np.float32(self.feedback["kp"]) * err + integral
+        return command + np.asarray([0, 0, 1], np.float32) * u[..., None], err, integral
+
+    def feedback_integral_step(self, obs: np.ndarray) -> np.ndarray:
+        """The ``feedback`` controller's integrator after this step (rad/s): ``I + ki·e·dt``
+        clipped to ``± i_max``, held while the corrected twist is out of the wheels' reach
+        and the error would drive it further (the environment's rule)."""
+        twist, err, integral = self.feedback_twist(obs)
+        rates = twist @ self.jacobian.T
+        saturated = np.max(np.abs(rates) / self.max_rates, axis=-1) > 1.0
+        u = twist[..., 2] - np.asarray(obs, np.float32)[..., 2] * self.command_scale[2]
+        hold = saturated & (err * u > 0)
+        ki, i_max = np.float32(self.feedback["ki"]), np.float32(self.feedback["i_max"])
+        dt = np.float32(self.meta["control_dt"])
+        grown = np.clip(integral + ki * err * dt, -i_max, i_max)
+        return np.where(hold, integral, grown).astype(np.float32)
 
     @property
     def yaw_integral_tau(self) -> float:
@@ -128,6 +173,7 @@ class NumpyPolicy:
         accel: Any,
         last_action: Any,
         yaw_integral: float | None = None,
+        feedback_integral: float | None = None,
     ) -> np.ndarray:
         """The policy observation from raw measurements (what the environment builds).
 
@@ -140,12 +186,19 @@ class NumpyPolicy:
             (zeros at start).
           yaw_integral: the state of :meth:`yaw_integral_step`, required when the policy
             observes it (``yaw_integral_tau > 0``), rad.
+          feedback_integral: the state of :meth:`feedback_integral_step`, required when the
+            residual corrects the ``feedback`` controller (:attr:`feedback_base`), rad/s.
         """
         tau = self.yaw_integral_tau
         if tau > 0 and yaw_integral is None:
             raise ValueError(
                 f"yaw_integral = None: this policy observes the yaw-error integral "
                 f"(tau = {tau} s); keep it with yaw_integral_step()"
+            )
+        if self.feedback_base and feedback_integral is None:
+            raise ValueError(
+                "feedback_integral = None: this policy corrects the feedback controller; "
+                "keep its integrator with feedback_integral_step()"
             )
         rate = np.asarray(wheel_rate, np.float32)
         odometry = self.forward @ rate
@@ -162,6 +215,11 @@ class NumpyPolicy:
                     if tau > 0
                     else []
                 ),
+                *(
+                    [np.asarray([feedback_integral], np.float32) / self.command_scale[2]]
+                    if self.feedback_base
+                    else []
+                ),
             ]
         ).astype(np.float32)
 
@@ -173,19 +231,72 @@ class NumpyPolicy:
         excess = np.max(np.abs(rates) / self.max_rates, axis=-1, keepdims=True)
         return rates / np.maximum(excess, 1.0)
 
-    def wheel_setpoints(self, command: Any, action: Any) -> np.ndarray:
-        """Wheel-rate setpoints (rad/s) for the servos."""
+    def base_rates(self, command: Any, obs: Any = None) -> np.ndarray:
+        """The setpoints the residual corrects: the analytic baseline, or the ``feedback``
+        controller's (which reads its integrator and the gyro from ``obs``)."""
+        if not self.feedback_base:
+            return self.baseline_rates(command)
+        if obs is None:
+            raise ValueError("obs = None: this policy corrects the feedback controller")
+        assert self._nearest is not None
+        return self._nearest(self.feedback_twist(obs)[0]) @ self.jacobian.T
+
+    def wheel_setpoints(self, command: Any, action: Any, obs: Any = None) -> np.ndarray:
+        """Wheel-rate setpoints (rad/s) for the servos (``obs``: the observation the action
+        answered; needed when the residual corrects the ``feedback`` controller)."""
         a = np.clip(np.asarray(action, np.float32), -1.0, 1.0)
         if self.meta["residual"] and self.meta.get("residual_space", "wheel") == "twist":
             correction = a * (np.float32(self.meta["residual_scale"]) * self.command_scale)
-            rates = self.baseline_rates(command) + correction @ self.jacobian.T
+            rates = self.base_rates(command, obs) + correction @ self.jacobian.T
         elif self.meta["residual"]:
-            rates = self.baseline_rates(command) + a * (
+            rates = self.base_rates(command, obs) + a * (
                 np.float32(self.meta["residual_scale"]) * self.max_rates
             )
         else:
             rates = a * self.max_rates
         return np.clip(rates, -self.max_rates, self.max_rates)
+
+
+class NearestFeasible:
+    """The feasible twist nearest a twist, ``argmin (vx−cx)² + (vy−cy)² + w·(ωz−cz)²`` over
+    ``|J t| <= m`` (the library's ``limits.nearest_feasible``, in NumPy).
+
+    The nearest point lies on a facet, an edge or a vertex of the polytope; the orthogonal
+    projection onto each set of 1-3 active half-spaces is an affine map ``u = P c + q`` of
+    the (weighted) twist, precomputed here (92 maps for 4 wheels). A twist is mapped by all
+    of them and the nearest feasible result kept; a feasible twist passes unchanged.
+    """
+
+    def __init__(self, jacobian: np.ndarray, max_rates: np.ndarray, omega_weight: float):
+        J = np.asarray(jacobian, np.float64)
+        A = np.stack([J, -J], axis=1).reshape(-1, 3)
+        b = np.repeat(np.asarray(max_rates, np.float64), 2)
+        self.d = np.asarray([1.0, 1.0, np.sqrt(omega_weight)])
+        self.Au, self.b = A / self.d, b
+        maps, offsets = [], []
+        for k in (1, 2, 3):
+            for rows in itertools.combinations(range(len(A)), k):
+                As, bs = self.Au[list(rows)], b[list(rows)]
+                G = As @ As.T
+                if abs(np.linalg.det(G)) <= 1e-8 * np.prod(np.sum(As * As, axis=1)):
+                    continue  # rows dependent: no edge or vertex there
+                Ginv = np.linalg.inv(G)
+                maps.append(np.eye(3) - As.T @ Ginv @ As)
+                offsets.append(As.T @ Ginv @ bs)
+        self.P = np.asarray(maps)  # (K, 3, 3)
+        self.q = np.asarray(offsets)  # (K, 3)
+        self.tol = 1e-5 * float(np.max(b))
+
+    def __call__(self, twist: Any) -> np.ndarray:
+        t = np.asarray(twist, np.float64)
+        c = t * self.d
+        u = np.einsum("kij,...j->...ki", self.P, c) + self.q  # (..., K, 3)
+        feasible = np.all(u @ self.Au.T <= self.b + self.tol, axis=-1)
+        dist = np.where(feasible, np.sum((u - c[..., None, :]) ** 2, axis=-1), np.inf)
+        best = np.take_along_axis(u, np.argmin(dist, axis=-1)[..., None, None], axis=-2)
+        inside = np.all(c @ self.Au.T <= self.b, axis=-1)
+        out = np.where(inside[..., None], t, best[..., 0, :] / self.d)
+        return out.astype(np.float32)
 
 
 def load(path: str | Path) -> NumpyPolicy:

@@ -1,0 +1,38 @@
+"""mecanum-eval's scorecard: a win or a loss needs the interval on one side of 1 and a
+mean difference above the metric's margin; anything else is a tie."""
+
+from train.eval_output import score, scorecard_table
+
+
+def _results(policy_ss_wz, verdict):
+    cmp = {"ratio": 1.5, "lo": 1.2, "hi": 1.8, "verdict": verdict}
+    return {
+        "nominal": {
+            "policy": {"ss_wz": policy_ss_wz, "ss_lin": 0.10},
+            "analytic": {"ss_wz": 0.10, "ss_lin": 0.20},
+            "compare": {
+                "policy/analytic": {
+                    "ss_wz": cmp,
+                    "ss_lin": {"ratio": 0.5, "lo": 0.4, "hi": 0.6, "verdict": "better"},
+                }
+            },
+        }
+    }
+
+
+def test_a_loss_needs_the_interval_and_the_margin():
+    card = score(_results(0.15, "worse"), "policy/analytic")["nominal"]
+    assert card == {"wins": ["ss_lin"], "ties": [], "losses": ["ss_wz"]}
+    # worse, but by less than 0.02 rad/s: a tie
+    card = score(_results(0.11, "worse"), "policy/analytic")["nominal"]
+    assert card["losses"] == []
+    assert card["ties"] == ["ss_wz"]
+    # a large difference whose interval includes 1: a tie
+    card = score(_results(0.30, "tie"), "policy/analytic")["nominal"]
+    assert card["ties"] == ["ss_wz"]
+
+
+def test_the_table_names_the_metrics_lost():
+    table = scorecard_table(_results(0.15, "worse"), "policy/analytic")
+    assert table.row_count == 1
+    assert "ss_wz" in next(iter(table.columns[-1].cells))
