@@ -25,6 +25,7 @@ from mecanum_jax.config import (
 )
 from mecanum_jax.task import EnvConfig
 from train.loggers import check_wandb
+from train.losses import SmoothnessConfig
 
 TRAIN_CONFIG_DIR = CONFIG_DIR / "train"
 
@@ -90,6 +91,8 @@ class PPOConfig:
     """Clip the policy's and the value function's gradients separately, not together."""
     policy_warmup_steps: int = 0
     """Ramp the policy's updates from zero over this many env steps (>= 0; 0: off)."""
+    smoothness: SmoothnessConfig = SmoothnessConfig()
+    """CAPS-style smoothness terms in the policy loss (train/losses.py; off by default)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -184,6 +187,7 @@ class TrainConfig:
         require(p, "ppo", ("entropy_cost",), lambda v: v >= 0, "must be >= 0")
         require(p, "ppo", ("clip_observations",), lambda v: v >= 0, "must be >= 0 (0: off)")
         require(p, "ppo", ("policy_warmup_steps",), lambda v: v >= 0, "must be >= 0 (0: off)")
+        p.smoothness.validate("ppo.smoothness")
         require(p, "ppo", ("discounting", "gae_lambda"), lambda v: 0 < v <= 1, "must be in (0, 1]")
         if (p.batch_size * p.num_minibatches) % p.num_envs:
             raise invalid(

@@ -40,7 +40,7 @@ from brax.training.agents.ppo import networks as ppo_networks
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from mecanum_jax.task.env import MecanumEnv, TrainingEnv
-from train import leaves
+from train import leaves, losses
 from train.config import TrainConfig
 from train.periodic import PeriodicEvaluation, Result
 from train.state import (
@@ -81,8 +81,11 @@ class Learner:
         self.networks = make_networks(self.env, cfg)
         self.make_policy = ppo_networks.make_inference_fn(self.networks)
         self.optimizer = make_optimizer(cfg)
+        loss: Any = ppo_losses.compute_ppo_loss
+        if p.smoothness.enabled:  # CAPS-style terms (train/losses.py)
+            loss = functools.partial(losses.ppo_loss_with_smoothness, smoothness=p.smoothness)
         loss_fn = functools.partial(
-            ppo_losses.compute_ppo_loss,
+            loss,
             ppo_network=self.networks,
             entropy_cost=p.entropy_cost,
             discounting=p.discounting,

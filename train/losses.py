@@ -1,0 +1,106 @@
+"""Losses added to Brax's PPO loss.
+
+:func:`smoothness_loss` is a CAPS-style regularizer (Mysore et al., "Regularizing Action
+Policies for Smooth Control with Reinforcement Learning", ICRA 2021) on the policy's
+deterministic action ``μ(s)`` (the mode of its action distribution):
+
+- temporal: ``‖μ(s_t) − μ(s_{t+1})‖²``, consecutive states of the collected trajectories;
+- spatial: ``‖μ(s) − μ(s + ε)‖²`` with ``ε ~ N(0, σ²)`` on the policy's (scaled)
+  observation, σ at the sensor noise's scale.
+
+Both are means over the batch, scaled by their weights (:class:`SmoothnessConfig`), and
+reported as ``smooth_temporal`` and ``smooth_spatial``. Unlike a low-pass filter of the
+actions it adds no lag: it asks the policy itself not to flicker, and not to follow
+sensor noise.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from brax.training.agents.ppo import losses as ppo_losses
+
+from mecanum_jax.config import require
+
+POLICY_OBS = "state"
+"""The observation key the policy network reads (the critic also reads the privileged one)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SmoothnessConfig:
+    """Weights of the CAPS-style terms (0: off) and the spatial perturbation's scale."""
+
+    temporal: float = 0.0
+    """Weight of ``‖μ(s_t) − μ(s_{t+1})‖²`` (>= 0; 0: off)."""
+    spatial: float = 0.0
+    """Weight of ``‖μ(s) − μ(s + ε)‖²`` (>= 0; 0: off)."""
+    sigma: float = 0.02
+    """Standard deviation of ε, in the policy observation's scaled units (> 0)."""
+
+    def validate(self, where: str = "ppo.smoothness") -> None:
+        """Check values; raise :class:`ConfigError` naming the field."""
+        require(self, where, ("temporal", "spatial"), lambda v: v >= 0, "must be >= 0 (0: off)")
+        require(self, where, ("sigma",), lambda v: v > 0, "must be > 0")
+
+    @property
+    def enabled(self) -> bool:
+        return self.temporal > 0 or self.spatial > 0
+
+
+def smoothness_loss(
+    mean_action: Callable[[Any], jax.Array],
+    observation: Any,
+    next_observation: Any,
+    key: jax.Array,
+    cfg: SmoothnessConfig,
+) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """The weighted CAPS terms for a batch of transitions, and their unweighted values.
+
+    ``mean_action(obs)`` maps a (batched) observation dict to the policy's deterministic
+    action; ``observation``/``next_observation`` are the transitions' states.
+    """
+    action = mean_action(observation)
+    zero = jnp.zeros((), action.dtype)
+    temporal = spatial = zero
+    if cfg.temporal > 0:
+        temporal = jnp.mean(jnp.sum((action - mean_action(next_observation)) ** 2, axis=-1))
+    if cfg.spatial > 0:
+        state = observation[POLICY_OBS]
+        noisy = dict(observation)
+        noisy[POLICY_OBS] = state + cfg.sigma * jax.random.normal(key, state.shape, state.dtype)
+        spatial = jnp.mean(jnp.sum((action - mean_action(noisy)) ** 2, axis=-1))
+    total = cfg.temporal * temporal + cfg.spatial * spatial
+    return total, {"smooth_temporal": temporal, "smooth_spatial": spatial}
+
+
+def ppo_loss_with_smoothness(
+    params: Any,
+    normalizer_params: Any,
+    data: Any,
+    rng: jax.Array,
+    ppo_network: Any,
+    smoothness: SmoothnessConfig,
+    **ppo_kwargs: Any,
+) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """Brax's ``compute_ppo_loss`` plus :func:`smoothness_loss` (same signature as Brax's
+    loss once ``ppo_network``, ``smoothness`` and Brax's own keywords are bound)."""
+    k_ppo, k_smooth = jax.random.split(rng)
+    loss, metrics = ppo_losses.compute_ppo_loss(
+        params, normalizer_params, data, k_ppo, ppo_network, **ppo_kwargs
+    )
+    dist = ppo_network.parametric_action_distribution
+
+    def mean_action(obs: Any) -> jax.Array:
+        return dist.mode(ppo_network.policy_network.apply(normalizer_params, params.policy, obs))
+
+    extra, terms = smoothness_loss(
+        mean_action, data.observation, data.next_observation, k_smooth, smoothness
+    )
+    return loss + extra, {**metrics, **terms, "total_loss": loss + extra}
+
+
+__all__ = ["POLICY_OBS", "SmoothnessConfig", "ppo_loss_with_smoothness", "smoothness_loss"]
