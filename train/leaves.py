@@ -161,21 +161,25 @@ def _unpack_by_index(template: Any, flat: Mapping[str, Any]) -> Any:
     return jax.tree.unflatten(jax.tree.structure(template), out)
 
 
-def prune(tree: Any, drop: Collection[int] = ()) -> Any:
-    """``tree`` with its zero-size leaves, and those at ``jax.tree.leaves`` positions
-    ``drop``, replaced by ``None`` (an empty subtree: no leaf at all)."""
-    leaves, treedef = jax.tree.flatten(tree)
-    kept = [None if i in drop or not math.prod(np.shape(x)) else x for i, x in enumerate(leaves)]
-    return jax.tree.unflatten(treedef, kept)
+def prune(tree: Any, drop: Collection[int] = ()) -> dict[str, Any]:
+    """``tree``'s leaves as a flat ``{f"{i:05d}": leaf}`` dict, less its zero-size leaves
+    and those at ``jax.tree.leaves`` positions ``drop``. A plain dict crosses device
+    programs where the tree's own nodes may not: MuJoCo Warp's data types batch their
+    leaves themselves and refuse a tree whose leaves were replaced by ``None``."""
+    leaves = jax.tree.leaves(tree)
+    return {f"{i:05d}": x for i, x in enumerate(leaves) if i not in drop and math.prod(np.shape(x))}
 
 
-def graft(template: Any, pruned: Any, fill: Mapping[int, Any]) -> Any:
+def graft(template: Any, pruned: Mapping[str, Any], fill: Mapping[int, Any]) -> Any:
     """Inverse of :func:`prune` (inside a compiled program too): the leaves at positions
     ``fill`` from it, zero-size ones as zeros shaped like the template's."""
     leaves, treedef = jax.tree.flatten(template)
-    kept = iter(jax.tree.leaves(pruned))
     out = [
-        fill[i] if i in fill else next(kept) if math.prod(x.shape) else jnp.zeros(x.shape, x.dtype)
+        fill[i]
+        if i in fill
+        else pruned[f"{i:05d}"]
+        if math.prod(x.shape)
+        else jnp.zeros(x.shape, x.dtype)
         for i, x in enumerate(leaves)
     ]
     return jax.tree.unflatten(treedef, out)

@@ -196,7 +196,7 @@ class Learner:
     def pack_env(self, env_state: Any) -> Any:
         """The environment state as it crosses device programs and is checkpointed: its
         zero-size leaves (MJX has several) and batch-wide buffers (:meth:`_shared_buffers`)
-        pruned to ``None`` (:func:`train.leaves.prune`)."""
+        left out of a flat dict (:func:`train.leaves.prune`)."""
         return leaves.prune(env_state, self._shared)
 
     def unpack_env(self, packed: Any) -> Any:
