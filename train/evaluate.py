@@ -60,7 +60,7 @@ from mecanum_jax.precision import set_matmul_precision  # noqa: E402
 from mecanum_jax.sim.description import fingerprint  # noqa: E402
 from mecanum_jax.sim.physics import GRAVITY  # noqa: E402
 from mecanum_jax.task import REFERENCES, MecanumEnv  # noqa: E402
-from train import checkpoint  # noqa: E402
+from train import checkpoint, compilation_cache  # noqa: E402
 from train.config import load_train_config  # noqa: E402
 from train.run import write_json  # noqa: E402
 
@@ -485,7 +485,7 @@ def _check_args(args: EvalArgs) -> None:
 def main(argv: list[str] | None = None) -> int:
     """``mecanum-eval``: see the module docstring."""
     checkpoint.quiet_closed_loop_noise()
-    argv = sys.argv[1:] if argv is None else argv
+    argv = compilation_cache.configure(sys.argv[1:] if argv is None else argv)
     args = _parse(argv, "mecanum-eval", EvalArgs)
     t_start = time.time()
     try:
