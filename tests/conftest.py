@@ -2,7 +2,9 @@
 
 - Two host CPU devices, so multi-device code (pmap, the compat shim) is exercised.
 - ``jax_numpy_rank_promotion = "raise"``: accidental broadcasting is an error (as Equinox does).
-- JAX's persistent compilation cache, shared across test processes and CI runs.
+- JAX's persistent compilation cache, shared across test processes and CI runs: the
+  clone's ``.cache/jax`` (as ``./dev`` sets it) unless ``JAX_COMPILATION_CACHE_DIR`` names
+  another, so the command lines the tests run never write to the user's cache directory.
 - MuJoCo renders headless through whichever of OSMesa and EGL is installed; tests marked
   ``render`` are skipped, with the reason, where neither works.
 - Tiers: the default run leaves out tests marked ``full`` (slow end-to-end runs);
@@ -13,6 +15,10 @@ import os
 
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+os.environ.setdefault(
+    "JAX_COMPILATION_CACHE_DIR",
+    os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), ".cache", "jax"),
+)
 from mecanum_jax.sim.render import ensure_gl_backend  # imports no MuJoCo
 
 ensure_gl_backend()  # must precede the first mujoco import

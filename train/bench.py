@@ -31,6 +31,7 @@ from rich.table import Table
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.precision import set_matmul_precision
+from train import compilation_cache
 from train.config import TrainConfig, apply_flags, load_train_config
 from train.distributed import init_distributed
 from train.ppo import Learner, to_host
@@ -99,6 +100,7 @@ def _table(results: list[dict[str, Any]]) -> Table:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = compilation_cache.configure(sys.argv[1:] if argv is None else argv)
     parser = argparse.ArgumentParser(prog="python -m train.bench", description=__doc__)
     parser.add_argument("--config", default="gpu")
     parser.add_argument("--epochs", type=int, default=3)

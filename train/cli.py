@@ -28,7 +28,7 @@ from rich.table import Table
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.sim.description import require_impl
-from train import checkpoint, curve
+from train import checkpoint, compilation_cache, curve
 from train.config import TrainConfig, apply_flags, load_train_config
 from train.distributed import init_distributed
 from train.run import Run, RunDirError, TrainingDiverged, write_json
@@ -87,7 +87,7 @@ def _fail(err: BaseException, code: int) -> int:
 def main(argv: list[str] | None = None) -> int:
     """``mecanum-train``: train one run (several seeds side by side), then evaluate it."""
     checkpoint.quiet_closed_loop_noise()
-    argv = sys.argv[1:] if argv is None else argv
+    argv = compilation_cache.configure(sys.argv[1:] if argv is None else argv)
     prog = "mecanum-train"
     meta, rest = _meta_parser(prog, batch=False).parse_known_args(argv)
     description = (
@@ -157,7 +157,7 @@ def _plot(run: Run) -> None:
 
 def batch_main(argv: list[str] | None = None) -> int:
     """``mecanum-train-batch``: several config variants, each with all seeds vectorized."""
-    argv = sys.argv[1:] if argv is None else argv
+    argv = compilation_cache.configure(sys.argv[1:] if argv is None else argv)
     prog = "mecanum-train-batch"
     meta, rest = _meta_parser(prog, batch=True).parse_known_args(argv)
     out = Path(meta.out or f"runs/batch-{time.strftime('%Y%m%d-%H%M%S')}")

@@ -52,7 +52,7 @@ from mecanum_jax.evaluation import rollout as ev  # noqa: E402
 from mecanum_jax.kinematics import model as kinematics  # noqa: E402
 from mecanum_jax.precision import set_matmul_precision  # noqa: E402
 from mecanum_jax.task import REFERENCES, MecanumEnv  # noqa: E402
-from train import checkpoint  # noqa: E402
+from train import checkpoint, compilation_cache  # noqa: E402
 from train.config import load_train_config  # noqa: E402
 from train.eval_output import (  # noqa: E402
     comparison_table,
@@ -346,7 +346,7 @@ def _check_args(args: EvalArgs) -> None:
 def main(argv: list[str] | None = None) -> int:
     """``mecanum-eval``: see the module docstring."""
     checkpoint.quiet_closed_loop_noise()
-    argv = sys.argv[1:] if argv is None else argv
+    argv = compilation_cache.configure(sys.argv[1:] if argv is None else argv)
     args = _parse(argv, "mecanum-eval", EvalArgs)
     t_start = time.time()
     try:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from typing import Any
 
 # isort: split
@@ -102,21 +103,12 @@ class Learner:
             several_gpus = self.n_devices > 1 and all(d.platform == "gpu" for d in self.devices)
             self.parallel = "sharded" if several_gpus or self.n_processes > 1 else "pmap"
         if self.parallel == "pmap":
-            self._parallel_epoch = jax.pmap(
-                jax.vmap(self._epoch), axis_name=AXIS, devices=self.devices
-            )
             self._identity = jax.pmap(lambda *x: x, axis_name=AXIS, devices=self.devices)
         else:
-            # The same program as a named vmap over the device axis (the collectives are
-            # vmap's), that axis sharded over a mesh of all devices of all processes.
             devices = self.devices if self.n_processes == 1 else jax.devices()
             mesh = Mesh(np.array(devices), (MESH_AXIS,))
             self._sharding = NamedSharding(mesh, PartitionSpec(MESH_AXIS))
-            self._parallel_epoch = jax.jit(
-                jax.vmap(jax.vmap(self._epoch), axis_name=AXIS, spmd_axis_name=MESH_AXIS),
-                in_shardings=self._sharding,
-                out_shardings=self._sharding,
-            )
+        self._parallel_epoch = self.program(self._epoch)
         # reset on one device, then :meth:`place` spreads it (a pmapped MJX reset crashed
         # XLA's compiler on 2 H200s with jax 0.11.2)
         self._reset = jax.jit(jax.vmap(jax.vmap(self.train_env.reset)))
@@ -159,6 +151,18 @@ class Learner:
         return per_device, np.stack(env_keys, axis=1)
 
     # --- training ---------------------------------------------------------------------------
+
+    def program(self, fn: Callable[..., Any]) -> Any:
+        """``fn`` of one seed's states as the epoch runs: vmapped over seeds, then pmapped
+        over the devices or (``sharded``) a named vmap over them (the collectives are
+        vmap's), jitted with that axis sharded over a mesh of all processes' devices."""
+        if self._sharding is None:
+            return jax.pmap(jax.vmap(fn), axis_name=AXIS, devices=self.devices)
+        return jax.jit(
+            jax.vmap(jax.vmap(fn), axis_name=AXIS, spmd_axis_name=MESH_AXIS),
+            in_shardings=self._sharding,
+            out_shardings=self._sharding,
+        )
 
     def epoch(self, ts: TrainingState, env_state: Any) -> tuple[TrainingState, Any, Any]:
         """One compiled epoch on all devices and seeds: ``(state, env_state, metrics)``.
@@ -251,9 +255,18 @@ class Learner:
         self, carry: tuple[TrainingState, Any], _: None
     ) -> tuple[tuple[TrainingState, Any], dict[str, jax.Array]]:
         ts, env_state = carry
-        p = self.cfg.ppo
         key, k_unroll, k_sgd = jax.random.split(ts.key, 3)
         policy = self.make_policy((ts.normalizer_params, ts.params.policy, ts.params.value))
+        env_state, data, env_metrics = self.collect(policy, env_state, k_unroll)
+        ts, loss_metrics = self.update(ts, data, k_sgd)
+        ts = TrainingState(ts.optimizer_state, ts.params, ts.normalizer_params, key)
+        metrics = {f"loss/{k}": jnp.mean(v) for k, v in loss_metrics.items()}
+        metrics |= {k: jnp.mean(v) for k, v in env_metrics.items()}
+        metrics["reward"] = jnp.mean(data.reward)
+        return (ts, env_state), metrics
+
+    def collect(self, policy: Any, env_state: Any, key: jax.Array) -> tuple[Any, Any, Any]:
+        """One iteration's rollouts: ``(env_state, data (unrolls·E, T, ...), metrics)``."""
 
         def unroll(c: Any, _: None) -> tuple[Any, Any]:
             s, k = c
@@ -262,11 +275,16 @@ class Learner:
             return (s, k), (data, metrics)
 
         (env_state, _), (data, env_metrics) = jax.lax.scan(
-            unroll, (env_state, k_unroll), None, length=self.unrolls_per_iteration
+            unroll, (env_state, key), None, length=self.unrolls_per_iteration
         )
         # (unrolls, T, E, ...) -> (unrolls * E, T, ...)
         data = jax.tree.map(lambda x: jnp.swapaxes(x, 1, 2), data)
         data = jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), data)
+        return env_state, data, env_metrics
+
+    def update(self, ts: TrainingState, data: Any, key: jax.Array) -> tuple[TrainingState, Any]:
+        """Normalizer update and SGD passes over ``data``: ``(state, loss metrics)``, same key."""
+        p = self.cfg.ppo
         normalizer = ts.normalizer_params
         if p.normalize_observations:
             normalizer = running_statistics.update(
@@ -295,15 +313,9 @@ class Learner:
             return (opt_state, params, k), metrics
 
         (opt_state, params, _), loss_metrics = jax.lax.scan(
-            sgd, (ts.optimizer_state, ts.params, k_sgd), None, length=p.num_updates_per_batch
+            sgd, (ts.optimizer_state, ts.params, key), None, length=p.num_updates_per_batch
         )
-        ts = TrainingState(
-            optimizer_state=opt_state, params=params, normalizer_params=normalizer, key=key
-        )
-        metrics = {f"loss/{k}": jnp.mean(v) for k, v in loss_metrics.items()}
-        metrics |= {k: jnp.mean(v) for k, v in env_metrics.items()}
-        metrics["reward"] = jnp.mean(data.reward)
-        return (ts, env_state), metrics
+        return TrainingState(opt_state, params, normalizer, ts.key), loss_metrics
 
     @allow_rank_promotion
     def _epoch(self, ts: TrainingState, packed: Any) -> tuple[TrainingState, Any, Any]:

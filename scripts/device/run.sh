@@ -28,6 +28,15 @@
 #   multi-gpu EPOCHS [VARIANT...]  throughput over several GPUs: sh1gpu sh2gpu sh2gpu_64k mp2gpu
 #                           (default) and pmap2gpu
 #   experiment SCRIPT ARGS...      python experiments/SCRIPT ARGS
+#   profile [--trace] ARGS...      where one epoch's time goes (python -m train.profile, gpu
+#                           config + ARGS): $OUT/profile.json; --trace also sends a
+#                           jax.profiler trace of one epoch as $OUT/profile_trace.tgz.partNN
+#   coldstart ARGS...       start to first evaluation (python -m train.coldstart, gpu config +
+#                           ARGS), twice: empty compilation cache, then warm;
+#                           $OUT/coldstart_cold.json and coldstart_warm.json
+#   scaling [N...] [FLAGS...]      PPO env steps/s of the gpu config at N robots (default 1024
+#                           4096 16384 32768 65536; batch N/8: 2 unrolls per iteration as at
+#                           32768), one process each: $OUT/scaling.json, $OUT/scaling.png
 #
 # docs/benchmarks.md and docs/training.md list the call behind each figure.
 set -uo pipefail
@@ -173,6 +182,44 @@ agree() {  # MODEL: the nominal scenario on this GPU and on this machine's CPU (
   python3 scripts/eval_agreement.py /tmp/agree-gpu/report.json /tmp/agree-cpu/report.json
 }
 
+profile() {  # [--trace] [flags]: the epoch's parts (train/profile.py)
+  local trace=()
+  if [ "${1:-}" = --trace ]; then shift; rm -rf /tmp/profile-trace; trace=(--trace-dir /tmp/profile-trace); fi
+  python3 -m train.profile --config gpu --json-out "$O/profile.json" ${trace[@]+"${trace[@]}"} "$@" 2>&1 | quiet | tail -45
+  [ ${#trace[@]} -gt 0 ] || return 0
+  tar czf /tmp/profile_trace.tgz -C /tmp profile-trace
+  local size; size=$(stat -c %s /tmp/profile_trace.tgz)
+  if [ "$size" -gt $((60 * 1024 * 1024)) ]; then  # $OUT takes 64 MiB in files of 16 MiB
+    echo "trace: $size bytes, too large to send back; try --run.epoch-iterations 1"
+  else
+    split -b 15M -d /tmp/profile_trace.tgz "$O/profile_trace.tgz.part"
+    echo "trace: $size bytes in $O/profile_trace.tgz.part*: cat them into profile_trace.tgz"
+  fi
+}
+
+coldstart() {  # [flags]: an empty compilation cache, then the same start with it warm
+  local pass
+  rm -rf /tmp/coldstart-cache
+  for pass in cold warm; do
+    echo "== $pass compilation cache"
+    python3 -m train.coldstart --config gpu --compilation-cache /tmp/coldstart-cache \
+      --json-out "$O/coldstart_$pass.json" "$@" 2>&1 | quiet | tail -42
+  done
+}
+
+scaling() {  # [N...] [flags]: one train.bench process per robot count
+  local sizes=() n
+  while [ $# -gt 0 ] && [[ $1 =~ ^[0-9]+$ ]]; do sizes+=("$1"); shift; done
+  [ ${#sizes[@]} -gt 0 ] || sizes=(1024 4096 16384 32768 65536)
+  rm -rf /tmp/scaling; mkdir -p /tmp/scaling
+  for n in "${sizes[@]}"; do
+    python3 -m train.bench --config gpu --epochs 2 --json-out "/tmp/scaling/e$n.json" \
+      --variant "e$n --ppo.num-envs $n --ppo.batch-size $((n / 8)) $*" > "/tmp/scaling/e$n.log" 2>&1
+    grep -hiE "│ e$n |error" "/tmp/scaling/e$n.log" | head -3
+  done
+  python3 scripts/plot_scaling.py /tmp/scaling/e*.json --out "$O/scaling.png" --json-out "$O/scaling.json"
+}
+
 {
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
 date -u +%Y-%m-%dT%H:%M:%SZ
@@ -209,6 +256,9 @@ case "$TASK" in
   ab) ab "$@" ;;
   multi-gpu) multi_gpu "$@" ;;
   experiment) script=$1; shift; python3 "experiments/$script" "$@" 2>&1 | quiet ;;
+  profile) profile "$@" ;;
+  coldstart) coldstart "$@" ;;
+  scaling) scaling "$@" ;;
   *) echo "run.sh: unknown task '$TASK' (see the header of scripts/device/run.sh)"; exit 2 ;;
 esac
 } 2>&1 | tee "$O/log.txt"

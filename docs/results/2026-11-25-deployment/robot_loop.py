@@ -13,4 +13,7 @@ for path in ("policy.npz", "policy.onnx"):
         setpoints, action = ctrl.step(command, wheel_rate, gyro_z, accel)
     tick_us = (time.perf_counter() - t0) / 500 * 1e6
     print(f"{ctrl.backend}: setpoints {np.round(setpoints, 2)} rad/s, action {np.round(action, 3)}")
-    print(f"  feedback integral {ctrl.values['feedback_integral']:.3f} rad/s, {tick_us:.0f} µs per tick")
+    print(
+        f"  feedback integral {ctrl.values['feedback_integral']:.3f} rad/s,"
+        f" {tick_us:.0f} µs per tick"
+    )

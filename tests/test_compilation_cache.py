@@ -1,0 +1,108 @@
+"""The persistent compilation cache the command lines turn on (train/compilation_cache.py)."""
+
+from pathlib import Path
+
+import jax
+import pytest
+
+from mecanum_jax.config import ConfigError
+from train import cli, compilation_cache, evaluate
+from train.compilation_cache import ENV_VAR, FLAG, MIN_COMPILE_TIME_S, apply, choose, configure
+
+OPTIONS = (
+    "jax_enable_compilation_cache",
+    "jax_compilation_cache_dir",
+    "jax_persistent_cache_min_compile_time_secs",
+)
+
+
+@pytest.fixture
+def restore_jax_cache_options():
+    """JAX's cache options as they were before the test (the suite's own cache)."""
+    saved = {name: getattr(jax.config, name) for name in OPTIONS}
+    yield
+    for name, value in saved.items():
+        jax.config.update(name, value)
+
+
+def test_the_user_cache_directory_is_the_default(tmp_path):
+    got = choose(None, {"XDG_CACHE_HOME": str(tmp_path)})
+    assert got.directory == tmp_path / "mecanum-jax" / "jax"
+    assert got.source == "default"
+    home = choose(None, {})
+    assert home.directory == Path.home() / ".cache" / "mecanum-jax" / "jax"
+
+
+def test_the_environment_variable_and_the_flag_take_precedence(tmp_path):
+    env = {ENV_VAR: str(tmp_path / "env"), "XDG_CACHE_HOME": str(tmp_path / "xdg")}
+    assert choose(None, env).directory == tmp_path / "env"
+    assert choose(None, env).source == ENV_VAR
+    assert choose(str(tmp_path / "flag"), env).directory == tmp_path / "flag"
+    off = choose("off", env)
+    assert off.directory is None
+    with pytest.raises(ConfigError, match=r"--compilation-cache = ' ': give a directory"):
+        choose(" ", env)
+
+
+def test_the_flag_is_taken_out_of_the_command_line():
+    assert compilation_cache.split_flag(["--config", "tiny"]) == (None, ["--config", "tiny"])
+    assert compilation_cache.split_flag([FLAG, "off", "--config", "tiny"]) == (
+        "off",
+        ["--config", "tiny"],
+    )
+    assert compilation_cache.split_flag([f"{FLAG}=/c", "x"]) == ("/c", ["x"])
+    with pytest.raises(ConfigError, match="--compilation-cache: expected a directory"):
+        compilation_cache.split_flag(["x", FLAG])
+
+
+def test_apply_sets_jax_options(tmp_path, restore_jax_cache_options):
+    target = tmp_path / "cache"
+    rest = configure([FLAG, str(target), "--other"], {})
+    assert rest == ["--other"]
+    assert target.is_dir()
+    assert jax.config.jax_compilation_cache_dir == str(target)
+    assert jax.config.jax_enable_compilation_cache
+    assert jax.config.jax_persistent_cache_min_compile_time_secs == MIN_COMPILE_TIME_S
+    configure([FLAG, "off"], {})
+    assert not jax.config.jax_enable_compilation_cache
+
+
+def test_a_set_threshold_and_the_environment_variable_are_left_to_jax(
+    tmp_path, restore_jax_cache_options
+):
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 7.0)
+    apply(choose(str(tmp_path), {}), {"JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "7"})
+    assert jax.config.jax_persistent_cache_min_compile_time_secs == 7.0
+    jax.config.update("jax_compilation_cache_dir", "/jax/own")
+    configure([], {ENV_VAR: "/somewhere/else"})
+    assert jax.config.jax_compilation_cache_dir == "/jax/own"  # JAX read the variable itself
+
+
+def test_an_unusable_directory(tmp_path, restore_jax_cache_options, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    # the default one turns the cache off with a warning; training goes on
+    got = configure([], {"XDG_CACHE_HOME": str(blocker)})
+    assert got == []
+    assert not jax.config.jax_enable_compilation_cache
+    assert "compilation cache off" in capsys.readouterr().err
+    # one given on the command line is an error (exit status 2), naming the flag
+    with pytest.raises(SystemExit) as exit_:
+        configure([FLAG, str(blocker / "x")], {})
+    assert exit_.value.code == 2
+    assert "--compilation-cache" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("main", [cli.main, cli.batch_main, evaluate.main])
+def test_the_command_lines_take_the_flag(main, capsys, restore_jax_cache_options):
+    with pytest.raises(SystemExit) as exit_:
+        main([FLAG, ""])
+    assert exit_.value.code == 2
+    assert "--compilation-cache = ''" in capsys.readouterr().err
+
+
+def test_mecanum_train_passes_the_other_flags_on(tmp_path, capsys, restore_jax_cache_options):
+    args = ["--config", "tiny", "--run-dir", str(tmp_path / "r"), "--ppo.learning-rate", "-1"]
+    assert cli.main([FLAG, "off", *args]) == 2
+    assert "ppo.learning_rate" in capsys.readouterr().err
+    assert not jax.config.jax_enable_compilation_cache

@@ -1,0 +1,314 @@
+"""Cold start of training: from process start to the first evaluation, phase by phase.
+
+Runs what ``mecanum-train`` runs before its first evaluation, in order and one thing at a
+time: imports, the config, the model and environment build (:class:`train.ppo.Learner`),
+the robots' reset, the first epoch, a second epoch (compiled already: the first one's
+compilation shows as the difference), then the evaluation of the analytic baseline and of
+the policy. ``mecanum-train`` overlaps the baseline's evaluation with the first epoch and
+evaluates the policy after ``run.eval_every`` epochs; here each phase is timed alone.
+
+Every program JAX compiles is listed from ``jax.monitoring``'s events: its tracing,
+lowering and XLA compilation times, whether the persistent compilation cache served it
+(``train.compilation_cache``; a second start reads from a warm cache), and the phase it
+compiled in. A name compiled more than once is a recompilation (or another program from
+the same function)::
+
+    python -m train.coldstart --config gpu --json-out coldstart.json [mecanum-train flags]
+
+Times are measured from process start (Linux ``/proc``; elsewhere from this module's
+import). Prints two tables and writes JSON (``--json-out``).
+"""
+
+from __future__ import annotations
+
+import time
+
+T_MODULE = time.perf_counter()  # before anything heavy is imported here
+
+import argparse  # noqa: E402
+import contextlib  # noqa: E402
+import os  # noqa: E402
+import re  # noqa: E402
+import sys  # noqa: E402
+import threading  # noqa: E402
+from collections import Counter  # noqa: E402
+from collections.abc import Iterator  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+EVENTS = {
+    "/jax/core/compile/jaxpr_trace_duration": "trace_s",
+    "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s",
+    "/jax/core/compile/backend_compile_duration": "compile_s",
+}
+COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
+CACHE_EVENTS = {
+    "/jax/compilation_cache/cache_hits": "hit",
+    "/jax/compilation_cache/cache_misses": "miss",
+}
+
+
+def process_age_s() -> float | None:
+    """Seconds since this process started (Linux), or ``None`` where unknown."""
+    try:
+        with open("/proc/self/stat") as f:
+            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])  # field 22: starttime
+        with open("/proc/uptime") as f:
+            uptime = float(f.read().split()[0])
+        return uptime - start_ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+AGE_AT_MODULE = process_age_s()
+
+
+class CompileLog:
+    """Listens to ``jax.monitoring``: one record per traced, lowered or compiled program."""
+
+    def __init__(self) -> None:
+        self.phase = "start"
+        self.events: list[dict[str, Any]] = []
+        self._current = threading.local()
+
+    def on_duration(self, event: str, duration_secs: float, **kwargs: str | int) -> None:
+        if event in EVENTS:
+            name = str(kwargs.get("fun_name", "?"))
+            record = {"event": EVENTS[event], "name": name, "s": duration_secs, "phase": self.phase}
+            if event == COMPILE_EVENT:
+                record["cache"] = getattr(self._current, "cache", None)
+                self._current.cache = None
+            self.events.append(record)
+
+    def on_scalar(self, event: str, value: float | int, **kwargs: str | int) -> None:
+        if event == COMPILE_EVENT:  # a compilation starts
+            self._current.cache = None
+
+    def on_event(self, event: str, **kwargs: str | int) -> None:
+        if event in CACHE_EVENTS:
+            self._current.cache = CACHE_EVENTS[event]
+
+    def __enter__(self) -> CompileLog:
+        import jax.monitoring as mon
+
+        mon.register_event_duration_secs_listener(self.on_duration)
+        mon.register_scalar_listener(self.on_scalar)
+        mon.register_event_listener(self.on_event)
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        import jax.monitoring as mon
+
+        for name, listener in (
+            ("unregister_event_duration_listener", self.on_duration),
+            ("unregister_scalar_listener", self.on_scalar),
+            ("unregister_event_listener", self.on_event),
+        ):
+            unregister = getattr(mon, name, None)  # (a JAX without it keeps the listener)
+            if unregister is not None:
+                unregister(listener)
+
+    def programs(self) -> list[dict[str, Any]]:
+        """Each XLA compilation, with the tracing and lowering of the same name before it."""
+        out: list[dict[str, Any]] = []
+        pending: dict[str, dict[str, float]] = {}
+        for e in self.events:
+            key = _base_name(e["name"])
+            if e["event"] != "compile_s":
+                slot = pending.setdefault(key, {})
+                slot[e["event"]] = slot.get(e["event"], 0.0) + e["s"]
+                continue
+            before = pending.pop(key, {})
+            out.append(
+                {
+                    "name": e["name"],
+                    "phase": e["phase"],
+                    "trace_s": before.get("trace_s"),
+                    "lower_s": before.get("lower_s"),
+                    "compile_s": e["s"],
+                    "cache": e["cache"],
+                }
+            )
+        return out
+
+
+def _base_name(name: str) -> str:
+    """``jit(_epoch)`` (lowering, compilation) -> ``_epoch`` (tracing)."""
+    match = re.fullmatch(r"(?:jit|pmap)\((.*)\)", name)
+    return match.group(1) if match else name
+
+
+class Clock:
+    """Phases that tile the time from process start: each runs from the end of the one
+    before to its own end (name, seconds, seconds since process start)."""
+
+    def __init__(self, log: CompileLog):
+        self.offset = (AGE_AT_MODULE or 0.0) - T_MODULE
+        self.log = log
+        self.phases: list[dict[str, Any]] = []
+        self._t = T_MODULE
+        if AGE_AT_MODULE is not None:
+            name = "interpreter, import train (jax, mecanum_jax)"
+            self.phases.append({"phase": name, "s": AGE_AT_MODULE, "at_s": AGE_AT_MODULE})
+
+    @contextlib.contextmanager
+    def phase(self, name: str) -> Iterator[dict[str, Any]]:
+        """Time the block as phase ``name``; programs compiled in it are attributed to it.
+        The block may add entries to the dict it gets."""
+        self.log.phase = name
+        extra: dict[str, Any] = {}
+        yield extra
+        now = time.perf_counter()
+        self.phases.append({"phase": name, "s": now - self._t, "at_s": now + self.offset, **extra})
+        self._t = now
+
+
+def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
+    """The phases (see the module docstring); returns the report's head."""
+    with clock.phase("imports: trainer (MJX, Brax, Flax, optax)"):
+        import jax
+
+        from train import compilation_cache
+
+        argv = compilation_cache.configure(argv)
+        import numpy as np
+
+        from mecanum_jax.config import ConfigError
+        from mecanum_jax.precision import set_matmul_precision
+        from train.config import apply_flags, load_train_config
+        from train.ppo import Learner, first_device
+    cache_dir = getattr(jax.config, "jax_compilation_cache_dir", None)
+    cache_on = bool(getattr(jax.config, "jax_enable_compilation_cache", False) and cache_dir)
+    with clock.phase("config (load, flags, validation)"):
+        parser = argparse.ArgumentParser(prog="python -m train.coldstart", description=__doc__)
+        parser.add_argument("--config", default="gpu")
+        parser.add_argument("--json-out", default=None)
+        args, flags = parser.parse_known_args(argv)
+        try:
+            if args.json_out and not Path(args.json_out).absolute().parent.is_dir():
+                raise ConfigError(f"--json-out = {args.json_out!r}: its directory does not exist")
+            cfg = apply_flags(load_train_config(args.config), flags, parser.prog)
+        except ConfigError as err:
+            print(f"error: {err}", file=sys.stderr)
+            raise SystemExit(2) from None
+        set_matmul_precision(cfg.run.matmul_precision)
+    with clock.phase("model and environment build"):
+        learner = Learner(cfg)
+    with clock.phase("robots' reset"):
+        ts, env = jax.block_until_ready(learner.init())
+    for name in ("first epoch", "second epoch"):
+        with clock.phase(name) as extra:
+            ts, env, metrics = learner.epoch(ts, env)
+            extra["finite"] = bool(np.all(np.asarray(jax.device_get(metrics["finite"])) > 0))
+    host_ts = first_device(ts)
+    with clock.phase("first evaluation: baseline"):
+        learner.evaluate_baseline(host_ts)
+    with clock.phase("first evaluation: policy"):
+        learner.evaluate(host_ts)
+    return {
+        "device": jax.devices()[0].device_kind,
+        "platform": jax.default_backend(),
+        "jax": jax.__version__,
+        "date": time.strftime("%Y-%m-%d"),
+        "config": cfg.name,
+        "physics_impl": learner.env.robot.impl,
+        "robots": cfg.ppo.num_envs,
+        "seeds": len(cfg.run.seeds),
+        "devices": learner.n_devices,
+        "cache": {"on": cache_on, "dir": cache_dir if cache_on else None},
+        "from_process_start": AGE_AT_MODULE is not None,
+        "json_out": args.json_out,
+    }
+
+
+def summarize(result: dict[str, Any], programs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The report: the programs, slowest first, and their totals. ``recompiled``: each
+    name compiled more than once, with its count and total compile time, slowest first
+    (eager operations on arrays of new shapes count too)."""
+    count = Counter(p["name"] for p in programs)
+    seconds: Counter[str] = Counter()
+    for p in programs:
+        seconds[p["name"]] += p["compile_s"]
+    cache = Counter(str(p["cache"]) for p in programs)
+    recompiled = {
+        n: {"count": count[n], "compile_s": s} for n, s in seconds.most_common() if count[n] > 1
+    }
+    return {
+        **result,
+        "programs": sorted(programs, key=lambda p: -p["compile_s"]),
+        "totals": {
+            "programs": len(programs),
+            "compile_s": sum(p["compile_s"] for p in programs),
+            "trace_s": sum(p["trace_s"] or 0.0 for p in programs),
+            "lower_s": sum(p["lower_s"] or 0.0 for p in programs),
+            "cache_hits": cache["hit"],
+            "cache_misses": cache["miss"],
+            "recompiled": recompiled,
+        },
+    }
+
+
+def _tables(report: dict[str, Any], top: int) -> list[Any]:
+    from rich.table import Table
+
+    phases = Table(
+        title=f"Cold start of {report['config']} on {report['device']} "
+        f"({report['physics_impl']} physics, {report['robots']} robots, "
+        f"cache {report['cache']['dir'] or 'off'})"
+    )
+    for col in ("phase", "s", "at s (from process start)"):
+        phases.add_column(col, justify="left" if col == "phase" else "right")
+    for p in report["phases"]:
+        phases.add_row(p["phase"], f"{p['s']:.2f}", f"{p['at_s']:.2f}")
+    progs = Table(title=f"Compiled programs (the {top} slowest of {len(report['programs'])})")
+    for col in ("program", "phase", "trace s", "lower s", "compile s", "cache"):
+        progs.add_column(col, justify="left" if col in ("program", "phase", "cache") else "right")
+
+    def f(x: float | None) -> str:
+        return "-" if x is None else f"{x:.2f}"
+
+    for p in report["programs"][:top]:
+        progs.add_row(
+            p["name"], p["phase"], f(p["trace_s"]), f(p["lower_s"]), f(p["compile_s"]),
+            p["cache"] or "-",
+        )  # fmt: skip
+    return [phases, progs]
+
+
+def main(argv: list[str] | None = None, top: int = 15) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    with CompileLog() as log:
+        clock = Clock(log)
+        result = cold_start(argv, clock)
+    result["phases"] = clock.phases
+    report = summarize(result, log.programs())
+    from rich.console import Console
+
+    from train.run import write_json
+
+    console = Console(width=None if sys.stdout.isatty() else 140)
+    for t in _tables(report, top):
+        console.print(t)
+    totals = report["totals"]
+    again = totals["recompiled"]
+    shown = ", ".join(
+        f"{n} ×{r['count']} ({r['compile_s']:.2f} s)" for n, r in list(again.items())[:6]
+    )
+    console.print(
+        f"{totals['programs']} programs compiled: {totals['compile_s']:.1f} s in XLA, "
+        f"{totals['trace_s']:.1f} s tracing, {totals['lower_s']:.1f} s lowering; persistent "
+        f"cache hits {totals['cache_hits']}, misses {totals['cache_misses']}; {len(again)} "
+        f"names compiled more than once{': ' + shown if again else ''}"
+        f"{' ...' if len(again) > 6 else ''}"
+    )
+    if report["json_out"]:
+        write_json(Path(report["json_out"]), report)
+        console.log(f"wrote {report['json_out']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+
+
+__all__ = ["CompileLog", "main", "process_age_s"]
