@@ -25,6 +25,7 @@ FIGURES = (
     ("energy J", "energy_j", "{:.0f}"),
     ("J/m", "energy_per_m", "{:.1f}"),
     ("null J", "null_energy_j", "{:.0f}"),
+    ("flicker", "flicker", "{:.4f}"),
 )
 RATIOS = (
     ("ss v", "ss_lin"),

@@ -147,3 +147,15 @@ def test_bootstrap_interval_of_one_controller():
     lo_w, hi_w = metrics.bootstrap_interval(wider)
     assert hi_w - lo_w > hi - lo
     assert metrics.bootstrap_interval(metrics.Part(np.zeros(5), np.zeros(5), "rms")) is None
+
+
+def test_flicker_is_the_mean_action_step():
+    from mecanum_jax.evaluation.metrics import flicker_part
+
+    still = np.zeros((2, 5, 3))
+    assert flicker_part(still).value() == 0.0
+    alternating = np.zeros((2, 5, 3))
+    alternating[:, 1::2] = 0.1  # every step changes each entry by 0.1
+    assert flicker_part(alternating).value() == pytest.approx(0.1)
+    ramp = np.cumsum(np.full((1, 5, 1), 0.02), axis=1)  # a steady slope: 0.02 a step
+    assert flicker_part(ramp).value() == pytest.approx(0.02)

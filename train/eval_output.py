@@ -24,6 +24,7 @@ TABLE = (
     ("drift m", "drift_m", "{:.3f}"),
     ("energy J", "energy_j", "{:.0f}"),
     ("null J", "null_energy_j", "{:.1f}"),
+    ("flicker", "flicker", "{:.4f}"),
 )
 
 
@@ -46,7 +47,7 @@ def results_table(results: dict[str, Any], title: str) -> Table:
                 if (
                     v is not None
                     and len(values) > 1
-                    and key != "null_energy_j"
+                    and key not in ("null_energy_j", "flicker")
                     and v == min(values)
                 ):
                     text = f"[green]{text}[/]"

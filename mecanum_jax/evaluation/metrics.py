@@ -316,6 +316,14 @@ def verdict(c: Comparison | None, lower_is_better: bool = True) -> str:
     return "tie"
 
 
+def flicker_part(action: np.ndarray) -> Part:
+    """Flicker: the mean ``|a_t − a_(t−1)|`` per control step and action entry, of actions
+    (E, T, a) in [-1, 1] (0 for a controller without actions, the references)."""
+    step = np.abs(np.diff(action, axis=1))  # (E, T-1, a)
+    E, T1, a = step.shape
+    return Part(np.sum(step, axis=(1, 2)), np.full(E, float(max(T1 * a, 1))), "mean")
+
+
 def summary(parts: dict[str, Part]) -> dict[str, float | None]:
     return {k: p.value() for k, p in parts.items()}
 
@@ -327,6 +335,7 @@ __all__ = [
     "bootstrap_interval",
     "bootstrap_weights",
     "episode_parts",
+    "flicker_part",
     "null_space_projector",
     "paired_ratio",
     "segment_ids",

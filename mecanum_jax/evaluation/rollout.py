@@ -82,6 +82,7 @@ class Trace(NamedTuple):
     wheel_torque: Any  # (E, T, n) N·m
     wheel_rate: Any  # (E, T, n) rad/s
     qpos: Any  # (E, T, nq), for rendering
+    action: Any = None  # (E, T, a) the action applied (after the filter); 0 for references
 
 
 def who_code(who: str) -> int:
@@ -146,6 +147,7 @@ class Evaluator:
                 wheel_torque=sens.wheel_torque,
                 wheel_rate=sens.wheel_rate,
                 qpos=ns.pipeline_state.data.qpos,
+                action=ns.info["last_action"],
             )
             return ns, out
 
@@ -236,8 +238,9 @@ def _wrap(a: np.ndarray) -> np.ndarray:
 def trace_parts(
     trace: Trace, jacobian: Any, dt: float, cfg: metrics.MetricConfig | None = None
 ) -> dict[str, metrics.Part]:
-    """The per-episode metrics of a rollout (:func:`.metrics.episode_parts`)."""
-    return metrics.episode_parts(
+    """The per-episode metrics of a rollout (:func:`.metrics.episode_parts`), and the
+    flicker of its actions where it has them (:func:`.metrics.flicker_part`)."""
+    parts = metrics.episode_parts(
         trace.command,
         trace.target,
         trace.twist,
@@ -251,6 +254,9 @@ def trace_parts(
         dt,
         cfg,
     )
+    if trace.action is not None:
+        parts["flicker"] = metrics.flicker_part(np.asarray(trace.action))
+    return parts
 
 
 def summarize(
