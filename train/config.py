@@ -24,6 +24,7 @@ from mecanum_jax.config import (
     require,
 )
 from mecanum_jax.task import EnvConfig
+from mecanum_jax.task.fidelity import check_task
 from train.loggers import check_wandb
 from train.losses import SmoothnessConfig
 
@@ -124,6 +125,9 @@ class RunConfig:
     """Seed of the held-out evaluation episodes (not one of the training seeds)."""
     num_eval_envs: int = 32
     """Episodes per periodic evaluation scenario (>= 1)."""
+    eval_fidelity: Literal["fast", "reference"] = "fast"
+    """Physics model of the periodic evaluation: "fast" (the training model) or "reference"
+    (the roller model at its own timestep; slower, docs/evaluation.md)."""
     eval_episode_length: int = 250
     """Control steps per evaluation episode (>= 1)."""
     max_devices: int = 0
@@ -216,6 +220,7 @@ class TrainConfig:
         require(r, "run", cadences, lambda v: v >= 1, "must be >= 1")
         require(r, "run", ("max_devices",), lambda v: v >= 0, "must be >= 0 (0: all local devices)")
         require(r, "run", ("progress_every_s",), _positive_finite, "must be > 0 seconds")
+        check_task(self.env, r.eval_fidelity, "run.eval_fidelity")
         return self
 
     def check_devices(self, device_count: int) -> None:

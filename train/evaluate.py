@@ -52,6 +52,7 @@ from mecanum_jax.evaluation import rollout as ev  # noqa: E402
 from mecanum_jax.kinematics import model as kinematics  # noqa: E402
 from mecanum_jax.precision import set_matmul_precision  # noqa: E402
 from mecanum_jax.task import REFERENCES, MecanumEnv  # noqa: E402
+from mecanum_jax.task import fidelity as fid  # noqa: E402
 from train import checkpoint, compilation_cache  # noqa: E402
 from train.config import load_train_config  # noqa: E402
 from train.eval_output import (  # noqa: E402
@@ -112,6 +113,9 @@ class EvalArgs:
     physics_impl: str = ""
     """MJX implementation to simulate with: "jax", "warp" (the warp extra), or "" (the
     task's own). Both simulate the same robot (docs/benchmarks.md)."""
+    fidelity: str = "fast"
+    """Physics model: "fast" (the training model) or "reference" (the roller model at its own
+    timestep, same control period; docs/evaluation.md)."""
     references: tuple[str, ...] = REFERENCES
     """Reference controllers to run on the same episodes (analytic, analytic_nearest,
     feedback)."""
@@ -161,7 +165,8 @@ class Target:
         # before anything is traced: one number on every device (mecanum_jax.precision)
         self.precision = args.matmul_precision or precision
         set_matmul_precision(self.precision, "--matmul-precision")
-        max_batch = args.max_batch or (64 if jax.default_backend() == "cpu" else 16384)
+        fidelity = fid.check_fidelity(args.fidelity, "--fidelity")
+        max_batch = fid.eval_batch(fidelity, args.max_batch, "--max-batch", 16384)
         impl = args.physics_impl
         if not impl and base.physics_impl == "warp" and importlib.util.find_spec("warp") is None:
             impl = "jax"  # the same robot (docs/benchmarks.md); Warp is an optional extra
@@ -169,7 +174,9 @@ class Target:
         if impl:
             base = dataclasses.replace(base, physics_impl=impl)
         eval_cfg = scenarios.eval_env_config(base.validate("env"), scenario_set)
-        self.env = MecanumEnv(eval_cfg, robots=max_batch)
+        fid.check_task(eval_cfg, fidelity, "--fidelity")
+        self.env = MecanumEnv(eval_cfg, robots=max_batch, fidelity=fidelity)
+        self.label += "" if fidelity == "fast" else f" in the {fidelity} model"
         apply = None
         if self.restored is not None:
             apply = self.restored.apply
@@ -434,6 +441,7 @@ def _evaluate_into(
         "scenario_file": scenario_set.source,
         "device": str(jax.devices()[0]),
         "matmul_precision": target.precision,
+        "fidelity": target.env.robot.fidelity,
         "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
         "wall_s": round(time.time() - t_start, 2),
         "timing": timing,

@@ -2,8 +2,9 @@
 
 Each seed's deterministic policy and the analytic baseline play the same held-out episodes
 of the training task (:func:`mecanum_jax.evaluation.scenarios.task_scenarios`: ``randomized`` and
-``nominal``, from ``run.eval_seed``), through the rollout, the metrics and the paired
-intervals that ``mecanum-eval`` uses. A policy *beats* the baseline when, on
+``nominal``, from ``run.eval_seed``), in the physics model ``run.eval_fidelity`` (the fast
+training model by default, or the reference roller model), through the rollout, the metrics
+and the paired intervals that ``mecanum-eval`` uses. A policy *beats* the baseline when, on
 ``randomized``, the paired 95% interval of its steady-state error ratio lies below 1 for
 the velocity and for the yaw rate (:data:`BEAT_METRICS`).
 """
@@ -19,6 +20,7 @@ import numpy as np
 from mecanum_jax.evaluation import metrics, scenarios
 from mecanum_jax.evaluation import rollout as evaluation
 from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.task import fidelity as fid
 from mecanum_jax.task.env import MecanumEnv
 from train.config import TrainConfig
 
@@ -56,12 +58,14 @@ class PeriodicEvaluation:
         self.scenarios = scenarios.task_scenarios(cfg.env, r.num_eval_envs, seconds, r.eval_seed)
         # the training environment serves unless the scenarios need more latency history
         eval_cfg = scenarios.eval_env_config(cfg.env, self.scenarios)
-        # one chunk on a GPU; 64 robots on CPU (larger MJX batches deadlock its backend)
-        max_batch = 2 * r.num_eval_envs if on_gpu else 64
+        # one chunk on a GPU; on CPU 64 fast or 4 reference robots (larger MJX batches
+        # deadlock its backend: fidelity.CPU_EVAL_BATCH)
+        fidelity = fid.check_fidelity(r.eval_fidelity, "run.eval_fidelity")
+        max_batch = 2 * r.num_eval_envs if on_gpu else fid.cpu_batch(fidelity)
         robots = max_batch * len(r.seeds)
         too_few = env.robot.impl == "warp" and env.robot.robots < robots  # contact buffer
-        if eval_cfg != env.config or too_few:
-            env = MecanumEnv(eval_cfg, robots=robots)
+        if eval_cfg != env.config or too_few or fidelity != env.robot.fidelity:
+            env = MecanumEnv(eval_cfg, robots=robots, fidelity=fidelity)
         self.env = env
         self.evaluator = evaluation.Evaluator(self.env, deterministic_apply(networks), max_batch)
         self._jacobian = np.asarray(kinematics.jacobian(self.env.geometry))

@@ -2,8 +2,8 @@
 
 - ``"reference"``: each wheel is a hub on an actuated hinge carrying N passive rollers
   (barrel-shaped chains of spheres, ``sim.roller_spheres``; or straight capsules) on
-  hinges along their own axes, tilted at the roller angle. Rollers touch the
-  floor only. Realistic and slow; it validates the fast model and shows real slip.
+  hinges along their own axes, mounted at the angle whose mean effective angle on the
+  floor is the roller angle (:func:`mounted_roller_angle`). Rollers touch the floor only. Realistic and slow; it validates the fast model and shows real slip.
 - ``"fast"``: each wheel is one sphere on two hinges (shared/design/mjx-model.md §2):
   chassis → *carrier* on a passive hinge about the floor roller's axis u_i (fixed in the
   chassis frame) → *hub* on the actuated axle hinge → a sphere of the wheel's radius.
@@ -196,12 +196,30 @@ def _wheel_fast(desc: RobotDescription, geom: WheelGeometry, i: int) -> str:
     </body>"""
 
 
+def mounted_roller_angle(gamma: float, rollers: int) -> float:
+    """The angle γ₀ at which the reference wheel mounts its rollers (in the hub's tangent
+    plane) so that its floor roller's *effective* angle is ``gamma`` on average.
+
+    A roller turned by α about the axle has its axis tilted out of the floor plane, and a
+    surface of revolution on the floor is free to roll only across its axis' floor
+    projection: the driven direction's angle is ``tan γ(α) = tan γ₀ / cos α``, larger than
+    γ₀ everywhere but at α = 0. The floor roller sweeps |α| ≤ π/n, over which 1/cos α
+    averages ``ln(sec(π/n) + tan(π/n)) / (π/n)`` (1.0169 for 10 rollers: rollers mounted
+    at 45° act as 45.48°, which gives an X-square a lever arm to spin on, and an O-robot
+    1.7% less lateral speed). Mounting them at ``atan(tan γ / that mean)`` (44.52°) makes
+    the mean effective angle the description's γ (docs/physics_validation.md).
+    """
+    a = math.pi / rollers
+    mean_sec = math.log(1.0 / math.cos(a) + math.tan(a)) / a
+    return math.atan2(math.sin(gamma), math.cos(gamma) * mean_sec)
+
+
 def _wheel_reference(desc: RobotDescription, geom: WheelGeometry, i: int) -> str:
     name = geom.names[i]
     x, y = (float(v) for v in geom.positions[i])
     r = float(geom.radii[i])
-    gamma = float(geom.roller_angles[i])
     n_rollers = desc.sim.rollers
+    gamma = mounted_roller_angle(float(geom.roller_angles[i]), n_rollers)
     n_spheres = desc.sim.roller_spheres
     rho = desc.sim.roller_radius_ratio * r
     rc = r - rho

@@ -335,6 +335,18 @@ def _x_square_md(fast: dict[str, Any], ref: dict[str, Any]) -> list[str]:
             f"| {name} | ωz = {s['o_square_pattern_wz']:+.3f} rad/s | ωz = {s['x_square_pattern_wz']:+.4f} rad/s | "
             f"rates {_f(s['x_square_own_inverse_rates'])}, ωz = {s['x_square_own_inverse_wz']:+.4f} rad/s |"
         )
+    lines += [
+        "",
+        "Under the O spin pattern the X-square's wheels fight along its diagonals, whose "
+        "floor rollers all point at the centre: no lever arm, ωz = 0 (seed 002). The "
+        "reference model's rollers are mounted at `mjcf.mounted_roller_angle` (44.52° for 10 "
+        "rollers), so that the floor roller's effective angle, which grows as the roller "
+        "turns away from the bottom, averages the layout's 45°; mounted at 45° they act as "
+        "45.48°, which gave the X-square a lever arm and ωz = −0.80 rad/s "
+        "(experiments/xsquare_spin.py). What is left is of the order of 0.1 rad/s either "
+        "way, the spin of a few hundredths of a degree of effective angle, while the chassis "
+        "hops on its fighting wheels.",
+    ]
     return lines
 
 

@@ -39,6 +39,7 @@ from mecanum_jax.kinematics import limits
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.sim.physics import Robot, RobotParams, chunked_vmap, cpu_chunk, select
 from mecanum_jax.task import commands as cmds
+from mecanum_jax.task import fidelity as fid
 from mecanum_jax.task import observations as obs_
 from mecanum_jax.task import randomization as rand
 from mecanum_jax.task import references as refs
@@ -55,15 +56,16 @@ class MecanumEnv(Env):
 
     metric_names = METRIC_NAMES
 
-    def __init__(self, config: EnvConfig | None = None, robots: int = 1):
+    def __init__(self, config: EnvConfig | None = None, robots: int = 1, fidelity: str = "fast"):
         """``robots``: the most robots one batched call simulates (all vmapped axes
-        together), for MuJoCo Warp's shared contact buffer (:class:`Robot`)."""
+        together), for MuJoCo Warp's shared contact buffer (:class:`Robot`). ``fidelity``:
+        the physics model, "fast" or "reference" (:mod:`.fidelity`)."""
         self.config = config = (config or EnvConfig()).validate()
         self.desc = config.description()
-        self.robot = Robot(self.desc, "fast", robots=robots)
+        self.robot = Robot(*fid.model(config, fidelity), robots=robots)
         self.geometry = self.robot.geometry
         self.n_wheels = n = self.geometry.n_wheels
-        self.substeps = round(config.control_dt / config.physics_timestep)
+        self.substeps = fid.substeps(config, self.robot.desc, self.robot.fidelity)
         self.max_rates = self.desc.max_wheel_rates(self.geometry).astype(jnp.float32)
         self.max_rate = float(np.max(np.asarray(self.max_rates)))
         axes = np.eye(3, dtype=np.float32)
@@ -277,7 +279,7 @@ class TrainingEnv(Wrapper):
         super().__init__(env)
         self.menv = env
         self.episode_length = episode_length or env.config.episode_length
-        self.chunk = chunk if chunk is not None else cpu_chunk("fast", env.robot.impl)
+        self.chunk = chunk if chunk is not None else cpu_chunk(env.robot.fidelity, env.robot.impl)
 
     def reset(self, rng: jax.Array) -> State:
         return chunked_vmap(self.env.reset, self.chunk)(rng)
