@@ -40,6 +40,7 @@ from mecanum_jax.deploy.plant import Plant, PlantParams, SensorChannel
 from mecanum_jax.deploy.policy import ExportError
 from mecanum_jax.evaluation import metrics
 from mecanum_jax.evaluation import rollout as ev
+from train import eval_output
 
 console = Console(stderr=True)
 DEFAULT_MODEL = "models/o_rectangle"
@@ -261,18 +262,8 @@ def play(plant: Plant, controller: Controller, eps: Episodes, seed: int = 0) -> 
     )
 
 
-TABLE = (
-    ("RMSE v", "rmse_lin", "{:.3f}"),
-    ("RMSE ωz", "rmse_wz", "{:.3f}"),
-    ("ss v", "ss_lin", "{:.3f}"),
-    ("ss ωz", "ss_wz", "{:.3f}"),
-    ("settle v s", "settle_lin_s", "{:.2f}"),
-    ("settle ω s", "settle_wz_s", "{:.2f}"),
-    ("drift m", "drift_m", "{:.3f}"),
-    ("energy J", "energy_j", "{:.0f}"),
-    ("null J", "null_energy_j", "{:.1f}"),
-)
-"""mecanum-eval's table columns (train/evaluate.py TABLE)."""
+TABLE = tuple(column for column in eval_output.TABLE if column[1] != "flicker")
+"""mecanum-eval's table columns, less flicker (the loop's trace records no actions)."""
 INTERVALS = ("rmse_lin", "rmse_wz", "ss_lin", "ss_wz")
 
 
