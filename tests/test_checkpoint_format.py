@@ -50,8 +50,14 @@ def raw_train(run_dir: Path) -> dict[str, np.ndarray]:
     return {k: np.asarray(v) for k, v in items["train"].items()}
 
 
-def write_raw(run_dir: Path, train: dict[str, np.ndarray], source: Path) -> Path:
-    """A copy of ``source``'s checkpoint whose ``train`` item is ``train`` (keys as given)."""
+def write_raw(
+    run_dir: Path, train: dict[str, np.ndarray], source: Path, damaged: bool = False
+) -> Path:
+    """A copy of ``source``'s checkpoint whose ``train`` item is ``train`` (keys as given):
+    as another version would have written it (checksums of ``train`` as it is), or, if
+    ``damaged``, with the checksums it holds (data that changed after they were taken)."""
+    if not damaged and leaves.CHECKSUMS in train:
+        train = leaves.with_checksums(train)
     _, meta = checkpoint.read_meta(source)
     mgr = checkpoint.manager(run_dir)
     args = ocp.args.Composite(train=ocp.args.StandardSave(train), meta=ocp.args.JsonSave(meta))
@@ -78,7 +84,7 @@ def test_swapped_leaves_are_refused_naming_both(template, tmp_path):
     train = raw_train(DATA / "named")
     assert train[MU].shape == train[NU].shape
     train[MU], train[NU] = train[NU], train[MU]
-    run = write_raw(tmp_path / "swapped", train, DATA / "named")
+    run = write_raw(tmp_path / "swapped", train, DATA / "named", damaged=True)
     with pytest.raises(checkpoint.CheckpointError) as err:
         checkpoint.read_train(run, EPOCH, template)
     message = str(err.value)
@@ -90,7 +96,7 @@ def test_swapped_leaves_are_refused_naming_both(template, tmp_path):
 def test_changed_data_is_refused(template, tmp_path):
     train = raw_train(DATA / "named")
     train[MU] = train[MU] + np.float32(1e-3)
-    run = write_raw(tmp_path / "changed", train, DATA / "named")
+    run = write_raw(tmp_path / "changed", train, DATA / "named", damaged=True)
     with pytest.raises(checkpoint.CheckpointError, match=r"1 not holding the data .*mu\.policy"):
         checkpoint.read_train(run, EPOCH, template)
 

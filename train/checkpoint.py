@@ -32,7 +32,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from mecanum_jax.config import ConfigError
-from train.leaves import CheckpointError, pack, unpack
+from train.leaves import CheckpointError, corruption, pack, unpack
 
 CHECKPOINT_DIR = "checkpoints"
 
@@ -150,7 +150,12 @@ def _read_items(mgr: ocp.CheckpointManager, epoch: int, items: tuple[str, ...]) 
     """The named items of checkpoint ``epoch`` as they were saved (no template: a file that
     does not decode is corruption, not a shape mismatch); ``meta`` is JSON, others arrays."""
     args = {k: ocp.args.JsonRestore() if k == "meta" else ocp.args.StandardRestore() for k in items}
-    return dict(mgr.restore(epoch, args=ocp.args.Composite(**args)))
+    out = dict(mgr.restore(epoch, args=ocp.args.Composite(**args)))
+    for k in items:
+        damage = "" if k == "meta" else corruption(out[k])
+        if damage:  # decoded, but not the bytes that were saved
+            raise CheckpointError(f"{k}: {damage}")
+    return out
 
 
 def _read_checked(run_dir: Path, epoch: int | None, items: tuple[str, ...]) -> tuple[int, dict]:

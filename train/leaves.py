@@ -65,10 +65,17 @@ def pack(tree: Any) -> dict[str, np.ndarray]:
     and some optimizer states turn leaves back into jax arrays when rebuilt, so
     ``jax.tree.map(np.asarray, tree)`` would not do.
     """
-    flat = {n: np.asarray(x) for n, x in named_leaves(tree) if math.prod(np.shape(x))}
-    if flat:
-        flat[CHECKSUMS] = np.array([_crc(flat[n]) for n in sorted(flat)], np.uint32)
-    return flat
+    return with_checksums(
+        {n: np.asarray(x) for n, x in named_leaves(tree) if math.prod(np.shape(x))}
+    )
+
+
+def with_checksums(flat: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``flat`` (``{leaf name: array}``) with a fresh :data:`CHECKSUMS` entry."""
+    out = {k: v for k, v in flat.items() if k != CHECKSUMS}
+    if out:
+        out[CHECKSUMS] = np.array([_crc(out[n]) for n in sorted(out)], np.uint32)
+    return out
 
 
 def is_index_format(flat: Mapping[str, Any]) -> bool:
@@ -108,6 +115,15 @@ def unpack(template: Any, flat: Mapping[str, Any]) -> Any:
     if problems:
         raise CheckpointError("checkpoint leaves do not match this state: " + "; ".join(problems))
     return jax.tree.unflatten(jax.tree.structure(template), out)
+
+
+def corruption(flat: Mapping[str, Any]) -> str:
+    """Why the leaves of a packed tree do not hold the data they were saved with (``""``
+    when they do, or when the tree carries no checksums): damage found after decoding."""
+    if CHECKSUMS not in flat or is_index_format(flat):
+        return ""
+    saved = {k: v for k, v in flat.items() if k != CHECKSUMS}
+    return _checksum_problem(saved, np.asarray(flat[CHECKSUMS]))
 
 
 def _listed(what: str, names: list[str]) -> str:
