@@ -118,3 +118,16 @@ def test_a_checkpoint_of_another_shape_is_not_skipped(full_run, learner, tmp_pat
     with pytest.raises(checkpoint.CheckpointError, match="does not fit this run's state"):
         checkpoint.restore(run.dir, wrong, jax.tree.map(np.asarray, env_state))
     assert checkpoint.latest_epoch(run.dir) == 3  # nothing moved
+
+
+def test_error_messages_print_their_brackets():
+    """A checkpoint error names leaves such as ``.policy['params']``; rich must not read
+    the brackets as markup (and drop them, or fail on ``[/x]``)."""
+    from rich.console import Console
+
+    from train.progress import print_error
+
+    console = Console(record=True, width=200, color_system=None)
+    message = "2 missing: .policy['params'][bold] and [/x] .nu"
+    print_error(console, ValueError(message), "run [a]: diverged")
+    assert console.export_text().strip() == f"run [a]: diverged: {message}"

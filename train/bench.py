@@ -35,6 +35,7 @@ from train import compilation_cache
 from train.config import TrainConfig, apply_flags, load_train_config
 from train.distributed import init_distributed
 from train.ppo import Learner, to_host
+from train.progress import print_error
 
 
 def measure(cfg: TrainConfig, epochs: int) -> dict[str, Any]:
@@ -126,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
             name, *flags = shlex.split(v)
             variants.append((name, apply_flags(base, flags, f"--variant {name}")))
     except ConfigError as err:
-        console.print(f"[red]error:[/] {err}")
+        print_error(console, err)
         return 2
     results = []
     for name, cfg in variants:

@@ -31,6 +31,7 @@ from mecanum_jax.sim.description import require_impl
 from train import checkpoint, compilation_cache, curve
 from train.config import TrainConfig, apply_flags, load_train_config
 from train.distributed import init_distributed
+from train.progress import print_error
 from train.run import Run, RunDirError, TrainingDiverged, write_json
 
 console = Console(stderr=True)
@@ -80,7 +81,7 @@ def results_table(summary: dict[str, Any], title: str) -> Table:
 
 
 def _fail(err: BaseException, code: int) -> int:
-    console.print(f"[bold red]error:[/] {err}")
+    print_error(console, err)
     return code
 
 
@@ -195,7 +196,7 @@ def batch_main(argv: list[str] | None = None) -> int:
             summaries.append(run.train(time_limit_s=limit))
             _plot(run)
         except TrainingDiverged as err:
-            console.print(f"[red]{run.dir}: diverged[/]: {err}")
+            print_error(console, err, f"{run.dir}: diverged")
             summaries.append({"name": run.cfg.name, "run_dir": str(run.dir), "diverged": str(err)})
         except KeyboardInterrupt:
             console.print("[yellow]interrupted[/]: checkpoint written")

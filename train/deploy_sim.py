@@ -41,6 +41,7 @@ from mecanum_jax.deploy.policy import ExportError
 from mecanum_jax.evaluation import metrics
 from mecanum_jax.evaluation import rollout as ev
 from train import eval_output
+from train.progress import print_error
 
 console = Console(stderr=True)
 DEFAULT_MODEL = "models/o_rectangle"
@@ -325,7 +326,7 @@ def _count(n: int, noun: str) -> str:
 
 
 def _error(err: BaseException) -> None:
-    console.print(f"[bold red]error:[/] {err}", soft_wrap=True, markup=True, highlight=False)
+    print_error(console, err)
 
 
 def main(argv: list[str] | None = None) -> int:

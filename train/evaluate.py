@@ -44,7 +44,6 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 import tyro  # noqa: E402
 from rich.console import Console  # noqa: E402
-from rich.markup import escape  # noqa: E402
 
 from mecanum_jax.config import ConfigError  # noqa: E402
 from mecanum_jax.evaluation import metrics, scenarios  # noqa: E402
@@ -62,7 +61,7 @@ from train.eval_output import (  # noqa: E402
     write_plots,
 )
 from train.export import export_policy  # noqa: E402
-from train.progress import rollout_progress  # noqa: E402
+from train.progress import print_error, rollout_progress  # noqa: E402
 from train.run import write_json  # noqa: E402
 
 console = Console(stderr=True)
@@ -315,8 +314,7 @@ def write_videos(
 
 
 def _error(err: BaseException) -> None:
-    text = f"[bold red]error:[/] {escape(str(err))}"  # a message may hold [brackets]
-    console.print(text, soft_wrap=True, markup=True, highlight=False)
+    print_error(console, err)
 
 
 def _parse(argv: list[str], prog: str, cls: type) -> Any:

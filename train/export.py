@@ -37,6 +37,7 @@ from mecanum_jax.sim.description import fingerprint
 from mecanum_jax.sim.physics import GRAVITY
 from mecanum_jax.task import MecanumEnv
 from train import checkpoint
+from train.progress import print_error
 
 console = Console(stderr=True)
 
@@ -176,7 +177,7 @@ def _policy_arrays(
 
 
 def _error(err: BaseException) -> None:
-    console.print(f"[bold red]error:[/] {err}", soft_wrap=True, markup=True, highlight=False)
+    print_error(console, err)
 
 
 export_main = main

@@ -42,6 +42,7 @@ from train import compilation_cache
 from train.config import TrainConfig, apply_flags, load_train_config
 from train.ppo import Learner, first_device, to_host
 from train.profile_parts import EpochParts
+from train.progress import print_error
 from train.run import write_json
 
 
@@ -253,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
         check_out_path("--trace-dir", args.trace_dir, directory=True)
         cfg = apply_flags(load_train_config(args.config), flags, parser.prog)
     except ConfigError as err:
-        console.print(f"[red]error:[/] {err}")
+        print_error(console, err)
         return 2
     result = measure(cfg, args.repeats, args.trace_dir, console.log)
     console.print(table(result))

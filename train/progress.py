@@ -24,10 +24,18 @@ from typing import Any
 
 import numpy as np
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 SCENARIO = "randomized"
 """The periodic evaluation's scenario the lines quote (the training distribution)."""
+
+
+def print_error(console: Console, err: BaseException | str, label: str = "error") -> None:
+    """``label: err`` in red on ``console``; the message is printed as it is, brackets and
+    all (a leaf name such as ``['params']`` is not rich markup)."""
+    text = f"[bold red]{escape(label)}:[/] {escape(str(err))}"
+    console.print(text, soft_wrap=True, markup=True, highlight=False)
 
 
 def wants_lines(console: Console) -> bool:
