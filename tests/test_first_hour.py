@@ -131,3 +131,18 @@ def test_error_messages_print_their_brackets():
     message = "2 missing: .policy['params'][bold] and [/x] .nu"
     print_error(console, ValueError(message), "run [a]: diverged")
     assert console.export_text().strip() == f"run [a]: diverged: {message}"
+
+
+def test_an_empty_newest_checkpoint_is_passed_over_with_a_warning(full_run, tmp_path):
+    """A run directory with an empty ``checkpoints/<n>`` (a save cut off before its first
+    file, or a stray mkdir) still evaluates: its newest clean checkpoint, named."""
+    run, _ = full_run
+    copy = tmp_path / "run"
+    shutil.copytree(run.dir, copy)
+    (copy / "checkpoints" / "4").mkdir()
+    assert checkpoint.latest_epoch(copy) == 4
+    with pytest.warns(checkpoint.SkippedCheckpointWarning, match=r"checkpoints/4'.*using epoch 3"):
+        restored = checkpoint.restore_policy(copy)
+    assert restored.epoch == 3
+    with pytest.raises(checkpoint.CheckpointError, match=r"checkpoints/4' \("):
+        checkpoint.restore_policy(copy, epoch=4)  # an epoch asked for by name is not replaced

@@ -23,6 +23,7 @@ import json
 import os
 import shutil
 import sys
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -158,23 +159,54 @@ def _read_items(mgr: ocp.CheckpointManager, epoch: int, items: tuple[str, ...]) 
     return out
 
 
-def _read_checked(run_dir: Path, epoch: int | None, items: tuple[str, ...]) -> tuple[int, dict]:
-    """``(epoch, items)`` of checkpoint ``epoch`` (default: the latest); a missing or
-    unreadable checkpoint is a :class:`CheckpointError` naming it."""
+class SkippedCheckpointWarning(UserWarning):
+    """The newest checkpoint of a run did not read (empty, corrupt or cut short); an older
+    one was used."""
+
+
+def _newest_clean(
+    run_dir: Path, epoch: int | None, items: tuple[str, ...], skip: Callable[[int, str], None]
+) -> tuple[int, dict[str, Any]]:
+    """``(epoch, items)`` of checkpoint ``epoch``, or without one of the newest checkpoint
+    whose items read cleanly, calling ``skip(epoch, reason)`` for each newer one that did
+    not (empty, corrupt or cut short). Raises :class:`CheckpointError` naming every failure."""
     mgr = manager(run_dir, create=False)
     try:
-        epoch = mgr.latest_step() if epoch is None else epoch
-        if epoch is None:
+        epochs = sorted(mgr.all_steps(), reverse=True) if epoch is None else [epoch]
+        if not epochs:
             raise CheckpointError(f"{str(run_dir)!r}: no checkpoints in {CHECKPOINT_DIR}/")
-        try:
-            return epoch, _read_items(mgr, epoch, items)
-        except Exception as err:  # orbax raises many types for unreadable files
-            raise CheckpointError(
-                f"checkpoint {str(_checkpoint_path(run_dir, epoch))!r} is corrupt or "
-                f"incomplete: {type(err).__name__}: {err}"
-            ) from err
+        bad = []
+        for ep in epochs:
+            try:
+                return ep, _read_items(mgr, ep, items)
+            except Exception as err:  # orbax raises many types for unreadable files
+                text = str(err) if epoch is not None else (str(err).splitlines() or [""])[0]
+                reason = f"{type(err).__name__}: {text}"
+                bad.append(f"{str(_checkpoint_path(run_dir, ep))!r} ({reason})")
+                if epoch is None:
+                    skip(ep, reason)
+        raise CheckpointError(f"{str(run_dir)!r}: no checkpoint reads cleanly: {'; '.join(bad)}")
     finally:
         mgr.close()
+
+
+def _read_checked(run_dir: Path, epoch: int | None, items: tuple[str, ...]) -> tuple[int, dict]:
+    """:func:`_newest_clean`, with a :class:`SkippedCheckpointWarning` naming each newer
+    checkpoint that did not read, once one did."""
+    bad: list[str] = []
+
+    def skip(ep: int, reason: str) -> None:
+        bad.append(f"checkpoint {str(_checkpoint_path(run_dir, ep))!r} ({reason})")
+
+    ep, out = _newest_clean(run_dir, epoch, items, skip)
+    if bad:
+        warnings.warn(
+            f"{'; '.join(bad)}: corrupt or incomplete; using epoch {ep}, the newest that "
+            "reads cleanly",
+            SkippedCheckpointWarning,
+            stacklevel=3,
+        )
+    return ep, out
 
 
 def restore(
@@ -191,47 +223,33 @@ def restore(
     out of the way of the next save) and reported through ``log``. A checkpoint that reads
     but has another shape (an older version's training state) is an error, not skipped.
     """
-    mgr = manager(run_dir, create=False)
-    try:
-        epochs = sorted(mgr.all_steps(), reverse=True) if epoch is None else [epoch]
-        if not epochs:
-            raise CheckpointError(f"run directory {str(run_dir)!r}: no checkpoint to resume from")
-        bad: list[str] = []
-        for ep in epochs:
-            path = _checkpoint_path(run_dir, ep)
-            try:
-                out = _read_items(mgr, ep, ("train", "env", "meta"))
-            except Exception as err:  # orbax raises many types for unreadable files
-                reason = f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}"
-                bad.append(f"{str(path)!r} ({reason})")
-                if epoch is not None:
-                    break
-                aside = path.with_name(f"{ep}.corrupt")
-                path.rename(aside)
-                if log is not None:
-                    log(
-                        f"checkpoint {str(path)!r} is corrupt or incomplete ({reason}); "
-                        f"moved to {str(aside)!r} for inspection; trying the previous one"
-                    )
-                continue
-            try:
-                train = unpack(train_like, out["train"])
-                env = unpack(env_like, out["env"])
-            except (CheckpointError, KeyError) as err:
-                raise CheckpointError(
-                    f"checkpoint {str(path)!r} reads, but does not fit this run's state: "
-                    f"{err}. A checkpoint written by an older version of mecanum_jax, whose "
-                    "training state had another shape, can still be evaluated (mecanum-eval) "
-                    "but not resumed"
-                ) from err
-            if bad and log is not None:
-                log(f"resuming from checkpoint {str(path)!r}, the newest that reads cleanly")
-            return train, env, dict(out["meta"])
-        raise CheckpointError(
-            f"run directory {str(run_dir)!r}: no checkpoint reads cleanly: {'; '.join(bad)}"
+    say = log or (lambda _: None)
+
+    def set_aside(ep: int, reason: str) -> None:
+        path = _checkpoint_path(run_dir, ep)
+        aside = path.with_name(f"{ep}.corrupt")
+        path.rename(aside)
+        say(
+            f"checkpoint {str(path)!r} is corrupt or incomplete ({reason}); "
+            f"moved to {str(aside)!r} for inspection; trying the previous one"
         )
-    finally:
-        mgr.close()
+
+    newest = latest_epoch(run_dir) if epoch is None else epoch
+    ep, out = _newest_clean(run_dir, epoch, ("train", "env", "meta"), set_aside)
+    path = _checkpoint_path(run_dir, ep)
+    try:
+        train = unpack(train_like, out["train"])
+        env = unpack(env_like, out["env"])
+    except (CheckpointError, KeyError) as err:
+        raise CheckpointError(
+            f"checkpoint {str(path)!r} reads, but does not fit this run's state: "
+            f"{err}. A checkpoint written by an older version of mecanum_jax, whose "
+            "training state had another shape, can still be evaluated (mecanum-eval) "
+            "but not resumed"
+        ) from err
+    if ep != newest:
+        say(f"resuming from checkpoint {str(path)!r}, the newest that reads cleanly")
+    return train, env, dict(out["meta"])
 
 
 def read_meta(run_dir: Path, epoch: int | None = None) -> tuple[int, dict[str, Any]]:
@@ -243,6 +261,10 @@ def read_train(run_dir: Path, epoch: int, train_like: Any) -> Any:
     """The training state of checkpoint ``epoch``, shaped like ``train_like`` (matched by
     leaf name; by index in the leaf-index format); a mismatch names the checkpoint."""
     _, saved = _read_checked(run_dir, epoch, ("train",))
+    return _unpack_train(run_dir, epoch, train_like, saved)
+
+
+def _unpack_train(run_dir: Path, epoch: int, train_like: Any, saved: dict[str, Any]) -> Any:
     try:
         return unpack(train_like, saved["train"])
     except CheckpointError as err:
@@ -293,7 +315,8 @@ def restore_policy(
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise CheckpointError(f"run directory {str(run_dir)!r}: no such directory")
-    epoch, meta = read_meta(run_dir, epoch)
+    epoch, items = _read_checked(run_dir, epoch, ("train", "meta"))
+    meta = dict(items["meta"])
     try:
         cfg = parse_train_config(meta["config"], f"{run_dir}/checkpoint meta")
     except (KeyError, ConfigError) as err:
@@ -315,7 +338,7 @@ def restore_policy(
     env = MecanumEnv(dataclasses.replace(cfg.env, physics_impl="jax"))
     networks = make_networks(env, cfg)
     check_compatible(meta, env, f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r}")
-    train = read_train(run_dir, epoch, state_template(cfg, env, int(meta["devices"])))
+    train = _unpack_train(run_dir, epoch, state_template(cfg, env, int(meta["devices"])), items)
     one = jax.tree.map(lambda x: x[0, seeds.index(seed)], train)
     return RestoredPolicy(
         run_dir=run_dir,
