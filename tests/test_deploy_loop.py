@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from loops import network_free
 
 from mecanum_jax.deploy import loop, policy
 from mecanum_jax.deploy.loop import Controller, policy_state
@@ -123,35 +124,13 @@ def test_the_loop_builds_the_environments_observations_tick_by_tick(shipped_task
     assert obs_err > 1e-3
 
 
-def _network_free(env):
-    """An export of ``env``'s task without a network (the action is tanh of the first
-    observation entries): the control loop's half, for tasks no shipped policy has."""
-    from mecanum_jax.kinematics import model as kinematics
-    from mecanum_jax.sim.physics import GRAVITY
-
-    cfg = env.config
-    meta = {
-        "activation": "tanh", "action_size": env.action_size, "residual": cfg.residual,
-        "residual_scale": cfg.residual_scale, "residual_space": cfg.residual_space,
-        "residual_base": cfg.residual_base, "feedback": dataclasses.asdict(cfg.feedback),
-        "yaw_integral_tau": cfg.yaw_integral_tau, "action_filter": cfg.action_filter,
-        "observation_layout": [list(x) for x in env.layout], "control_dt": cfg.control_dt,
-        "gravity": GRAVITY, "max_rates": np.asarray(env.max_rates).tolist(),
-        "command_scale": np.asarray(env.command_scale).tolist(),
-        "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),
-        "forward_matrix": np.asarray(kinematics.forward_matrix(env.geometry)).tolist(),
-    }  # fmt: skip
-    size = env.observation_size["state"][0]
-    return policy.NumpyPolicy([], np.zeros(size), np.ones(size), meta)
-
-
 def test_the_loop_keeps_the_leaky_yaw_integral_with_the_tracked_command(shipped_task):
     """A policy that observes the leaky yaw-error integral (yaw_integral_tau = 1 s): the
     loop advances it with the command tracked during the period that ended; a loop that
     advances it with the new command is caught."""
     task = dataclasses.replace(shipped_task, residual_base="analytic", yaw_integral_tau=1.0)
     env = MecanumEnv(task)
-    ctrl = Controller(_network_free(env))
+    ctrl = Controller(network_free(env))
     assert "yaw_error_integral" in ctrl.states
     commands = np.repeat(np.array([[0.3, 0.0, 0.5], [0.0, -0.4, -1.5], [0.5, 0.2, 2.0]]), 4, 0)
     obs_err, set_err, integral = _lockstep(env, ctrl, commands.astype(np.float32), 1)

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from loops import network_free
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.deploy import policy as deploy
@@ -510,7 +511,7 @@ def test_eval_cli_rejects_bad_arguments(extra, message, tmp_path, capsys):
 def test_exported_twist_residual_setpoints_match_the_environment():
     """The NumPy control loop applies a twist-space residual as the environment does."""
     env = MecanumEnv(EnvConfig(residual_space="twist"))
-    policy = _control_loop_only(env)
+    policy = network_free(env)
     rng = np.random.default_rng(3)
     for _ in range(20):
         command = rng.normal(size=3).astype(np.float32) * np.asarray(env.command_scale)
@@ -528,7 +529,7 @@ def test_exported_action_filter_matches_the_environment_in_numpy_and_onnx():
     from the observation) + (1 − f)·network, the action the environment applies."""
     f = 0.8
     env = MecanumEnv(EnvConfig(action_filter=f).nominal())
-    policy = _control_loop_only(env)  # no hidden layer: network = tanh(first entries)
+    policy = network_free(env)  # no hidden layer: network = tanh(first entries)
     rng = np.random.default_rng(6)
     obs = rng.normal(size=(64, env.observation_size["state"][0])).astype(np.float32)
     names = [name for name, _ in env.layout]
@@ -552,39 +553,13 @@ def test_exported_action_filter_matches_the_environment_in_numpy_and_onnx():
     np.testing.assert_allclose(action, expected, rtol=1e-5, atol=1e-6)
 
 
-def _control_loop_only(env: MecanumEnv) -> deploy.NumpyPolicy:
-    """An exported policy's control-loop half (no network) for ``env``'s task."""
-    from mecanum_jax.kinematics import model as kinematics
-    from mecanum_jax.sim.physics import GRAVITY
-
-    cfg = env.config
-    meta = {
-        "activation": "tanh",
-        "action_size": env.action_size,
-        "residual": cfg.residual,
-        "residual_scale": cfg.residual_scale,
-        "residual_space": cfg.residual_space,
-        "yaw_integral_tau": cfg.yaw_integral_tau,
-        "action_filter": cfg.action_filter,
-        "observation_layout": [list(x) for x in env.layout],
-        "control_dt": cfg.control_dt,
-        "gravity": GRAVITY,
-        "max_rates": np.asarray(env.max_rates).tolist(),
-        "command_scale": np.asarray(env.command_scale).tolist(),
-        "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),
-        "forward_matrix": np.asarray(kinematics.forward_matrix(env.geometry)).tolist(),
-    }
-    size = env.observation_size["state"][0]
-    return deploy.NumpyPolicy([], np.zeros(size), np.ones(size), meta)
-
-
 @pytest.mark.full
 def test_yaw_error_integral_observation_matches_the_control_loop():
     """yaw_integral_tau > 0: the environment integrates the measured yaw-rate error as a
     robot-side loop would (deploy.yaw_integral_step), and observes it last."""
     env = MecanumEnv(EnvConfig(yaw_integral_tau=0.5).nominal())
     assert env.layout[-1] == ("yaw_error_integral", 1)
-    policy = _control_loop_only(env)
+    policy = network_free(env)
     state = env.reset(jax.random.PRNGKey(2))
     state = env.set_command(state, jnp.array([0.2, 0.0, 1.5]))
     integral = 0.0

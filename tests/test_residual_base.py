@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from loops import network_free
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.task import EnvConfig, MecanumEnv, RandomizationConfig
@@ -75,37 +76,6 @@ def test_bad_residual_base_is_rejected(kwargs, message):
         EnvConfig(**kwargs).validate()
 
 
-def _exported_loop(env: MecanumEnv):
-    """The control-loop half of an export (no hidden layer) for ``env``'s task."""
-    import dataclasses
-
-    from mecanum_jax.deploy import policy as deploy
-    from mecanum_jax.kinematics import model as kinematics
-    from mecanum_jax.sim.physics import GRAVITY
-
-    cfg = env.config
-    meta = {
-        "activation": "tanh",
-        "action_size": env.action_size,
-        "residual": cfg.residual,
-        "residual_scale": cfg.residual_scale,
-        "residual_space": cfg.residual_space,
-        "residual_base": cfg.residual_base,
-        "feedback": dataclasses.asdict(cfg.feedback),
-        "yaw_integral_tau": cfg.yaw_integral_tau,
-        "action_filter": cfg.action_filter,
-        "observation_layout": [list(x) for x in env.layout],
-        "control_dt": cfg.control_dt,
-        "gravity": GRAVITY,
-        "max_rates": np.asarray(env.max_rates).tolist(),
-        "command_scale": np.asarray(env.command_scale).tolist(),
-        "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),
-        "forward_matrix": np.asarray(kinematics.forward_matrix(env.geometry)).tolist(),
-    }
-    size = env.observation_size["state"][0]
-    return deploy.NumpyPolicy([], np.zeros(size), np.ones(size), meta)
-
-
 def test_numpy_nearest_feasible_matches_the_library(env):
     from mecanum_jax.deploy.policy import NearestFeasible
     from mecanum_jax.kinematics import limits
@@ -125,7 +95,7 @@ def test_environment_numpy_and_onnx_agree_step_by_step():
     rand = RandomizationConfig(enabled=True, radius_scale=(0.95, 0.95), latency_steps=(0, 0))
     cfg = EnvConfig(residual_space="twist", residual_base="feedback", randomization=rand)
     env = MecanumEnv(dataclasses_replace_noise_off(cfg))
-    policy = _exported_loop(env)
+    policy = network_free(env)
     ort = pytest.importorskip("onnxruntime")
     from mecanum_jax.deploy.onnx import to_onnx
 

@@ -133,6 +133,33 @@ def export_onnx(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
     return onnx_export.write_onnx(deploy.NumpyPolicy(*_policy_arrays(restored)), path)
 
 
+def task_meta(env: MecanumEnv) -> dict[str, Any]:
+    """What an exported policy's control loop needs of ``env``'s task: the robot, the
+    observation layout, the residual and its base, the filter and integrators, limits and
+    kinematics, the control period."""
+    cfg = env.config
+    return {
+        "robot": env.desc.robot.name,
+        "robot_fingerprint": fingerprint(env.desc),
+        "wheels": list(env.geometry.names),
+        "action_size": env.action_size,
+        "observation_layout": [list(x) for x in env.layout],
+        "residual": cfg.residual,
+        "residual_scale": cfg.residual_scale,
+        "residual_space": cfg.residual_space,
+        "residual_base": cfg.residual_base,
+        "feedback": dataclasses.asdict(cfg.feedback),
+        "yaw_integral_tau": cfg.yaw_integral_tau,
+        "action_filter": cfg.action_filter,
+        "max_rates": np.asarray(env.max_rates).tolist(),
+        "command_scale": np.asarray(env.command_scale).tolist(),
+        "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),
+        "forward_matrix": np.asarray(kinematics.forward_matrix(env.geometry)).tolist(),
+        "gravity": GRAVITY,
+        "control_dt": cfg.control_dt,
+    }
+
+
 def _policy_arrays(
     restored: checkpoint.RestoredPolicy,
 ) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray, np.ndarray, dict[str, Any]]:
@@ -151,26 +178,9 @@ def _policy_arrays(
     else:
         mean, std = np.zeros(size, np.float32), np.ones(size, np.float32)
     meta = {
-        "robot": env.desc.robot.name,
-        "robot_fingerprint": fingerprint(env.desc),
-        "wheels": list(env.geometry.names),
+        **task_meta(env),
         "activation": cfg.network.activation,
-        "action_size": env.action_size,
-        "observation_layout": [list(x) for x in env.layout],
-        "residual": cfg.env.residual,
-        "residual_scale": cfg.env.residual_scale,
-        "residual_space": cfg.env.residual_space,
-        "residual_base": cfg.env.residual_base,
-        "feedback": dataclasses.asdict(cfg.env.feedback),
-        "yaw_integral_tau": cfg.env.yaw_integral_tau,
-        "action_filter": cfg.env.action_filter,
         "clip_observations": cfg.ppo.clip_observations,
-        "max_rates": np.asarray(env.max_rates).tolist(),
-        "command_scale": np.asarray(env.command_scale).tolist(),
-        "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),
-        "forward_matrix": np.asarray(kinematics.forward_matrix(env.geometry)).tolist(),
-        "gravity": GRAVITY,
-        "control_dt": cfg.env.control_dt,
         "source": {"run": str(restored.run_dir), "epoch": restored.epoch, "seed": restored.seed},
     }
     return layers, mean, std, meta
@@ -183,7 +193,7 @@ def _error(err: BaseException) -> None:
 export_main = main
 """``main`` under the name the device runner's ``package`` step imports."""
 
-__all__ = ["ExportArgs", "export_main", "export_onnx", "export_policy", "main"]
+__all__ = ["ExportArgs", "export_main", "export_onnx", "export_policy", "main", "task_meta"]
 
 
 if __name__ == "__main__":
