@@ -12,7 +12,7 @@ import pytest
 
 from train import checkpoint, leaves
 from train.cli import main as train_main
-from train.run import _si
+from train.progress import count as _si
 
 
 def test_importing_the_task_prints_nothing():

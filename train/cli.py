@@ -32,7 +32,8 @@ from train import checkpoint, compilation_cache, curve
 from train.config import TrainConfig, apply_flags, load_train_config
 from train.distributed import init_distributed
 from train.progress import print_error
-from train.run import Run, RunDirError, TrainingDiverged, write_json
+from train.run import Run, RunDirError, TrainingDiverged
+from train.run_records import write_json
 
 console = Console(stderr=True)
 

@@ -284,7 +284,7 @@ def main(argv: list[str] | None = None, top: int = 15) -> int:
     report = summarize(result, log.programs())
     from rich.console import Console
 
-    from train.run import write_json
+    from train.run_records import write_json
 
     console = Console(width=None if sys.stdout.isatty() else 140)
     for t in _tables(report, top):

@@ -62,7 +62,7 @@ from train.eval_output import (  # noqa: E402
 )
 from train.export import export_policy  # noqa: E402
 from train.progress import print_error, rollout_progress  # noqa: E402
-from train.run import write_json  # noqa: E402
+from train.run_records import write_json  # noqa: E402
 
 console = Console(stderr=True)
 

@@ -43,7 +43,7 @@ from train.config import TrainConfig, apply_flags, load_train_config
 from train.ppo import Learner, first_device, to_host
 from train.profile_parts import EpochParts
 from train.progress import print_error
-from train.run import write_json
+from train.run_records import write_json
 
 
 class Timer:

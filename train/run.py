@@ -20,7 +20,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -29,24 +28,18 @@ from typing import Any
 import jax
 import numpy as np
 from rich.console import Console
-from rich.progress import (
-    BarColumn,
-    Progress,
-    TextColumn,
-    TimeRemainingColumn,
-)
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.precision import set_matmul_precision
 from mecanum_jax.sim.description import fingerprint
 from train import checkpoint
+from train import run_records as records
 from train.config import TrainConfig, config_diff, load_train_config
 from train.distributed import barrier
 from train.loggers import MetricLogger, TensorBoardLogger, WandbLogger
 from train.periodic import Result, beats, compare
 from train.ppo import Learner, first_device, to_host
-from train.progress import TrainLines, evaluation_text, wants_lines
-from train.progress import count as _si
+from train.run_records import stacked, write_json
 
 # Fields a resumed run may change: its length and its logging/evaluation cadence.
 RESUMABLE_CHANGES = {
@@ -67,43 +60,6 @@ class TrainingDiverged(RuntimeError):  # noqa: N818 (reads as the event it repor
 
 class RunDirError(ValueError):
     """The run directory cannot be used as asked (exists, or is not a run)."""
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.generic | np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, float) and not math.isfinite(x):
-        return str(x)
-    return x
-
-
-def write_json(path: Path, data: Any) -> None:
-    """Write atomically: a crash never leaves a half-written file that looks complete."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(_jsonable(data), indent=2) + "\n")
-    os.replace(tmp, path)
-
-
-def stacked(results: list[Result]) -> dict[str, dict[str, np.ndarray]]:
-    """Per scenario and metric, the seeds' values ``(S,)`` (NaN where undefined)."""
-    first = results[0].values
-
-    def value(r: Result, name: str, k: str) -> float:
-        v = r.values[name][k]
-        return np.nan if v is None else v
-
-    return {  # metrics undefined for every seed (drift, on unscripted episodes) are left out
-        name: {
-            k: np.array([value(r, name, k) for r in results])
-            for k in first[name]
-            if any(r.values[name][k] is not None for r in results)
-        }
-        for name in first
-    }
 
 
 @dataclasses.dataclass
@@ -174,55 +130,6 @@ class _Loop:
                     self.run.dir, self.epoch, to_host(ts.key), to_host(es), keep
                 )
         self.saved_epoch = self.epoch
-
-
-class _Progress:
-    """The progress line: steps, env steps/s, time left, the last evaluation's figures; on
-    a terminal rich's live display, elsewhere plain lines (train.progress)."""
-
-    def __init__(self, run: Run, loop: _Loop, time_limit_s: float | None = None):
-        self.total = loop.steps(run.cfg.num_epochs)
-        self.lines = TrainLines(
-            run.console,
-            run.cfg.run.progress_every_s,
-            run.is_writer and wants_lines(run.console),
-            label=run.cfg.name,
-            total_steps=self.total,
-            t_start=loop.t_start,
-            time_limit_s=time_limit_s,
-            done_steps=loop.steps(loop.epoch),
-        )
-        self.bar = Progress(
-            TextColumn("[bold]{task.description}"),
-            BarColumn(bar_width=8),
-            TextColumn("{task.fields[steps]}"),
-            TextColumn("{task.fields[sps]}/s"),
-            TimeRemainingColumn(),
-            TextColumn("{task.fields[info]}"),
-            console=run.console,
-            disable=not run.is_writer or self.lines.enabled,
-        )
-        done = loop.steps(loop.epoch)
-        self.task = self.bar.add_task(
-            run.cfg.name[:12],
-            total=self.total,
-            completed=done,
-            steps=f"{_si(done)}/{_si(self.total)}",
-            sps="-",
-            info="compiling",
-        )
-        if run.is_writer and not self.lines.enabled:
-            run.console.log(
-                "progress: steps, env steps/s, time left | steady-state error of v (m/s) and "
-                "ω (rad/s), policy/baseline, on held-out randomized episodes"
-            )
-
-    def update(self, loop: _Loop, sps: float, results: list[Result]) -> None:
-        done = loop.steps(loop.epoch)
-        steps = f"{_si(done)}/{_si(self.total)}"
-        self.bar.update(self.task, completed=done, steps=steps, sps=_si(sps), info=loop.shown)
-        shown = evaluation_text(done, stacked(results), loop.comparisons) if results else None
-        self.lines.update(loop.epoch, done, sps, shown)
 
 
 class Run:
@@ -311,11 +218,11 @@ class Run:
         with (self.dir / "metrics.jsonl").open("a") as f:
             for row in rows:
                 line = {"epoch": epoch, "env_steps": steps, "walltime": walltime, **row}
-                f.write(json.dumps(_jsonable(line)) + "\n")
+                f.write(json.dumps(records.jsonable(line)) + "\n")
         numbers = {
             seed: {
                 k: v
-                for k, v in _flatten(row).items()
+                for k, v in records.flatten(row).items()
                 if isinstance(v, int | float) and math.isfinite(v) and k != "seed"
             }
             for seed, row in zip(self.cfg.run.seeds, rows, strict=True)
@@ -342,7 +249,16 @@ class Run:
         loop = self._set_up(learner)
         total = self.cfg.num_epochs
         last = total if stop_after_epochs is None else min(total, loop.epoch + stop_after_epochs)
-        progress = _Progress(self, loop, time_limit_s)
+        progress = records.TrainProgress(
+            self.console,
+            self.cfg.name,
+            self.cfg.run.progress_every_s,
+            self.is_writer,
+            loop.steps(total),
+            loop.steps(loop.epoch),
+            loop.t_start,
+            time_limit_s,
+        )
         try:
             with progress.bar, progress.lines:
                 while loop.epoch < last:
@@ -350,7 +266,8 @@ class Run:
                     is_last = loop.epoch == total
                     results = self._evaluate(loop) if loop.eval_due(is_last) else []
                     self._log_epoch(loop, metrics, results, sps)
-                    progress.update(loop, sps, results)
+                    done = loop.steps(loop.epoch)
+                    progress.update(loop.epoch, done, sps, results, loop.comparisons, loop.shown)
                     out_of_time = time_limit_s is not None and loop.session_s() > time_limit_s
                     if loop.checkpoint_due(is_last) or out_of_time:
                         loop.save()
@@ -443,7 +360,7 @@ class Run:
             seeds = self.cfg.run.seeds
             bad = [s for s, f in zip(seeds, metrics["finite"], strict=True) if not f]
             loop.save()
-            rows = self._rows(metrics, {}, loop.baseline.values)
+            rows = records.seed_rows(self.cfg.run.seeds, metrics, {}, loop.baseline.values)
             self._log(loop.epoch + 1, loop.steps(loop.epoch + 1), loop.walltime(), rows)
             self._status("diverged", epoch=loop.epoch, seeds=bad)
             raise TrainingDiverged(
@@ -478,10 +395,12 @@ class Run:
         assert loop.baseline is not None
         evals = stacked(results) if results else {}
         comps = loop.comparisons if results else []
-        rows = self._rows(metrics, evals, loop.baseline.values, sps, comps)
+        rows = records.seed_rows(
+            self.cfg.run.seeds, metrics, evals, loop.baseline.values, sps, comps
+        )
         self._log(loop.epoch, loop.steps(loop.epoch), loop.walltime(), rows)
         if evals:
-            loop.shown = _shown(evals["randomized"], loop.baseline.values["randomized"])
+            loop.shown = records.shown(evals["randomized"], loop.baseline.values["randomized"])
 
     def _finish(self, loop: _Loop) -> dict[str, Any]:
         """The last checkpoint, the summary and the final status."""
@@ -489,7 +408,10 @@ class Run:
         if loop.baseline is None:  # no epoch ran (a finished run resumed)
             loop.baseline = loop.baseline_job.result()
         evals = stacked(loop.results) if loop.results else {}
-        summary = self._summary(
+        devices = self.learner.n_devices * self.learner.n_processes if self.learner else None
+        summary = records.summary(
+            self.cfg,
+            self.dir,
             loop.epoch,
             loop.walltime(),
             evals,
@@ -497,83 +419,13 @@ class Run:
             loop.baseline.values,
             loop.beat_at,
             loop.t_start,
+            devices,
         )
         if self.is_writer:
             write_json(self.dir / "summary.json", summary)
         done = loop.epoch >= self.cfg.num_epochs
         self._status("finished" if done else "stopped", epoch=loop.epoch)
         return summary
-
-    def _rows(
-        self,
-        metrics: dict[str, np.ndarray],
-        evals: dict[str, Any],
-        baseline: dict[str, Any],
-        sps: float | None = None,
-        comps: list[dict[str, Any]] | None = None,
-    ) -> list[dict[str, Any]]:
-        rows = []
-        for i, seed in enumerate(self.cfg.run.seeds):
-            row: dict[str, Any] = {"seed": seed}
-            row["train"] = {k: float(v[i]) for k, v in metrics.items()}
-            if sps is not None:
-                row["train"]["steps_per_s"] = sps
-            if evals:
-                row["eval"] = {
-                    name: {k: float(v[i]) for k, v in res.items()} for name, res in evals.items()
-                }
-                row["baseline"] = baseline
-            if comps:
-                row["compare"] = comps[i]
-            rows.append(row)
-        return rows
-
-    def _summary(
-        self,
-        epoch: int,
-        walltime: float,
-        evals: dict[str, Any],
-        comps: list[dict[str, Any]],
-        baseline: dict[str, Any],
-        beat_at: dict[str, Any],
-        t_start: float,
-    ) -> dict[str, Any]:
-        per_seed = []
-        for i, seed in enumerate(self.cfg.run.seeds):
-            entry: dict[str, Any] = {"seed": seed, "beat_baseline": beat_at.get(str(seed))}
-            if evals:
-                entry["eval"] = {
-                    name: {k: float(v[i]) for k, v in res.items()} for name, res in evals.items()
-                }
-            if comps:
-                entry["compare"] = comps[i]
-            per_seed.append(entry)
-        return {
-            "name": self.cfg.name,
-            "run_dir": str(self.dir),
-            "epochs": epoch,
-            "env_steps_per_seed": epoch
-            * self.cfg.steps_per_iteration
-            * self.cfg.run.epoch_iterations,
-            "walltime_s": walltime,
-            "session_s": time.time() - t_start,
-            "devices": self.learner.n_devices * self.learner.n_processes if self.learner else None,
-            "processes": jax.process_count(),
-            "device_kind": jax.devices()[0].device_kind,
-            "baseline": baseline,
-            "seeds": per_seed,
-        }
-
-
-def _shown(policy: dict[str, np.ndarray], baseline: dict[str, Any]) -> str:
-    """The progress line's figures: steady-state error of the policy / the baseline."""
-
-    def pair(key: str) -> str:
-        if key not in policy or baseline.get(key) is None:
-            return "-"
-        return f"{float(np.nanmean(policy[key])):.2f}/{baseline[key]:.2f}"
-
-    return f"ss v {pair('ss_lin')} ω {pair('ss_wz')}"
 
 
 def _get(cfg: Any, dotted: str) -> Any:
@@ -582,15 +434,4 @@ def _get(cfg: Any, dotted: str) -> Any:
     return cfg
 
 
-def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in d.items():
-        key = f"{prefix}/{k}" if prefix else k
-        if isinstance(v, dict):
-            out |= _flatten(v, key)
-        else:
-            out[key] = v
-    return out
-
-
-__all__ = ["Run", "RunDirError", "TrainingDiverged", "stacked", "write_json"]
+__all__ = ["Run", "RunDirError", "TrainingDiverged"]

@@ -1,0 +1,211 @@
+"""What a training run writes and shows: atomic JSON, the per-seed rows of metrics.jsonl,
+summary.json, and the progress display's figures (train.run drives them)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+from train.periodic import Result
+from train.progress import TrainLines, evaluation_text, wants_lines
+from train.progress import count as _si
+
+
+def jsonable(x: Any) -> Any:
+    """``x`` with numpy values as Python ones and non-finite floats as strings."""
+    if isinstance(x, dict):
+        return {k: jsonable(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [jsonable(v) for v in x]
+    if isinstance(x, np.generic | np.ndarray):
+        return jsonable(x.tolist())
+    if isinstance(x, float) and not math.isfinite(x):
+        return str(x)
+    return x
+
+
+def write_json(path: Path, data: Any) -> None:
+    """Write atomically: a crash never leaves a half-written file that looks complete."""
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(jsonable(data), indent=2) + "\n")
+    os.replace(tmp, path)
+
+
+def stacked(results: list[Result]) -> dict[str, dict[str, np.ndarray]]:
+    """Per scenario and metric, the seeds' values ``(S,)`` (NaN where undefined)."""
+    first = results[0].values
+
+    def value(r: Result, name: str, k: str) -> float:
+        v = r.values[name][k]
+        return np.nan if v is None else v
+
+    return {  # metrics undefined for every seed (drift, on unscripted episodes) are left out
+        name: {
+            k: np.array([value(r, name, k) for r in results])
+            for k in first[name]
+            if any(r.values[name][k] is not None for r in results)
+        }
+        for name in first
+    }
+
+
+def _per_seed(evals: dict[str, Any], i: int) -> dict[str, dict[str, float]]:
+    return {name: {k: float(v[i]) for k, v in res.items()} for name, res in evals.items()}
+
+
+def seed_rows(
+    seeds: Sequence[int],
+    metrics: dict[str, np.ndarray],
+    evals: dict[str, Any],
+    baseline: dict[str, Any],
+    sps: float | None = None,
+    comps: list[dict[str, Any]] | None = None,
+) -> list[dict[str, Any]]:
+    """One metrics.jsonl row per seed: training metrics, and the evaluation if one ran."""
+    rows = []
+    for i, seed in enumerate(seeds):
+        row: dict[str, Any] = {"seed": seed}
+        row["train"] = {k: float(v[i]) for k, v in metrics.items()}
+        if sps is not None:
+            row["train"]["steps_per_s"] = sps
+        if evals:
+            row["eval"] = _per_seed(evals, i)
+            row["baseline"] = baseline
+        if comps:
+            row["compare"] = comps[i]
+        rows.append(row)
+    return rows
+
+
+def summary(
+    cfg: Any,  # train.config.TrainConfig
+    run_dir: Path,
+    epoch: int,
+    walltime: float,
+    evals: dict[str, Any],
+    comps: list[dict[str, Any]],
+    baseline: dict[str, Any],
+    beat_at: dict[str, Any],
+    t_start: float,
+    devices: int | None,
+) -> dict[str, Any]:
+    """summary.json: the run's length and time, and each seed's last evaluation."""
+    per_seed = []
+    for i, seed in enumerate(cfg.run.seeds):
+        entry: dict[str, Any] = {"seed": seed, "beat_baseline": beat_at.get(str(seed))}
+        if evals:
+            entry["eval"] = _per_seed(evals, i)
+        if comps:
+            entry["compare"] = comps[i]
+        per_seed.append(entry)
+    return {
+        "name": cfg.name,
+        "run_dir": str(run_dir),
+        "epochs": epoch,
+        "env_steps_per_seed": epoch * cfg.steps_per_iteration * cfg.run.epoch_iterations,
+        "walltime_s": walltime,
+        "session_s": time.time() - t_start,
+        "devices": devices,
+        "processes": jax.process_count(),
+        "device_kind": jax.devices()[0].device_kind,
+        "baseline": baseline,
+        "seeds": per_seed,
+    }
+
+
+def shown(policy: dict[str, np.ndarray], baseline: dict[str, Any]) -> str:
+    """The progress line's figures: steady-state error of the policy / the baseline."""
+
+    def pair(key: str) -> str:
+        if key not in policy or baseline.get(key) is None:
+            return "-"
+        return f"{float(np.nanmean(policy[key])):.2f}/{baseline[key]:.2f}"
+
+    return f"ss v {pair('ss_lin')} ω {pair('ss_wz')}"
+
+
+def flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A nested dict as ``{"a/b/c": value}``."""
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        key = f"{prefix}/{k}" if prefix else k
+        if isinstance(v, dict):
+            out |= flatten(v, key)
+        else:
+            out[key] = v
+    return out
+
+
+class TrainProgress:
+    """The progress line: steps, env steps/s, time left, the last evaluation's figures; on
+    a terminal rich's live display, elsewhere plain lines (train.progress)."""
+
+    def __init__(
+        self,
+        console: Console,
+        name: str,
+        every_s: float,
+        writer: bool,
+        total_steps: int,
+        done_steps: int,
+        t_start: float,
+        time_limit_s: float | None = None,
+    ):
+        self.total = total_steps
+        self.lines = TrainLines(
+            console,
+            every_s,
+            writer and wants_lines(console),
+            label=name,
+            total_steps=total_steps,
+            t_start=t_start,
+            time_limit_s=time_limit_s,
+            done_steps=done_steps,
+        )
+        self.bar = Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(bar_width=8),
+            TextColumn("{task.fields[steps]}"),
+            TextColumn("{task.fields[sps]}/s"),
+            TimeRemainingColumn(),
+            TextColumn("{task.fields[info]}"),
+            console=console,
+            disable=not writer or self.lines.enabled,
+        )
+        self.task = self.bar.add_task(
+            name[:12],
+            total=total_steps,
+            completed=done_steps,
+            steps=f"{_si(done_steps)}/{_si(total_steps)}",
+            sps="-",
+            info="compiling",
+        )
+        if writer and not self.lines.enabled:
+            console.log(
+                "progress: steps, env steps/s, time left | steady-state error of v (m/s) and "
+                "ω (rad/s), policy/baseline, on held-out randomized episodes"
+            )
+
+    def update(
+        self,
+        epoch: int,
+        done: int,
+        sps: float,
+        results: list[Result],
+        comparisons: list[dict[str, Any]],
+        info: str,
+    ) -> None:
+        steps = f"{_si(done)}/{_si(self.total)}"
+        self.bar.update(self.task, completed=done, steps=steps, sps=_si(sps), info=info)
+        figures = evaluation_text(done, stacked(results), comparisons) if results else None
+        self.lines.update(epoch, done, sps, figures)
