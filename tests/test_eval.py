@@ -424,8 +424,12 @@ def test_bad_checkpoints_and_targets(full_run, tmp_path, capsys):
     for f in (bad / "checkpoints" / str(epoch) / "train").rglob("*"):
         if f.is_file() and f.stat().st_size > 100:
             f.write_bytes(b"garbage")
-    assert _run_cli([bad, "--out", tmp_path / "o6"]) == 2
+    # named, the corrupt checkpoint is an error; unnamed, the newest clean one is used
+    assert _run_cli([bad / "checkpoints" / str(epoch), "--out", tmp_path / "o6"]) == 2
     assert "is corrupt or incomplete" in capsys.readouterr().err
+    with pytest.warns(checkpoint.SkippedCheckpointWarning, match=f"using epoch {epoch - 1}"):
+        restored = checkpoint.restore_policy(bad)
+    assert restored.epoch == epoch - 1
     for name in ("o1", "o2", "o3", "o4", "o5", "o6"):
         assert not (tmp_path / name).exists()
 

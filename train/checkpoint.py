@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import shutil
 import sys
 import warnings
@@ -29,7 +28,6 @@ from pathlib import Path
 from typing import Any
 
 import jax
-import numpy as np
 import orbax.checkpoint as ocp
 
 from mecanum_jax.config import ConfigError
@@ -90,49 +88,6 @@ def save(
     mgr.wait_until_finished()
 
 
-PROCESS_DIR = "process_state"
-
-
-def _process_dir(run_dir: Path, index: int) -> Path:
-    return run_dir / PROCESS_DIR / f"p{index}"
-
-
-def save_process(run_dir: Path, epoch: int, keys: Any, env: Any, keep: int) -> Path:
-    """What only this process holds in a multi-process run (process 0's orbax checkpoint has
-    the replicated training state): its devices' loop keys and robots, as one ``.npz``
-    written atomically; keeps the newest ``keep``."""
-    folder = _process_dir(run_dir, jax.process_index())
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{epoch}.npz"
-    tmp = folder / f".{epoch}.tmp.npz"
-    arrays: dict[str, Any] = {f"env_{k}": v for k, v in pack(env).items()}
-    arrays["key"] = np.asarray(keys)
-    np.savez(tmp, **arrays)
-    os.replace(tmp, path)
-    saved = sorted(int(f.stem) for f in folder.glob("*.npz") if f.stem.isdigit())
-    for old in saved[:-keep] if keep > 0 else []:
-        (folder / f"{old}.npz").unlink(missing_ok=True)
-    return path
-
-
-def restore_process(
-    run_dir: Path, epoch: int, keys_like: Any, env_like: Any
-) -> tuple[np.ndarray, Any] | None:
-    """This process's loop keys and robots of ``epoch`` (see :func:`save_process`), or
-    ``None`` when it has none for that epoch."""
-    path = _process_dir(run_dir, jax.process_index()) / f"{epoch}.npz"
-    if not path.exists():
-        return None
-    with np.load(path) as f:
-        keys = np.asarray(f["key"])
-        env = {k.removeprefix("env_"): f[k] for k in f.files if k.startswith("env_")}
-        if keys.shape != np.shape(keys_like):
-            raise CheckpointError(
-                f"{str(path)!r}: key shape {keys.shape}, expected {np.shape(keys_like)}"
-            )
-        return keys.astype(np.asarray(keys_like).dtype), unpack(env_like, env)
-
-
 def latest_epoch(run_dir: Path) -> int | None:
     if not (run_dir / CHECKPOINT_DIR).is_dir():
         return None
@@ -185,7 +140,12 @@ def _newest_clean(
                 bad.append(f"{str(_checkpoint_path(run_dir, ep))!r} ({reason})")
                 if epoch is None:
                     skip(ep, reason)
-        raise CheckpointError(f"{str(run_dir)!r}: no checkpoint reads cleanly: {'; '.join(bad)}")
+        if epoch is not None:
+            raise CheckpointError(f"checkpoint {bad[0]} is corrupt or incomplete")
+        raise CheckpointError(
+            f"{str(run_dir)!r}: no checkpoint reads cleanly; each is corrupt or incomplete: "
+            + "; ".join(bad)
+        )
     finally:
         mgr.close()
 

@@ -10,6 +10,9 @@ variables (here two processes on one host, one GPU each)::
       JAX_COORDINATOR_ADDRESS=localhost:12355 JAX_NUM_PROCESSES=2 JAX_PROCESS_ID=$i \\
       JAX_LOCAL_DEVICE_IDS=$i mecanum-train --config gpu --distributed &
     done; wait
+
+Each process also keeps what only it holds, its devices' loop keys and robots, beside
+process 0's orbax checkpoint (:func:`save_process`, :func:`restore_process`).
 """
 
 from __future__ import annotations
@@ -17,11 +20,14 @@ from __future__ import annotations
 import itertools
 import os
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any
 
 import jax
+import numpy as np
 
 from mecanum_jax.config import ConfigError
+from train.leaves import CheckpointError, pack, unpack
 
 ENV_KEYS = ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID")
 
@@ -108,4 +114,54 @@ def barrier(name: str, timeout_s: float = 1800.0) -> None:
     client.wait_at_barrier(f"mecanum/{name}/{next(_barriers)}", int(timeout_s * 1000))
 
 
-__all__ = ["ENV_KEYS", "barrier", "distributed_args", "init_distributed"]
+PROCESS_DIR = "process_state"
+
+
+def _process_dir(run_dir: Path, index: int) -> Path:
+    return run_dir / PROCESS_DIR / f"p{index}"
+
+
+def save_process(run_dir: Path, epoch: int, keys: Any, env: Any, keep: int) -> Path:
+    """What only this process holds in a multi-process run (process 0's orbax checkpoint has
+    the replicated training state): its devices' loop keys and robots, as one ``.npz``
+    written atomically; keeps the newest ``keep``."""
+    folder = _process_dir(run_dir, jax.process_index())
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{epoch}.npz"
+    tmp = folder / f".{epoch}.tmp.npz"
+    arrays: dict[str, Any] = {f"env_{k}": v for k, v in pack(env).items()}
+    arrays["key"] = np.asarray(keys)
+    np.savez(tmp, **arrays)
+    os.replace(tmp, path)
+    saved = sorted(int(f.stem) for f in folder.glob("*.npz") if f.stem.isdigit())
+    for old in saved[:-keep] if keep > 0 else []:
+        (folder / f"{old}.npz").unlink(missing_ok=True)
+    return path
+
+
+def restore_process(
+    run_dir: Path, epoch: int, keys_like: Any, env_like: Any
+) -> tuple[np.ndarray, Any] | None:
+    """This process's loop keys and robots of ``epoch`` (see :func:`save_process`), or
+    ``None`` when it has none for that epoch."""
+    path = _process_dir(run_dir, jax.process_index()) / f"{epoch}.npz"
+    if not path.exists():
+        return None
+    with np.load(path) as f:
+        keys = np.asarray(f["key"])
+        env = {k.removeprefix("env_"): f[k] for k in f.files if k.startswith("env_")}
+        if keys.shape != np.shape(keys_like):
+            raise CheckpointError(
+                f"{str(path)!r}: key shape {keys.shape}, expected {np.shape(keys_like)}"
+            )
+        return keys.astype(np.asarray(keys_like).dtype), unpack(env_like, env)
+
+
+__all__ = [
+    "ENV_KEYS",
+    "barrier",
+    "distributed_args",
+    "init_distributed",
+    "restore_process",
+    "save_process",
+]

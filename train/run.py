@@ -35,7 +35,7 @@ from mecanum_jax.sim.description import fingerprint
 from train import checkpoint
 from train import run_records as records
 from train.config import TrainConfig, config_diff, load_train_config
-from train.distributed import barrier
+from train.distributed import barrier, restore_process, save_process
 from train.loggers import MetricLogger, TensorBoardLogger, WandbLogger
 from train.periodic import Result, beats, compare
 from train.ppo import Learner, first_device, to_host
@@ -126,9 +126,7 @@ class _Loop:
                 checkpoint.save(self.mgr, self.epoch, to_host(ts), to_host(es), self.meta())
             elif jax.process_count() > 1:  # only its keys and robots are its own
                 keep = self.run.cfg.run.max_checkpoints
-                checkpoint.save_process(
-                    self.run.dir, self.epoch, to_host(ts.key), to_host(es), keep
-                )
+                save_process(self.run.dir, self.epoch, to_host(ts.key), to_host(es), keep)
         self.saved_epoch = self.epoch
 
 
@@ -323,8 +321,8 @@ class Run:
         checkpoint.check_compatible(meta, learner.env, f"checkpoint in {str(self.dir)!r}")
         if jax.process_index() != 0:
             # the checkpoint holds process 0's robots and loop keys; the others saved
-            # theirs beside it (checkpoint.save_process)
-            own = checkpoint.restore_process(self.dir, int(meta["epoch"]), host_state.key, host_env)
+            # theirs beside it (train.distributed.save_process)
+            own = restore_process(self.dir, int(meta["epoch"]), host_state.key, host_env)
             if own is None:  # lost: this process's fresh robots and loop keys
                 self.console.log(
                     f"[yellow]process {jax.process_index()}: no saved robots for epoch "
