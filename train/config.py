@@ -45,6 +45,10 @@ class NetworkConfig:
     """Initial exploration standard deviation of the policy's actions (> 0)."""
     privileged_critic: bool = True
     """The value function also sees the true twist and the randomized parameters."""
+    teacher: bool = False
+    """The policy sees what the privileged critic sees (the true twist, friction, payload,
+    radii, motor limits and gains, latency): a teacher that measures the headroom of any
+    deployable policy. A robot cannot build its observation, so it is never exported."""
     zero_init_mean: bool = True
     """Start the policy's mean output at 0 (with residual actions: exactly the baseline)."""
 

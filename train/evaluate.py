@@ -160,7 +160,9 @@ class Target:
             self.restored = checkpoint.restore_policy(run_dir, args.seed, epoch or args.epoch)
             base = self.restored.cfg.env
             precision = self.restored.cfg.run.matmul_precision
-            self.label = f"{run_dir} (epoch {self.restored.epoch}, seed {self.restored.seed})"
+            teacher = ", a privileged teacher" if self.restored.cfg.network.teacher else ""
+            r = self.restored
+            self.label = f"{run_dir} (epoch {r.epoch}, seed {r.seed}{teacher})"
         # before anything is traced: one number on every device (mecanum_jax.precision)
         self.precision = args.matmul_precision or precision
         set_matmul_precision(self.precision, "--matmul-precision")
@@ -398,6 +400,11 @@ def _prepare(args: EvalArgs) -> tuple[Target, scenarios.ScenarioSet, Path]:
         args.only, args.episodes, args.seconds
     )
     target = Target(args, scenario_set)
+    if args.export and target.restored is not None and target.restored.cfg.network.teacher:
+        raise ConfigError(
+            "--export: the target is a teacher (network.teacher = true), whose observation "
+            "no robot can build; it is evaluated, never exported"
+        )
     smallest = min(s.episodes for s in scenario_set.scenarios)
     if args.video and args.video_episode >= smallest:
         raise ConfigError(
@@ -435,6 +442,7 @@ def _evaluate_into(
         "label": target.label,
         "epoch": None if target.restored is None else target.restored.epoch,
         "seed": None if target.restored is None else target.restored.seed,
+        "teacher": None if target.restored is None else target.restored.cfg.network.teacher,
         "robot": target.env.desc.robot.name,
         "scenario_file": scenario_set.source,
         "device": str(jax.devices()[0]),

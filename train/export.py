@@ -92,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
             extra[key] = value
         run_dir, epoch = checkpoint.split_target(args.run)
         restored = checkpoint.restore_policy(run_dir, args.seed, epoch or args.epoch)
+        check_exportable(restored)
     except (ConfigError, checkpoint.CheckpointError) as err:
         _error(err)
         return 2
@@ -115,6 +116,16 @@ def main(argv: list[str] | None = None) -> int:
     path = export_policy(restored, Path(args.out))
     console.log(f"wrote {path} and {path.with_name('mecanum_policy.py')}")
     return 0
+
+
+def check_exportable(restored: checkpoint.RestoredPolicy) -> None:
+    """Raise :class:`CheckpointError` for a policy no robot could run: a teacher."""
+    if restored.cfg.network.teacher:
+        raise checkpoint.CheckpointError(
+            f"{str(restored.run_dir)!r}: network.teacher = true: a teacher policy observes "
+            "the simulator's truth (true twist, friction, payload, ...), which no robot can "
+            "measure, so it is not exported; evaluate it with mecanum-eval"
+        )
 
 
 def export_policy(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
@@ -164,6 +175,7 @@ def _policy_arrays(
     restored: checkpoint.RestoredPolicy,
 ) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray, np.ndarray, dict[str, Any]]:
     """The exported policy's layers, normalizer mean and std, and metadata."""
+    check_exportable(restored)
     cfg = restored.cfg
     env = MecanumEnv(dataclasses.replace(cfg.env, physics_impl="jax"))  # shapes only
     layers_tree = restored.params["params"]

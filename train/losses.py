@@ -26,9 +26,6 @@ from brax.training.agents.ppo import losses as ppo_losses
 
 from mecanum_jax.config import require
 
-POLICY_OBS = "state"
-"""The observation key the policy network reads (the critic also reads the privileged one)."""
-
 
 @dataclasses.dataclass(frozen=True)
 class SmoothnessConfig:
@@ -57,11 +54,13 @@ def smoothness_loss(
     next_observation: Any,
     key: jax.Array,
     cfg: SmoothnessConfig,
+    obs_key: str = "state",
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """The weighted CAPS terms for a batch of transitions, and their unweighted values.
 
     ``mean_action(obs)`` maps a (batched) observation dict to the policy's deterministic
-    action; ``observation``/``next_observation`` are the transitions' states.
+    action; ``observation``/``next_observation`` are the transitions' states; the spatial
+    term perturbs ``observation[obs_key]``, the entry the policy reads.
     """
     action = mean_action(observation)
     zero = jnp.zeros((), action.dtype)
@@ -69,9 +68,9 @@ def smoothness_loss(
     if cfg.temporal > 0:
         temporal = jnp.mean(jnp.sum((action - mean_action(next_observation)) ** 2, axis=-1))
     if cfg.spatial > 0:
-        state = observation[POLICY_OBS]
+        state = observation[obs_key]
         noisy = dict(observation)
-        noisy[POLICY_OBS] = state + cfg.sigma * jax.random.normal(key, state.shape, state.dtype)
+        noisy[obs_key] = state + cfg.sigma * jax.random.normal(key, state.shape, state.dtype)
         spatial = jnp.mean(jnp.sum((action - mean_action(noisy)) ** 2, axis=-1))
     total = cfg.temporal * temporal + cfg.spatial * spatial
     return total, {"smooth_temporal": temporal, "smooth_spatial": spatial}
@@ -84,6 +83,7 @@ def ppo_loss_with_smoothness(
     rng: jax.Array,
     ppo_network: Any,
     smoothness: SmoothnessConfig,
+    obs_key: str = "state",
     **ppo_kwargs: Any,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """Brax's ``compute_ppo_loss`` plus :func:`smoothness_loss` (same signature as Brax's
@@ -98,9 +98,9 @@ def ppo_loss_with_smoothness(
         return dist.mode(ppo_network.policy_network.apply(normalizer_params, params.policy, obs))
 
     extra, terms = smoothness_loss(
-        mean_action, data.observation, data.next_observation, k_smooth, smoothness
+        mean_action, data.observation, data.next_observation, k_smooth, smoothness, obs_key
     )
     return loss + extra, {**metrics, **terms, "total_loss": loss + extra}
 
 
-__all__ = ["POLICY_OBS", "SmoothnessConfig", "ppo_loss_with_smoothness", "smoothness_loss"]
+__all__ = ["SmoothnessConfig", "ppo_loss_with_smoothness", "smoothness_loss"]

@@ -50,6 +50,7 @@ from train.state import (
     fresh_state,
     make_networks,
     make_optimizer,
+    policy_obs_key,
 )
 
 AXIS = "devices"
@@ -84,7 +85,11 @@ class Learner:
         self.optimizer = make_optimizer(cfg)
         loss: Any = ppo_losses.compute_ppo_loss
         if p.smoothness.enabled:  # CAPS-style terms (train/losses.py)
-            loss = functools.partial(losses.ppo_loss_with_smoothness, smoothness=p.smoothness)
+            loss = functools.partial(
+                losses.ppo_loss_with_smoothness,
+                smoothness=p.smoothness,
+                obs_key=policy_obs_key(cfg),
+            )
         loss_fn = functools.partial(
             loss,
             ppo_network=self.networks,
