@@ -54,6 +54,13 @@ def test_a_teacher_trains_evaluates_and_refuses_export(tiny, tmp_path, capsys):
     assert eval_main([*args, "--out", str(tmp_path / "e2"), "--export"]) == 2
     assert "--export: the target is a teacher" in " ".join(capsys.readouterr().err.split())
     assert not (tmp_path / "e2").exists()
-    assert export_main([str(run), str(tmp_path / "model"), "--model"]) == 2
+    assert export_main([str(run), str(tmp_path / "p.npz")]) == 2
     assert "network.teacher = true" in " ".join(capsys.readouterr().err.split())
-    assert not (tmp_path / "model").exists()
+    assert not (tmp_path / "p.npz").exists()
+    # a model directory (what the device runner's ab and seeds tasks package) keeps the
+    # teacher's checkpoint for evaluation, without an export
+    model = tmp_path / "model"
+    assert export_main([str(run), str(model), "--model"]) == 0
+    assert not (model / "policy.npz").exists()
+    assert json.loads((model / "provenance.json").read_text())["teacher"] is True
+    assert checkpoint.restore_policy(model).cfg.network.teacher

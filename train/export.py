@@ -92,14 +92,17 @@ def main(argv: list[str] | None = None) -> int:
             extra[key] = value
         run_dir, epoch = checkpoint.split_target(args.run)
         restored = checkpoint.restore_policy(run_dir, args.seed, epoch or args.epoch)
-        check_exportable(restored)
+        if not args.model:  # a teacher's model directory holds its checkpoint, no export
+            check_exportable(restored)
     except (ConfigError, checkpoint.CheckpointError) as err:
         _error(err)
         return 2
     if args.model:
-        out = checkpoint.package_model(restored, Path(args.out), extra)
-        export_policy(restored, out / "policy.npz")
-        console.log(f"wrote model directory {out}")
+        teacher = restored.cfg.network.teacher
+        out = checkpoint.package_model(restored, Path(args.out), {"teacher": teacher, **extra})
+        if not teacher:
+            export_policy(restored, out / "policy.npz")
+        console.log(f"wrote model directory {out}" + (" (a teacher: no export)" if teacher else ""))
         return 0
     if args.format == "onnx":
         try:
