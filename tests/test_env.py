@@ -201,9 +201,37 @@ def test_nominal_scenario_is_deterministic_and_unrandomized():
     assert int(a.info["latency"]) == 0
 
 
+def test_a_share_of_nominal_robots_leaves_the_other_draws_alone(env):
+    """randomization.nominal_share: that share of resets draws the nominal robot (no
+    latency either); every other robot is the one drawn without the share."""
+    from mecanum_jax.task.randomization import sample_params
+
+    keys = jax.random.split(jax.random.PRNGKey(4), 400)
+    base = env.config.randomization
+
+    def draw(share):
+        r = dataclasses.replace(base, nominal_share=share)
+        return jax.vmap(lambda k: sample_params(env, k, r))(keys)
+
+    (p0, lat0), (p5, lat5), (p1, lat1) = draw(0.0), draw(0.5), draw(1.0)
+    nom = env.nominal_params
+    is_nom = np.all(np.asarray(p5.friction) == np.asarray(nom.friction), axis=-1)
+    assert 0.4 < is_nom.mean() < 0.6
+    assert not np.any(np.all(np.asarray(p0.friction) == np.asarray(nom.friction), axis=-1))
+    for a, b, n in zip(jax.tree.leaves(p0), jax.tree.leaves(p5), jax.tree.leaves(nom), strict=True):
+        a, b = np.asarray(a), np.asarray(b)
+        np.testing.assert_array_equal(b[~is_nom], a[~is_nom])
+        np.testing.assert_array_equal(b[is_nom], np.broadcast_to(n, b[is_nom].shape))
+    np.testing.assert_array_equal(np.asarray(lat5)[is_nom], 0)
+    np.testing.assert_array_equal(np.asarray(lat5)[~is_nom], np.asarray(lat0)[~is_nom])
+    np.testing.assert_array_equal(np.asarray(p1.payload_mass), 0.0)
+    np.testing.assert_array_equal(np.asarray(lat1), 0)
+
+
 @pytest.mark.parametrize(
     ("table", "message"),
     [
+        ({"randomization": {"nominal_share": 1.5}}, "env.randomization.nominal_share = 1.5"),
         ({"control_dt": 0.021}, "env.control_dt = 0.021"),
         ({"episode_length": 0}, "env.episode_length = 0"),
         ({"randomization": {"friction": [1.0, 0.5]}}, "env.randomization.friction"),
@@ -250,6 +278,7 @@ def test_twist_residual_acts_only_through_the_inverse_model():
     assert not np.any(np.asarray(action))
 
 
+@pytest.mark.full  # an environment of its own to compile: tens of seconds on 2 cores
 def test_action_filter_applies_and_observes_the_low_passed_action():
     """action_filter = f: the action applied is f·previous + (1 − f)·new, it is what the
     next observation's last_action carries, and the setpoints are those of that action."""

@@ -101,6 +101,24 @@ def test_singular_pass_drags_two_wheels_and_is_closed(env, shipped):
     assert np.max(np.linalg.norm(path[:, :2], axis=-1)) > 0.5
 
 
+def test_episodes_do_not_follow_the_targets_command_mix(env, shipped):
+    """A policy trained on another episode mix is judged on the same episodes."""
+    from mecanum_jax.task import CommandConfig, RandomizationConfig
+
+    other = MecanumEnv(
+        dataclasses.replace(
+            env.config,
+            commands=CommandConfig(p_zero=0.0, p_translation=1.0, resample_max_s=9.0),
+            randomization=RandomizationConfig(nominal_share=0.5),
+        )
+    )
+    sc = shipped.select(["nominal"], 4, 3.0).scenarios[0]
+    a, b = scenarios.prepare(env, sc), scenarios.prepare(other, sc)
+    assert np.any(np.asarray(a.commands)[..., 2] != 0)  # spins: not the other's mix
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
 def test_prepare_is_seeded_and_applies_the_physics(env, shipped):
     sets = shipped.select(["slippery", "payload", "radius_error", "weak_motors", "sensor_noise"])
     by = {s.name: scenarios.prepare(env, s) for s in sets.scenarios}

@@ -427,7 +427,9 @@ def prepare(env: MecanumEnv, scenario: Scenario) -> EpisodeBatch:
     if scenario.scripted:
         commands = jnp.broadcast_to(jnp.asarray(scripted_commands(env, scenario)), (E, T, 3))
     else:
-        mix = scenario.command_config(env.config.commands)
+        # the default mix, not the target's: a variant trained on another command mix is
+        # judged on the same episodes as every other target
+        mix = scenario.command_config(CommandConfig())
         commands = samplers[1](jax.random.split(k_cmd, E), _as_arrays(mix))
     noise = jnp.broadcast_to(env.noise_std(scenario.noise), (E, 3))
     return EpisodeBatch(jax.random.split(k_run, E), params, latency, noise, commands)

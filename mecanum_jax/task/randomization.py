@@ -2,7 +2,8 @@
 
 Floor friction and its per-wheel spread, payload mass and position, wheel-radius error
 (the baseline keeps the nominal geometry), torque limit, servo gains and observation
-latency, each uniform in the ranges of :class:`RandomizationConfig`.
+latency, each uniform in the ranges of :class:`RandomizationConfig`; a share of the robots
+can be the nominal robot instead.
 """
 
 from __future__ import annotations
@@ -53,6 +54,9 @@ class RandomizationConfig:
     """Wheel servo gain / nominal gain, range (> 0)."""
     latency_steps: tuple[int, int] = (0, 2)
     """Observation latency in whole control steps, range (0 <= lo <= hi <= 10)."""
+    nominal_share: float = 0.0
+    """Share of robots that are the nominal robot instead (the description's friction, no
+    payload, nominal radii, motors and gains, no latency), in [0, 1]."""
 
     def validate(self, where: str = "env.randomization") -> None:
         """Check values; raise :class:`ConfigError` naming the field."""
@@ -81,6 +85,7 @@ class RandomizationConfig:
             raise invalid(
                 f"{where}.latency_steps", list(self.latency_steps), "need 0 <= lo <= hi <= 10"
             )
+        require(self, where, ("nominal_share",), lambda v: 0 <= v <= 1, "must be in [0, 1]")
         require(
             self,
             where,
@@ -134,7 +139,10 @@ def sample_params(
     )
     lo, hi = r.latency_steps
     latency = jax.random.randint(ks[9], (), lo, hi + 1)
-    return params, latency
+    # a key of its own, so the other draws are those of a config without nominal robots
+    nominal = jax.random.uniform(jax.random.fold_in(key, 1)) < r.nominal_share
+    params = jax.tree.map(lambda a, b: jnp.where(nominal, a, b), nom, params)
+    return params, jnp.where(nominal, 0, latency)
 
 
 __all__ = ["RandomizationConfig", "sample_params"]
