@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from train import evaluate
+from train import eval_args, evaluate
 
 ROOT = Path(__file__).resolve().parent.parent
 H100 = "GPU 0: NVIDIA H100 80GB HBM3 (UUID: GPU-0f1e2d3c)"
@@ -147,12 +147,12 @@ def test_mp4_without_ffmpeg_is_refused_before_any_rollout(monkeypatch, tmp_path,
     assert not (tmp_path / "ev.partial").exists()
     # gif needs no ffmpeg; without --video nothing is asked
     for argv in (["--video", "--video-format", "gif"], []):
-        evaluate._check_args(evaluate._parse(["baseline", *argv], "p", evaluate.EvalArgs))
+        eval_args.check_args(evaluate._parse(["baseline", *argv], "p", evaluate.EvalArgs))
 
 
 def test_mp4_passes_the_check_where_ffmpeg_is_installed():
     pytest.importorskip("imageio_ffmpeg")
-    evaluate._check_args(evaluate._parse(["baseline", "--video"], "p", evaluate.EvalArgs))
+    eval_args.check_args(evaluate._parse(["baseline", "--video"], "p", evaluate.EvalArgs))
 
 
 def test_extras_and_licence_are_declared():

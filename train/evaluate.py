@@ -28,7 +28,7 @@ the deployable policy as ``mecanum-export`` does (:mod:`train.export`).
 
 from __future__ import annotations
 
-from mecanum_jax.sim.render import ensure_gl_backend, video_writer_missing
+from mecanum_jax.sim.render import ensure_gl_backend
 
 ensure_gl_backend()  # before MuJoCo is imported: OSMesa when there is no display
 
@@ -38,7 +38,7 @@ import shutil  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
-from typing import Annotated, Any, Literal  # noqa: E402
+from typing import Any  # noqa: E402
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
@@ -50,10 +50,11 @@ from mecanum_jax.evaluation import metrics, scenarios  # noqa: E402
 from mecanum_jax.evaluation import rollout as ev  # noqa: E402
 from mecanum_jax.kinematics import model as kinematics  # noqa: E402
 from mecanum_jax.precision import set_matmul_precision  # noqa: E402
-from mecanum_jax.task import REFERENCES, MecanumEnv  # noqa: E402
+from mecanum_jax.task import MecanumEnv  # noqa: E402
 from mecanum_jax.task import fidelity as fid  # noqa: E402
 from train import checkpoint, compilation_cache  # noqa: E402
 from train.config import load_train_config  # noqa: E402
+from train.eval_args import EvalArgs, check_args  # noqa: E402
 from train.eval_output import (  # noqa: E402
     comparison_table,
     results_table,
@@ -65,72 +66,6 @@ from train.progress import print_error, rollout_progress  # noqa: E402
 from train.run_records import write_json  # noqa: E402
 
 console = Console(stderr=True)
-
-
-@dataclasses.dataclass
-class EvalArgs:
-    """Evaluate a policy against the reference controllers on named scenarios."""
-
-    target: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="TARGET")]
-    """``baseline``, a run directory (latest checkpoint), or ``<run>/checkpoints/<epoch>``."""
-    scenarios: str = "default"
-    """Scenario file: a name in configs/eval/ or a path to a .toml file."""
-    only: tuple[str, ...] = ()
-    """Evaluate only these scenarios (names from the file), in this order."""
-    episodes: int | None = None
-    """Override every scenario's number of episodes (e.g. fewer, for a quick look)."""
-    seconds: float | None = None
-    """Override every scenario's episode length."""
-    seed: int | None = None
-    """Which of the run's training seeds (default: the first)."""
-    epoch: int | None = None
-    """Which checkpoint (default: the latest)."""
-    robot: str | None = None
-    """``baseline`` only: robot description (built-in name or TOML path)."""
-    config: str | None = None
-    """``baseline`` only: train config whose [env] defines the task (default: quick)."""
-    out: str | None = None
-    """Output directory (default: <run>/eval/epoch<k>-<time>, or runs/eval-baseline-<time>)."""
-    plots: bool = True
-    """Write the PNG plots."""
-    video: bool = False
-    """Render the --video-scenarios (episode --video-episode): policy and baseline side by
-    side."""
-    video_scenarios: tuple[str, ...] = ()
-    """Scenarios to render (default: six_modes if evaluated, else the first)."""
-    video_episode: int = 0
-    """Which episode of each rendered scenario."""
-    video_size: tuple[int, int] = (320, 240)
-    """Width and height of each policy's view, pixels."""
-    fps: int = 25
-    """Video frame rate (frames are taken from the 50 Hz control steps)."""
-    video_format: Literal["mp4", "gif"] = "mp4"
-    """mp4 (H.264 through imageio-ffmpeg: pip install 'mecanum-jax[video]') or gif (Pillow)."""
-    max_batch: int | None = None
-    """Robots per compiled rollout (default: 64 on CPU, where larger MJX batches deadlock
-    jaxlib 0.10.2; 16384 on GPU, so a whole evaluation is one rollout)."""
-    physics_impl: str = ""
-    """MJX implementation to simulate with: "jax", "warp" (the warp extra), or "" (the
-    task's own). Both simulate the same robot (docs/benchmarks.md)."""
-    fidelity: str = "fast"
-    """Physics model: "fast" (the training model) or "reference" (the roller model at its own
-    timestep, same control period; docs/evaluation.md)."""
-    references: tuple[str, ...] = REFERENCES
-    """Reference controllers to run on the same episodes (analytic, analytic_nearest,
-    feedback)."""
-    settle_s: float = 0.5
-    """Steady-state error counts control steps at least this long after a command change, s."""
-    bootstrap: int = 2000
-    """Bootstrap resamples of the paired intervals."""
-    export: bool = False
-    """Also write the deployable policy (policy.npz + mecanum_policy.py) to the output."""
-    matmul_precision: Literal["default", "high", "highest"] | None = None
-    """jax's matmul precision for the evaluation (default: the run's ``run.matmul_precision``,
-    ``highest`` unless the run chose otherwise). ``default`` is TF32 on A100/H100 GPUs and
-    makes the figures depend on the device (mecanum_jax.precision)."""
-    progress_every_s: float = 30.0
-    """Where stderr is not a terminal: a plain progress line of the rollouts every this many
-    seconds, and one per finished chunk (> 0)."""
 
 
 class Target:
@@ -323,33 +258,6 @@ def _parse(argv: list[str], prog: str, cls: type) -> Any:
     return tyro.cli(cls, args=argv, prog=prog)
 
 
-def _check_args(args: EvalArgs) -> None:
-    w, h = args.video_size
-    if not (16 <= w <= 4096 and 16 <= h <= 4096):
-        raise ConfigError(f"--video-size = {w} {h}: each in [16, 4096] pixels")
-    if not 1 <= args.fps <= 50:
-        raise ConfigError(f"--fps = {args.fps}: must be in [1, 50] (the control rate)")
-    if args.video_episode < 0:
-        raise ConfigError(f"--video-episode = {args.video_episode}: must be >= 0")
-    if args.max_batch is not None and args.max_batch < 1:
-        raise ConfigError(f"--max-batch = {args.max_batch}: must be >= 1")
-    if args.video_scenarios and not args.video:
-        raise ConfigError("--video-scenarios: needs --video")
-    if args.video and (missing := video_writer_missing(args.video_format)):
-        raise ConfigError(f"--video (--video-format {args.video_format}): {missing}, or use gif")
-    unknown = [r for r in args.references if r not in REFERENCES]
-    if unknown or not args.references:
-        raise ConfigError(f"--references = {list(args.references)}: expected some of {REFERENCES}")
-    if not args.settle_s >= 0:
-        raise ConfigError(f"--settle-s = {args.settle_s}: must be >= 0")
-    if not 0 < args.progress_every_s < float("inf"):
-        raise ConfigError(f"--progress-every-s = {args.progress_every_s}: must be > 0 seconds")
-    if args.bootstrap < 100:
-        raise ConfigError(f"--bootstrap = {args.bootstrap}: must be >= 100")
-    if args.export and args.target == "baseline":
-        raise ConfigError("--export: the baseline has no weights to export; give a checkpoint")
-
-
 def main(argv: list[str] | None = None) -> int:
     """``mecanum-eval``: see the module docstring."""
     checkpoint.quiet_closed_loop_noise()
@@ -395,7 +303,7 @@ def main(argv: list[str] | None = None) -> int:
 def _prepare(args: EvalArgs) -> tuple[Target, scenarios.ScenarioSet, Path]:
     """Check everything that can be checked before a rollout: the arguments, the
     scenarios (scripted ones included), the target and the output directory."""
-    _check_args(args)
+    check_args(args)
     scenario_set = scenarios.load_scenarios(args.scenarios).select(
         args.only, args.episodes, args.seconds
     )
