@@ -27,6 +27,7 @@ PARTS = [
 PROGRAMS = ["epoch", "physics", "task", "env", "rollout", "update", "normalizer", "gae"]
 
 
+@pytest.mark.full  # compiles each part of an epoch on its own: most of a minute on 2 cores
 def test_profile_times_and_prints_every_part(tiny, learner, tmp_path):
     """On the suite's tiny learner (its programs are compiled once for the whole suite)."""
     trace = tmp_path / "trace"
@@ -70,6 +71,7 @@ def test_profile_trace_dir_must_be_a_directory(tmp_path, capsys, monkeypatch):
     assert "is not a directory" in capsys.readouterr().out
 
 
+@pytest.mark.full  # a cold start of the tiny config, its compilations included
 def test_coldstart_lists_phases_and_compiled_programs(tmp_path, capsys):
     out = tmp_path / "c.json"
     assert coldstart.main(["--config", "tiny", "--json-out", str(out)]) == 0

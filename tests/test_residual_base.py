@@ -13,6 +13,7 @@ from mecanum_jax.config import ConfigError
 from mecanum_jax.task import EnvConfig, MecanumEnv, RandomizationConfig
 
 FEEDBACK = jnp.asarray(2)  # index of "feedback" in REFERENCES
+POLICY = jnp.asarray(-1)  # no reference: the policy's action (the same compiled step)
 
 
 @pytest.fixture(scope="module")
@@ -23,14 +24,21 @@ def env():
     return MecanumEnv(cfg)
 
 
-def test_the_zero_residual_is_the_feedback_controller(env):
-    step = jax.jit(env.step)
+@pytest.fixture(scope="module")
+def step(env):
+    """``env.step`` with a reference index, traced: one program for the policy (index
+    -1) and the references. Training's step (no index) differs from it only by that
+    ``where``; tests/test_env.py and the full tier's tests run it."""
+    return jax.jit(env.step)
+
+
+def test_the_zero_residual_is_the_feedback_controller(env, step):
     state = jax.jit(env.reset)(jax.random.PRNGKey(3))
     state = env.set_command(state, jnp.asarray([0.3, 0.1, 1.5]))
     ref = state
     zero = jnp.zeros(env.action_size)
     for _ in range(40):
-        state = step(state, zero)
+        state = step(state, zero, POLICY)
         ref = step(ref, zero, FEEDBACK)
         np.testing.assert_allclose(
             state.pipeline_state.data.qpos, ref.pipeline_state.data.qpos, atol=1e-6
@@ -41,14 +49,13 @@ def test_the_zero_residual_is_the_feedback_controller(env):
     assert abs(float(state.info["feedback_integral"])) > 0.02  # it integrated something
 
 
-def test_the_policy_observes_the_integrator(env):
+def test_the_policy_observes_the_integrator(env, step):
     names = [name for name, _ in env.layout]
     assert names[-1] == "feedback_integral"
     state = jax.jit(env.reset)(jax.random.PRNGKey(0))
     state = env.set_command(state, jnp.asarray([0.0, 0.0, 2.0]))
-    step = jax.jit(env.step)
     for _ in range(10):
-        state = step(state, jnp.zeros(env.action_size))
+        state = step(state, jnp.zeros(env.action_size), POLICY)
     observed = float(state.obs["state"][-1]) * float(env.command_scale[2])
     assert observed == pytest.approx(float(state.info["feedback_integral"]), rel=1e-5)
     assert observed != 0.0
@@ -89,6 +96,7 @@ def test_numpy_nearest_feasible_matches_the_library(env):
     np.testing.assert_allclose(near(twists), expected, rtol=1e-4, atol=1e-4)
 
 
+@pytest.mark.full  # an environment of its own to compile: tens of seconds on 2 cores
 def test_environment_numpy_and_onnx_agree_step_by_step():
     """Setpoints, the integrator and the observation, step by step, through a command
     change and commands beyond the wheels' reach (the anti-windup and the projection)."""
