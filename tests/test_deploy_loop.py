@@ -100,6 +100,7 @@ def _lockstep(env, ctrl, commands, latency, seed=0):
         env.robot = robot.robot
 
 
+@pytest.mark.full  # compiles the shipped task's step (the loop against mecanum-eval is full too)
 def test_the_loop_builds_the_environments_observations_tick_by_tick(shipped_task, controller):
     """The shipped policy's task (a twist residual on the feedback controller, whose
     integrator it observes; action filter 0.8) with sensor noise and one period of

@@ -264,6 +264,7 @@ def test_vmap_over_geometries_and_grad_through_forward():
 # --- seed 000 §4: the velocity spaces ---------------------------------------------------------
 
 
+@pytest.mark.full  # float64 hulls of every drive: eight seconds on 2 cores
 def test_velocity_spaces_are_polytopes_not_boxes(x64):
     """Seed 000 §4.1 calls the differential drive's (v, ω) set a rectangle and the mecanum
     platform's (vx, vy, ω) set a cuboid. With per-wheel rate limits they are a rhombus and

@@ -123,6 +123,7 @@ def test_direct_mode_baseline_action_reproduces_rates():
     np.testing.assert_allclose(env.wheel_setpoints(cmd, action), env.baseline_rates(cmd), atol=1e-4)
 
 
+@pytest.mark.full  # compiles an auto-reset rollout; the tiny training run drives the same path
 def test_rollout_resets_episodes_with_fresh_robots(env, rollout):
     s0, (_, (states, _)) = rollout
     done = np.asarray(states.done)  # (T, B)
@@ -152,6 +153,7 @@ def test_reward_terms_on_known_errors():
     np.testing.assert_allclose(t["energy"][1], -40.0)
 
 
+@pytest.mark.full  # shares that rollout
 def test_rewards_and_metrics_are_consistent(env, rollout):
     _, (_, (states, _)) = rollout
     m = {k: np.asarray(v) for k, v in states.metrics.items()}

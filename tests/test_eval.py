@@ -546,6 +546,7 @@ def test_exported_twist_residual_setpoints_match_the_environment():
         )
 
 
+@pytest.mark.full  # compiles an environment of its own
 def test_exported_action_filter_matches_the_environment_in_numpy_and_onnx():
     """action_filter = f: the NumPy policy and its ONNX graph return f·last_action (read
     from the observation) + (1 − f)·network, the action the environment applies."""

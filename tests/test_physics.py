@@ -430,6 +430,7 @@ def test_warp_without_its_extra_is_refused_naming_the_field(capsys, tmp_path, mo
         physics.Robot(_with_impl(builtin_description("o_rectangle"), "warp"), "fast")
 
 
+@pytest.mark.full  # compiles a batched step of its own: ten seconds on 2 cores
 def test_select_takes_fresh_robots_where_done(fast_robot):
     reset, step, _ = fast_robot.batched(substeps=2)
     p = physics.stack_params([fast_robot.nominal_params()] * 3)

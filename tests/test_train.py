@@ -241,6 +241,7 @@ def test_nan_stops_and_keeps_last_good_checkpoint(tiny, learner, tmp_path, monke
     assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(host.params))
 
 
+@pytest.mark.full  # compiles the learner's finiteness check on its own
 def test_nan_check_detects_non_finite_params(learner):
     ts, env_state = learner.init()
 
