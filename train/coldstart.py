@@ -205,13 +205,10 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         learner.evaluate_baseline(host_ts)
     with clock.phase("first evaluation: policy"):
         learner.evaluate(host_ts)
+    from train.run_records import machine_record
+
     return {
-        "device": jax.devices()[0].device_kind,
-        "platform": jax.default_backend(),
-        "jax": jax.__version__,
-        "date": time.strftime("%Y-%m-%d"),
-        "config": cfg.name,
-        "physics_impl": learner.env.robot.impl,
+        **machine_record(cfg, learner.env.robot.impl),
         "robots": cfg.ppo.num_envs,
         "seeds": len(cfg.run.seeds),
         "devices": learner.n_devices,

@@ -43,7 +43,7 @@ from train.config import TrainConfig, apply_flags, load_train_config
 from train.ppo import Learner, first_device, to_host
 from train.profile_parts import EpochParts
 from train.progress import print_error
-from train.run_records import write_json
+from train.run_records import machine_record, write_json
 
 
 class Timer:
@@ -161,12 +161,7 @@ def report(cfg: TrainConfig, learner: Learner, programs: dict[str, Any]) -> dict
     steps = cfg.steps_per_iteration * iters * len(r.seeds)
     env = learner.env
     return {
-        "device": jax.devices()[0].device_kind,
-        "platform": jax.default_backend(),
-        "jax": jax.__version__,
-        "date": time.strftime("%Y-%m-%d"),
-        "config": cfg.name,
-        "physics_impl": env.robot.impl,
+        **machine_record(cfg, env.robot.impl),
         "shapes": {
             "devices": learner.n_devices,
             "seeds": len(r.seeds),

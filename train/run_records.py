@@ -41,6 +41,18 @@ def write_json(path: Path, data: Any) -> None:
     os.replace(tmp, path)
 
 
+def machine_record(cfg: Any, physics_impl: str) -> dict[str, Any]:
+    """Where and when a benchmark ran: device, platform, jax, date, config, physics."""
+    return {
+        "device": jax.devices()[0].device_kind,
+        "platform": jax.default_backend(),
+        "jax": jax.__version__,
+        "date": time.strftime("%Y-%m-%d"),
+        "config": cfg.name,
+        "physics_impl": physics_impl,
+    }
+
+
 def stacked(results: list[Result]) -> dict[str, dict[str, np.ndarray]]:
     """Per scenario and metric, the seeds' values ``(S,)`` (NaN where undefined)."""
     first = results[0].values
