@@ -63,7 +63,7 @@ class ExportArgs:
     model: bool = False
     """Write a model directory: the policy's checkpoint (no optimizer-free copy is made:
     the training state of that epoch, without the environment state), the resolved config,
-    ``provenance.json`` and the NumPy export."""
+    ``provenance.json`` and the NumPy export (none for a teacher, which no robot can run)."""
     provenance: tuple[str, ...] = ()
     """``--model``: KEY=VALUE pairs for provenance.json (e.g. command=..., device=...)."""
 
