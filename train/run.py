@@ -21,7 +21,7 @@ import dataclasses
 import json
 import math
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -306,15 +306,9 @@ class Run:
             barrier("epoch-compiled")
         self._open_logs()
         self._status("running", epoch=loop.epoch)
-        if learner.env.robot.impl == "warp" and jax.default_backend() == "cpu":
-            # two XLA:CPU compilations of MuJoCo Warp programs in two threads aborted the
-            # process once (CI, 2026-11-25): on the CPU they run one after the other
-            loop.baseline_job = Future()
-            loop.baseline_job.set_result(learner.evaluate_baseline(first_device(loop.state)))
-        else:
-            pool = ThreadPoolExecutor(1, thread_name_prefix="baseline-eval")
-            loop.baseline_job = pool.submit(learner.evaluate_baseline, first_device(loop.state))
-            pool.shutdown(wait=False)
+        pool = ThreadPoolExecutor(1, thread_name_prefix="baseline-eval")
+        loop.baseline_job = pool.submit(learner.evaluate_baseline, first_device(loop.state))
+        pool.shutdown(wait=False)
         loop.setup_s = time.time() - t_start
         return loop
 
