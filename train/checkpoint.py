@@ -184,8 +184,10 @@ def restore(
     but has another shape (an older version's training state) is an error, not skipped.
     """
     say = log or (lambda _: None)
+    moved: list[int] = []
 
     def set_aside(ep: int, reason: str) -> None:
+        moved.append(ep)
         path = _checkpoint_path(run_dir, ep)
         aside = path.with_name(f"{ep}.corrupt")
         path.rename(aside)
@@ -194,7 +196,6 @@ def restore(
             f"moved to {str(aside)!r} for inspection; trying the previous one"
         )
 
-    newest = latest_epoch(run_dir) if epoch is None else epoch
     ep, out = _newest_clean(run_dir, epoch, ("train", "env", "meta"), set_aside)
     path = _checkpoint_path(run_dir, ep)
     try:
@@ -207,7 +208,7 @@ def restore(
             "training state had another shape, can still be evaluated (mecanum-eval) "
             "but not resumed"
         ) from err
-    if ep != newest:
+    if moved:
         say(f"resuming from checkpoint {str(path)!r}, the newest that reads cleanly")
     return train, env, dict(out["meta"])
 

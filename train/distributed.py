@@ -27,7 +27,7 @@ import jax
 import numpy as np
 
 from mecanum_jax.config import ConfigError
-from train.leaves import CheckpointError, pack, unpack
+from train.leaves import CheckpointError, corruption, pack, unpack
 
 ENV_KEYS = ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID")
 
@@ -150,6 +150,8 @@ def restore_process(
     with np.load(path) as f:
         keys = np.asarray(f["key"])
         env = {k.removeprefix("env_"): f[k] for k in f.files if k.startswith("env_")}
+        if damage := corruption(env):
+            raise CheckpointError(f"{str(path)!r}: {damage}")
         if keys.shape != np.shape(keys_like):
             raise CheckpointError(
                 f"{str(path)!r}: key shape {keys.shape}, expected {np.shape(keys_like)}"
