@@ -106,3 +106,27 @@ def test_mecanum_train_passes_the_other_flags_on(tmp_path, capsys, restore_jax_c
     assert cli.main([FLAG, "off", *args]) == 2
     assert "ppo.learning_rate" in capsys.readouterr().err
     assert not jax.config.jax_enable_compilation_cache
+
+
+def test_warp_physics_leaves_the_persistent_cache(tmp_path, restore_jax_cache_options, capsys):
+    """MuJoCo Warp's programs fail when read back from the cache (mecanum_jax/sim/
+    warp_cache.py): once a process builds Warp physics, nothing more is written or read."""
+    from jax.experimental.compilation_cache import compilation_cache as jax_cache
+
+    from mecanum_jax.sim.warp_cache import leave_the_persistent_cache
+
+    jax.config.update("jax_enable_compilation_cache", True)
+    jax.config.update("jax_compilation_cache_dir", str(tmp_path))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax_cache.reset_cache()
+    try:
+        jax.jit(lambda x: x * 3.0 + 1.0)(jax.numpy.ones(7)).block_until_ready()
+        written = set(tmp_path.rglob("*"))
+        assert written, "the cache wrote nothing before: the check below would prove nothing"
+        assert leave_the_persistent_cache() is True
+        assert "persistent compilation cache is off" in capsys.readouterr().err
+        jax.jit(lambda x: x * 5.0 - 2.0)(jax.numpy.ones(9)).block_until_ready()
+        assert set(tmp_path.rglob("*")) == written
+        assert leave_the_persistent_cache() is False  # already off: nothing to do
+    finally:
+        jax_cache.reset_cache()  # the restored options are read again at the next compile

@@ -2,11 +2,13 @@
 the scaling plot (scripts/plot_scaling.py), at tiny size on the CPU. They check what is
 measured and printed, never how long anything took."""
 
+import dataclasses
 import io
 import json
 import sys
 from pathlib import Path
 
+import jax
 import pytest
 from rich.console import Console
 
@@ -141,3 +143,19 @@ def test_scaling_plot(tmp_path):
     (tmp_path / "bad.json").write_text(json.dumps({"results": [{"num_envs": 8}]}))
     with pytest.raises(SystemExit, match="lacks"):
         plot_scaling.main([str(tmp_path / "bad.json"), "--out", str(png)])
+
+
+@pytest.mark.full  # builds and resets a learner of its own
+def test_the_physics_part_traces_for_a_residual_on_feedback(tiny):
+    """The gpu config's residual corrects the feedback controller, whose setpoints read
+    the state: the physics part must hand it over (it raised on the H100 once)."""
+    from train.ppo import Learner
+    from train.profile_parts import EpochParts
+
+    cfg = dataclasses.replace(tiny, env=dataclasses.replace(tiny.env, residual_base="feedback"))
+    learner = Learner(cfg)
+    ts, env = learner.init()
+    lowered = EpochParts(learner).programs["physics"].lower(ts, env)
+    # the physics moves the robots on: the packed environment comes back in its own shapes
+    shapes = [x.shape for x in jax.tree.leaves(lowered.out_info)]
+    assert shapes == [x.shape for x in jax.tree.leaves(env)]

@@ -101,7 +101,9 @@ class EpochParts:
         env, menv = learner.unpack_env(packed), learner.env
         info = env.info
         zeros = jnp.zeros((info["command"].shape[0], menv.action_size))
-        rates = jax.vmap(menv.wheel_setpoints)(info["command"], zeros)
+        rates = jax.vmap(menv.wheel_setpoints)(
+            info["command"], zeros, info
+        )  # a feedback base reads the state
         step = chunked_vmap(
             lambda s, r, p: menv.robot.step(s, r, p, menv.substeps), learner.train_env.chunk
         )

@@ -43,6 +43,7 @@ from mecanum_jax.kinematics.geometry import WheelGeometry
 from mecanum_jax.precision import HIGHEST
 from mecanum_jax.sim import mjcf
 from mecanum_jax.sim.description import RobotDescription, require_impl
+from mecanum_jax.sim.warp_cache import leave_the_persistent_cache
 
 ServoModel = Literal["chord", "mjx"]
 """How a saturated servo is integrated: ``"chord"`` (default, see
@@ -169,6 +170,8 @@ class Robot:
         self.servo = servo
         self.impl = desc.sim.impl
         require_impl(self.impl)
+        if self.impl == "warp":
+            leave_the_persistent_cache()
         self._chord_on_warp = servo == "chord" and self.impl == "warp"
         self.robots = robots
         self.mj_model, self.index = mjcf.build_model(desc, fidelity)
