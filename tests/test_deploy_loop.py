@@ -372,4 +372,6 @@ def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
         tolerance = 0.02 * (hi - lo)
         gap = np.abs(per_episode(deployed[key]) - per_episode(evaluated[key]))
         assert gap.max() <= tolerance, (key, gap, tolerance)
-        assert np.abs(per_episode(wrong[key]) - per_episode(evaluated[key])).max() > tolerance
+        if key == "ss_wz":  # the check can fail: a frozen yaw-rate integrator shows in ωz
+            wrong_gap = np.abs(per_episode(wrong[key]) - per_episode(evaluated[key]))
+            assert wrong_gap.max() > tolerance, (wrong_gap, tolerance)
