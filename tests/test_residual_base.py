@@ -3,6 +3,8 @@ policy observes the controller's integrator."""
 
 from __future__ import annotations
 
+import types
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -10,7 +12,9 @@ import pytest
 from loops import network_free
 
 from mecanum_jax.config import ConfigError
-from mecanum_jax.task import EnvConfig, MecanumEnv, RandomizationConfig
+from mecanum_jax.deploy.loop import Controller
+from mecanum_jax.task import EnvConfig, FeedbackConfig, MecanumEnv, RandomizationConfig
+from mecanum_jax.task import references as refs
 
 FEEDBACK = jnp.asarray(2)  # index of "feedback" in REFERENCES
 POLICY = jnp.asarray(-1)  # no reference: the policy's action (the same compiled step)
@@ -96,14 +100,57 @@ def test_numpy_nearest_feasible_matches_the_library(env):
     np.testing.assert_allclose(near(twists), expected, rtol=1e-4, atol=1e-4)
 
 
-@pytest.mark.full  # an environment of its own to compile: tens of seconds on 2 cores
-def test_environment_numpy_and_onnx_agree_step_by_step():
-    """Setpoints, the integrator and the observation, step by step, through a command
-    change and commands beyond the wheels' reach (the anti-windup and the projection)."""
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"hold_s": -0.1}, r"env\.feedback\.hold_s = -0\.1: must be >= 0"),
+        ({"ki": -1.0}, r"env\.feedback\.ki = -1\.0: must be >= 0"),
+    ],
+)
+def test_bad_feedback_settings_name_the_field(kwargs, message):
+    with pytest.raises(ConfigError, match=message):
+        EnvConfig(feedback=FeedbackConfig(**kwargs)).validate()
+
+
+def test_the_command_age_counts_steps_since_a_change_and_holds_the_integrator():
+    """``command_age`` on a stand-in environment (no physics): 0 at a reset and at a change,
+    one more per step, unchanged by an imposed equal command; the integrator holds while the
+    age is below ``hold_s`` in control periods, then integrates."""
+    cfg = EnvConfig(feedback=FeedbackConfig(hold_s=0.06))  # 3 periods of 20 ms
+    fake = types.SimpleNamespace(config=cfg)
+    a, b = jnp.asarray([0.3, 0.0, 0.0]), jnp.asarray([0.3, 0.0, 0.5])
+    info = refs.command_age(fake, {"command": a})
+    ages = [int(info["command_age"])]
+    for command, advance in [(a, True), (a, False), (a, True), (b, True), (b, True), (b, False)]:
+        info = {**refs.command_age(fake, info, command, advance), "command": command}
+        ages.append(int(info["command_age"]))
+    assert ages == [0, 1, 1, 2, 0, 1, 1]
+    off = types.SimpleNamespace(config=EnvConfig())
+    assert refs.command_age(off, {"command": a}) == {"command": a}  # hold_s = 0: no state
+
+
+def _hold_env(hold_s: float) -> MecanumEnv:
     rand = RandomizationConfig(enabled=True, radius_scale=(0.95, 0.95), latency_steps=(0, 0))
-    cfg = EnvConfig(residual_space="twist", residual_base="feedback", randomization=rand)
-    env = MecanumEnv(dataclasses_replace_noise_off(cfg))
+    cfg = EnvConfig(
+        residual_space="twist",
+        residual_base="feedback",
+        randomization=rand,
+        feedback=FeedbackConfig(hold_s=hold_s),
+    )
+    return MecanumEnv(dataclasses_replace_noise_off(cfg))
+
+
+@pytest.mark.full  # an environment of its own to compile: tens of seconds on 2 cores
+@pytest.mark.parametrize("hold_s", [0.0, 0.1])
+def test_environment_numpy_and_onnx_agree_step_by_step(hold_s):
+    """Setpoints, the integrator and the observation, step by step, through a command
+    change and commands beyond the wheels' reach (the anti-windup and the projection), and
+    with the integrator held for ``hold_s`` after each change (the caller holds the ONNX
+    graph's integrator, which cannot know the command's age)."""
+    env = _hold_env(hold_s)
+    hold_steps = round(hold_s / env.config.control_dt)
     policy = network_free(env)
+    assert policy.feedback_hold_steps == hold_steps
     ort = pytest.importorskip("onnxruntime")
     from mecanum_jax.deploy.onnx import to_onnx
 
@@ -127,8 +174,12 @@ def test_environment_numpy_and_onnx_agree_step_by_step():
             policy.wheel_setpoints(command, action, obs), expected, rtol=1e-4, atol=2e-3
         )
         nxt = step(state, jnp.asarray(action))
-        integral = float(policy.feedback_integral_step(obs))
-        seen_hold |= integral == float(state.info["feedback_integral"]) and k % 15 > 0
+        before, age = float(state.info["feedback_integral"]), k % 15
+        integral = float(policy.feedback_integral_step(obs, age))
+        if age < hold_steps:
+            assert integral == before  # held through the transient after the change
+        else:
+            seen_hold |= integral == before and k % 15 > 0
         assert integral == pytest.approx(float(nxt.info["feedback_integral"]), abs=1e-5)
         sens = env.robot.sensors(nxt.pipeline_state)
         rebuilt = policy.observation(
@@ -144,7 +195,8 @@ def test_environment_numpy_and_onnx_agree_step_by_step():
         np.testing.assert_allclose(
             onnx_setpoints[0], policy.wheel_setpoints(command, onnx_action[0], obs), atol=2e-3
         )
-        assert float(onnx_integral[0, 0]) == pytest.approx(integral, abs=1e-5)
+        onnx_next = before if age < hold_steps else float(onnx_integral[0, 0])
+        assert onnx_next == pytest.approx(integral, abs=1e-5)
         state = nxt
     assert abs(integral) > 0.05
     assert seen_hold  # beyond reach, the anti-windup held the integrator at least once
@@ -154,3 +206,28 @@ def dataclasses_replace_noise_off(cfg: EnvConfig) -> EnvConfig:
     import dataclasses
 
     return dataclasses.replace(cfg, noise=dataclasses.replace(cfg.noise, scale=0.0))
+
+
+@pytest.mark.full  # an environment of its own to compile: tens of seconds on 2 cores
+def test_the_control_loop_holds_the_integrator_as_the_environment_does():
+    """The robot-side loop (NumPy) drives the environment tick by tick through command
+    changes, with the integrator held for 0.1 s after each: its observation, integrator
+    included, is the environment's at every tick."""
+    env = _hold_env(0.1)
+    ctrl = Controller(network_free(env))
+    step = jax.jit(env.step)
+    state = jax.jit(env.reset)(jax.random.PRNGKey(5))
+    scale = np.asarray(env.command_scale)
+    commands = [np.asarray(c) * scale for c in ([0.3, 0.0, 0.7], [0.0, 0.4, -0.5], [0.5, 0, 0])]
+    held = 0
+    for k in range(36):
+        if k % 12 == 0:
+            state = env.set_command(state, jnp.asarray(commands[k // 12], jnp.float32))
+        sens = env.robot.sensors(state.pipeline_state)
+        _, action = ctrl.step(state.info["command"], sens.wheel_rate, sens.gyro_z, sens.accel)
+        np.testing.assert_allclose(ctrl.observation, state.obs["state"], rtol=1e-5, atol=1e-5)
+        nxt = step(state, jnp.asarray(action))
+        held += float(nxt.info["feedback_integral"]) == float(state.info["feedback_integral"])
+        state = nxt
+    assert held >= 3 * 5  # five periods after each of the three changes
+    assert abs(float(state.info["feedback_integral"])) > 0.01

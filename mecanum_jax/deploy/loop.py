@@ -144,6 +144,7 @@ class Controller:
         self.last_action = np.zeros(self.policy.action_size, np.float32)
         self.values = {e: s.initial for e, s in self.states.items()}
         self.tracked: np.ndarray | None = None  # the command of the period now ending
+        self.command_age = 0  # periods since the tracked command changed (0: its first)
         self.observation: np.ndarray | None = None  # the last tick's, for logging
         self.ticks = 0
 
@@ -174,6 +175,8 @@ class Controller:
                 for x in self.session.run(["action", "wheel_setpoints"], {"observation": obs[None]})
             )
         self.last_action = np.asarray(action, np.float32)
+        if self.tracked is not None:
+            self.command_age = 0 if np.any(cmd != self.tracked) else self.command_age + 1
         self.tracked = cmd
         self.observation = obs
         self.ticks += 1
@@ -189,10 +192,10 @@ class Controller:
     @policy_state("feedback_integral", "feedback_integral")
     def _feedback_integral(self, value: float, tracked: np.ndarray, reading: Reading) -> float:
         """The integrator of the ``feedback`` controller the residual corrects: advanced
-        from the last tick's observation (its command, gyro and integrator), as the
-        environment advances it from the state its action answered."""
+        from the last tick's observation (its command, gyro and integrator) and that
+        command's age, as the environment advances it from the state its action answered."""
         assert self.observation is not None  # updates run from the second tick on
-        return float(self.policy.feedback_integral_step(self.observation))
+        return float(self.policy.feedback_integral_step(self.observation, self.command_age))
 
 
 def _vector(name: str, value: Any, size: int | tuple[()], unit: str) -> np.ndarray:

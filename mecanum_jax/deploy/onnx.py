@@ -17,8 +17,12 @@ the wheel. A policy whose residual corrects the ``feedback`` controller has that
 controller inside too (the PI-corrected twist, projected onto the nearest feasible twist
 by :class:`NearestFeasible`'s precomputed maps) and a third output, ``feedback_integral``
 (batch, 1): the controller's integrator after this step, which the next observation
-carries (rad/s). The export's metadata (robot, wheel order, layout, scales) is stored as the
-model's ``metadata_props``. Needs the ``onnx`` extra (``pip install mecanum-jax[onnx]``).
+carries (rad/s). Where that integrator holds after command changes (``feedback.hold_s``
+in the metadata), the graph does not know the command's age: the caller keeps the input
+integrator while the command is younger than ``hold_s`` (the control loop does, through
+:meth:`NumpyPolicy.feedback_integral_step`). The export's metadata (robot, wheel order,
+layout, scales) is stored as the model's ``metadata_props``. Needs the ``onnx`` extra
+(``pip install mecanum-jax[onnx]``).
 """
 
 from __future__ import annotations

@@ -136,15 +136,32 @@ class NumpyPolicy:
         u = np.float32(self.feedback["kp"]) * err + integral
         return command + np.asarray([0, 0, 1], np.float32) * u[..., None], err, integral
 
-    def feedback_integral_step(self, obs: np.ndarray) -> np.ndarray:
+    @property
+    def feedback_hold_steps(self) -> int:
+        """Control periods the ``feedback`` integrator holds after a command change (the
+        export's ``feedback.hold_s``; 0 in exports made before it existed)."""
+        hold_s = float(self.feedback.get("hold_s") or 0.0)
+        return round(hold_s / float(self.meta["control_dt"]))
+
+    def feedback_integral_step(self, obs: np.ndarray, command_age: Any = None) -> np.ndarray:
         """The ``feedback`` controller's integrator after this step (rad/s): ``I + ki·e·dt``
         clipped to ``± i_max``, held while the corrected twist is out of the wheels' reach
-        and the error would drive it further (the environment's rule)."""
+        and the error would drive it further, and while ``command_age`` (control periods
+        since the command of ``obs`` changed, 0 on its first) is below
+        :attr:`feedback_hold_steps` (the environment's rules)."""
         twist, err, integral = self.feedback_twist(obs)
         rates = twist @ self.jacobian.T
         saturated = np.max(np.abs(rates) / self.max_rates, axis=-1) > 1.0
         u = twist[..., 2] - np.asarray(obs, np.float32)[..., 2] * self.command_scale[2]
         hold = saturated & (err * u > 0)
+        if self.feedback_hold_steps > 0:
+            if command_age is None:
+                raise ValueError(
+                    f"command_age = None: this policy's feedback integrator holds for "
+                    f"{self.feedback_hold_steps} control periods after a command change "
+                    f"(feedback.hold_s), so its step needs the command's age"
+                )
+            hold = hold | (np.asarray(command_age) < self.feedback_hold_steps)
         ki, i_max = np.float32(self.feedback["ki"]), np.float32(self.feedback["i_max"])
         dt = np.float32(self.meta["control_dt"])
         grown = np.clip(integral + ki * err * dt, -i_max, i_max)

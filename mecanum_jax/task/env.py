@@ -138,6 +138,7 @@ class MecanumEnv(Env):
             "feedback_gains": self.feedback_gains(),
             "truncation": jnp.asarray(0.0),
         }
+        info = refs.command_age(self, info)
         obs = obs_.observe(self, sens, info)
         metrics = {k: jnp.asarray(0.0) for k in self.metric_names}
         return State(sim, obs, jnp.asarray(0.0), jnp.asarray(0.0), metrics, info)
@@ -171,7 +172,9 @@ class MecanumEnv(Env):
         rng, k_noise, k_cmd, k_time = jax.random.split(info["rng"], 4)
         step = info["step"] + 1
         resample = step >= info["next_resample"]
-        info["command"] = jnp.where(resample, self.sample_command(k_cmd), command)
+        new_command = jnp.where(resample, self.sample_command(k_cmd), command)
+        info = refs.command_age(self, info, new_command)
+        info["command"] = new_command
         info["next_resample"] = jnp.where(
             resample, cmds.resample_time(self, k_time, step), info["next_resample"]
         )
@@ -186,7 +189,7 @@ class MecanumEnv(Env):
     def set_command(self, state: State, command: jax.Array) -> State:
         """Impose ``command`` from now on (scripted sequences): it replaces the current
         command, in the observations too, and the environment stops resampling."""
-        info = dict(state.info)
+        info = refs.command_age(self, dict(state.info), command, advance=False)
         info["command"] = command
         info["next_resample"] = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
         scaled = command / self.command_scale

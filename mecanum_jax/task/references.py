@@ -37,8 +37,10 @@ class FeedbackConfig:
     Yaw-rate correction ``u = kp·e + I`` with ``e = ωz_cmd − gyro`` and
     ``I ← clip(I + ki·e·dt, ±i_max)``; the integrator holds while the corrected twist is out
     of the wheels' reach and ``e`` would drive it further (conditional-integration
-    anti-windup). The gains come from a sweep on training-distribution episodes
-    (experiments/tune_feedback.py; docs/evaluation.md): any proportional gain (even 0.02)
+    anti-windup), and, with ``hold_s > 0``, for ``hold_s`` after each command change, while
+    the servos' transient, not a steady bias, makes the error
+    (experiments/feedback_hold.py). The gains come from a sweep on training-distribution
+    episodes (experiments/tune_feedback.py; docs/evaluation.md): any proportional gain (even 0.02)
     raised the steady-state ωz error there, since the servos' own step response overshoots
     within one control step and the gyro arrives noisy and up to 2 steps late; integral
     gains above about 0.8/s oscillate.
@@ -52,11 +54,18 @@ class FeedbackConfig:
     """Integrator clamp, rad/s (>= 0)."""
     omega_weight: float = 0.1
     """Nearest-feasible metric: (m/s)² per (rad/s)² of yaw-rate error (> 0)."""
+    hold_s: float = 0.0
+    """The integrator holds for this long after each command change, s (>= 0, whole control
+    periods; 0: it integrates through the transient)."""
 
     def validate(self, where: str = "env.feedback") -> None:
         """Check values; raise :class:`ConfigError` naming the field."""
-        require(self, where, ("kp", "ki", "i_max"), lambda v: v >= 0, "must be >= 0")
+        require(self, where, ("kp", "ki", "i_max", "hold_s"), lambda v: v >= 0, "must be >= 0")
         require(self, where, ("omega_weight",), lambda v: v > 0, "must be > 0")
+
+    def hold_steps(self, control_dt: float) -> int:
+        """``hold_s`` in whole control periods of ``control_dt`` s."""
+        return round(self.hold_s / control_dt)
 
     def gains(self) -> jax.Array:
         """``(kp, ki, i_max)`` as the array the state carries in ``info["feedback_gains"]``
@@ -109,9 +118,29 @@ def feedback_integral(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
     saturated = jnp.max(jnp.abs(rates) / env.max_rates) > 1.0
     u = twist[2] - info["command"][2]
     hold = saturated & (err * u > 0)  # the error would wind it up further
+    steps = env.config.feedback.hold_steps(env.config.control_dt)
+    if steps > 0:  # the command is younger than hold_s: a transient, not a bias
+        hold = hold | (info["command_age"] < steps)
     grown = jnp.clip(info["feedback_integral"] + ki * err * env.config.control_dt,
                      -i_max, i_max)  # fmt: skip
     return jnp.where(hold, info["feedback_integral"], grown)
+
+
+def command_age(
+    env: TaskEnv, info: dict[str, Any], command: jax.Array | None = None, advance: bool = True
+) -> dict[str, Any]:
+    """``info`` with ``command_age``, the control periods since the tracked command changed,
+    where the feedback controller holds its integrator after changes (``hold_s > 0``; else
+    ``info`` as it is). ``command=None``: a reset, age 0. Otherwise 0 where ``command``
+    differs from the one ``info`` tracked, else one more (``advance``: a step) or the same
+    (a command imposed between steps)."""
+    if env.config.feedback.hold_steps(env.config.control_dt) == 0:
+        return info
+    if command is None:
+        return {**info, "command_age": jnp.asarray(0, jnp.int32)}
+    changed = jnp.any(command != info["command"])
+    kept = info["command_age"] + 1 if advance else info["command_age"]
+    return {**info, "command_age": jnp.where(changed, 0, kept).astype(jnp.int32)}
 
 
 def feedback_rates(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
@@ -157,6 +186,7 @@ __all__ = [
     "Policy",
     "baseline_policy",
     "baseline_rates",
+    "command_age",
     "feasible_target",
     "feedback_integral",
     "feedback_rates",
