@@ -1,11 +1,13 @@
 """Cold start of training: from process start to the first evaluation, phase by phase.
 
-Runs what ``mecanum-train`` runs before its first evaluation, in order and one thing at a
-time: imports, the config, the model and environment build (:class:`train.ppo.Learner`),
-the robots' reset, the first epoch, a second epoch (compiled already: the first one's
-compilation shows as the difference), then the evaluation of the analytic baseline and of
-the policy. ``mecanum-train`` overlaps the baseline's evaluation with the first epoch and
-evaluates the policy after ``run.eval_every`` epochs; here each phase is timed alone.
+Runs what ``mecanum-train`` runs before its first evaluation, in order: imports, the
+config, the model and environment build (:class:`train.ppo.Learner`), the robots' reset
+(``--ahead``: with the epoch compiling alongside from shapes, ``train.aot``, a candidate
+for machines with many cores; docs/benchmarks.md), the first epoch, a
+second epoch (compiled already: the first one's compilation shows as the difference),
+then the evaluation of the analytic baseline and of the policy. ``mecanum-train`` also
+overlaps the baseline's evaluation with the first epoch and evaluates the policy after
+``run.eval_every`` epochs; here those phases are timed alone.
 
 Every program JAX compiles is listed from ``jax.monitoring``'s events: its tracing,
 lowering and XLA compilation times, whether the persistent compilation cache served it
@@ -183,6 +185,9 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         parser = argparse.ArgumentParser(prog="python -m train.coldstart", description=__doc__)
         parser.add_argument("--config", default="gpu")
         parser.add_argument("--json-out", default=None)
+        parser.add_argument(
+            "--ahead", action="store_true", help="compile the epoch while the robots reset"
+        )
         args, flags = parser.parse_known_args(argv)
         try:
             if args.json_out and not Path(args.json_out).absolute().parent.is_dir():
@@ -194,10 +199,16 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         set_matmul_precision(cfg.run.matmul_precision)
     with clock.phase("model and environment build"):
         learner = Learner(cfg)
-    with clock.phase("robots' reset"):
+    from train.aot import compile_epoch_ahead
+
+    with clock.phase("robots' reset" + (" (the epoch compiling)" if args.ahead else "")):
+        ahead = compile_epoch_ahead(learner) if args.ahead else None
         ts, env = jax.block_until_ready(learner.init())
     for name in ("first epoch", "second epoch"):
         with clock.phase(name) as extra:
+            if ahead is not None:
+                ahead.result()
+                ahead = None
             ts, env, metrics = learner.epoch(ts, env)
             extra["finite"] = bool(np.all(np.asarray(jax.device_get(metrics["finite"])) > 0))
     host_ts = first_device(ts)
@@ -215,6 +226,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         "cache": {"on": cache_on, "dir": cache_dir if cache_on else None},
         "from_process_start": AGE_AT_MODULE is not None,
         "json_out": args.json_out,
+        "epoch_compiled_ahead": args.ahead,
     }
 
 

@@ -180,8 +180,19 @@ class Learner:
         return self._parallel_epoch(ts, env_state)
 
     def compile_epoch(self, ts: TrainingState, env_state: Any) -> None:
-        """Compile :meth:`epoch` for these states now, ahead of its first call."""
+        """Compile :meth:`epoch` for these states (or their ``ShapeDtypeStruct``s) now,
+        ahead of its first call (train.aot: from shapes, while the robots reset)."""
         self._compiled_epoch = self._parallel_epoch.lower(ts, env_state).compile()
+
+    @property
+    def reset_program(self) -> Any:
+        """The jitted reset of every seed's robots, ``(S, E/D, 2)`` keys in."""
+        return self._reset
+
+    @property
+    def sharding(self) -> NamedSharding | None:
+        """The device mesh's sharding of the ``sharded`` path (``None``: ``pmap``)."""
+        return self._sharding
 
     def _shared_buffers(self) -> dict[int, np.ndarray]:
         """The environment state's leaves that belong to the whole batch rather than to a

@@ -1,0 +1,57 @@
+"""Compiling a learner's epoch ahead of time, from shapes, while the robots reset.
+
+A cold start compiles three large programs before its first evaluation: the robots'
+reset, the training epoch and the evaluation rollout (docs/benchmarks.md). The epoch
+needs only the *shapes* of the states it will be given, and those follow from the
+config, so its compilation can start before the reset has run:
+:func:`compile_epoch_ahead` lowers and compiles it on a worker thread (XLA compiles with
+Python's lock released) while the caller resets the robots, and the caller waits on the
+returned future before the first epoch. ``python -m train.coldstart --ahead`` measures
+it; ``mecanum-train`` does not use it yet: on the 2-core CPU it saved a few seconds of a
+tiny cold start, and a run that also started the baseline's evaluation before the reset
+(three compilations on two cores) took 8% longer (docs/benchmarks.md); a GPU host's many
+cores have not been measured. The states :meth:`~train.ppo.Learner.place` lays out (and a
+restored checkpoint's, which it places the same way) carry exactly those shapes, dtypes
+and shardings, so the compiled program takes them without recompiling."""
+
+from __future__ import annotations
+
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any
+
+import jax
+import numpy as np
+
+from train.ppo import Learner
+
+
+def abstract_state(learner: Learner) -> tuple[Any, Any]:
+    """The training and environment state :meth:`Learner.init` returns, as
+    ``jax.ShapeDtypeStruct`` leaves laid out as :meth:`Learner.place` lays them out
+    (concrete dtypes; the device mesh's sharding on the ``sharded`` path). Runs no reset."""
+    if learner.n_processes > 1:
+        raise ValueError("abstract_state: one process only (several compile from their states)")
+    state, env_keys = learner.init_training()
+    env_state = learner.pack_env(jax.eval_shape(learner.reset_program, env_keys))
+    sharding = learner.sharding
+
+    def spec(x: Any) -> jax.ShapeDtypeStruct:
+        dtype = x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype  # (x64 off: float32)
+        dtype = jax.dtypes.canonicalize_dtype(dtype)
+        return jax.ShapeDtypeStruct(np.shape(x), dtype, sharding=sharding)
+
+    return jax.tree.map(spec, state), jax.tree.map(spec, env_state)
+
+
+def compile_epoch_ahead(learner: Learner) -> Future[None]:
+    """Start compiling ``learner``'s epoch for the states of :func:`abstract_state` on a
+    worker thread; the future's ``result()`` returns once :meth:`Learner.epoch` runs the
+    compiled program (and raises what the compilation raised)."""
+    state, env_state = abstract_state(learner)  # traced here: cheap, and errors surface now
+    pool = ThreadPoolExecutor(1, thread_name_prefix="epoch-compile")
+    job = pool.submit(learner.compile_epoch, state, env_state)
+    pool.shutdown(wait=False)
+    return job
+
+
+__all__ = ["abstract_state", "compile_epoch_ahead"]
