@@ -1,6 +1,5 @@
-"""The epoch compiled ahead of time from shapes (train/aot.py) is the epoch: the states a
-learner places run it without another compilation, and it computes what the jitted epoch
-computes."""
+"""The epoch compiled ahead of time from shapes (train/aot.py): the shapes it compiles for
+are those of the states a learner places."""
 
 import jax
 
