@@ -26,7 +26,7 @@ from mecanum_jax.config import (
 from mecanum_jax.task import EnvConfig
 from mecanum_jax.task.fidelity import check_task
 from train.loggers import check_wandb
-from train.losses import SmoothnessConfig
+from train.losses import DistillConfig, SmoothnessConfig
 
 TRAIN_CONFIG_DIR = CONFIG_DIR / "train"
 
@@ -98,6 +98,9 @@ class PPOConfig:
     """Ramp the policy's updates from zero over this many env steps (>= 0; 0: off)."""
     smoothness: SmoothnessConfig = SmoothnessConfig()
     """CAPS-style smoothness terms in the policy loss (train/losses.py; off by default)."""
+    distill: DistillConfig = DistillConfig()
+    """A privileged teacher the policy imitates on its own rollouts (train/distill.py;
+    off by default)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -196,6 +199,14 @@ class TrainConfig:
         require(p, "ppo", ("clip_observations",), lambda v: v >= 0, "must be >= 0 (0: off)")
         require(p, "ppo", ("policy_warmup_steps",), lambda v: v >= 0, "must be >= 0 (0: off)")
         p.smoothness.validate("ppo.smoothness")
+        p.distill.validate("ppo.distill")
+        if p.distill.enabled and self.network.teacher:
+            raise invalid(
+                "ppo.distill.teacher",
+                p.distill.teacher,
+                "network.teacher = true: a privileged teacher imitates no other; its student "
+                "has network.teacher = false",
+            )
         require(p, "ppo", ("discounting", "gae_lambda"), lambda v: 0 < v <= 1, "must be in (0, 1]")
         if (p.batch_size * p.num_minibatches) % p.num_envs:
             raise invalid(

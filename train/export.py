@@ -164,6 +164,7 @@ def task_meta(env: MecanumEnv) -> dict[str, Any]:
         "residual_base": cfg.residual_base,
         "feedback": dataclasses.asdict(cfg.feedback),
         "yaw_integral_tau": cfg.yaw_integral_tau,
+        "obs_history": cfg.obs_history,
         "action_filter": cfg.action_filter,
         "max_rates": np.asarray(env.max_rates).tolist(),
         "command_scale": np.asarray(env.command_scale).tolist(),

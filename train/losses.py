@@ -12,6 +12,14 @@ Both are means over the batch, scaled by their weights (:class:`SmoothnessConfig
 reported as ``smooth_temporal`` and ``smooth_spatial``. Unlike a low-pass filter of the
 actions it adds no lag: it asks the policy itself not to flicker, and not to follow
 sensor noise.
+
+:func:`imitation_loss` distils a privileged teacher into the policy (a student that
+observes only its sensors and their history): ``‖μ(s) − μ_teacher(s)‖²`` on the states
+the student's own rollouts visit, so the student learns the teacher's action where it
+goes, as DAgger does (Ross et al., AISTATS 2011; the teacher-student scheme of RMA,
+Kumar et al., RSS 2021), beside the PPO terms ("kickstarting", Schmitt et al. 2018).
+Its weight and the teacher are :class:`DistillConfig`; the teacher's action comes from
+``train.distill``. Reported as ``imitation``.
 """
 
 from __future__ import annotations
@@ -48,6 +56,37 @@ class SmoothnessConfig:
         return self.temporal > 0 or self.spatial > 0
 
 
+@dataclasses.dataclass(frozen=True)
+class DistillConfig:
+    """A privileged teacher to imitate (train/distill.py), and the imitation term's weight."""
+
+    teacher: str = ""
+    """The teacher's run or model directory ("": no teacher). It must have trained the
+    same task with ``network.teacher = true``; of a run, its first seed is the teacher
+    (``mecanum-export --model`` packs another)."""
+    weight: float = 1.0
+    """Weight of ``‖μ(s) − μ_teacher(s)‖²`` in the policy loss (> 0)."""
+
+    def validate(self, where: str = "ppo.distill") -> None:
+        """Check values; raise :class:`ConfigError` naming the field."""
+        require(self, where, ("weight",), lambda v: v > 0, "must be > 0")
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.teacher)
+
+
+def imitation_loss(
+    mean_action: Callable[[Any], jax.Array],
+    teacher_action: Callable[[Any], jax.Array],
+    observation: Any,
+) -> jax.Array:
+    """Mean over the batch of ``‖μ(s) − μ_teacher(s)‖²``; the teacher's action is a fixed
+    target (no gradient)."""
+    target = jax.lax.stop_gradient(teacher_action(observation))
+    return jnp.mean(jnp.sum((mean_action(observation) - target) ** 2, axis=-1))
+
+
 def smoothness_loss(
     mean_action: Callable[[Any], jax.Array],
     observation: Any,
@@ -76,7 +115,7 @@ def smoothness_loss(
     return total, {"smooth_temporal": temporal, "smooth_spatial": spatial}
 
 
-def ppo_loss_with_smoothness(
+def ppo_loss_with_terms(
     params: Any,
     normalizer_params: Any,
     data: Any,
@@ -84,10 +123,13 @@ def ppo_loss_with_smoothness(
     ppo_network: Any,
     smoothness: SmoothnessConfig,
     obs_key: str = "state",
+    teacher_action: Callable[[Any], jax.Array] | None = None,
+    imitation_weight: float = 0.0,
     **ppo_kwargs: Any,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """Brax's ``compute_ppo_loss`` plus :func:`smoothness_loss` (same signature as Brax's
-    loss once ``ppo_network``, ``smoothness`` and Brax's own keywords are bound)."""
+    """Brax's ``compute_ppo_loss`` plus :func:`smoothness_loss` and, with a teacher,
+    ``imitation_weight`` times :func:`imitation_loss` (same signature as Brax's loss once
+    ``ppo_network``, these terms' settings and Brax's own keywords are bound)."""
     k_ppo, k_smooth = jax.random.split(rng)
     loss, metrics = ppo_losses.compute_ppo_loss(
         params, normalizer_params, data, k_ppo, ppo_network, **ppo_kwargs
@@ -100,7 +142,17 @@ def ppo_loss_with_smoothness(
     extra, terms = smoothness_loss(
         mean_action, data.observation, data.next_observation, k_smooth, smoothness, obs_key
     )
+    if teacher_action is not None:
+        imitation = imitation_loss(mean_action, teacher_action, data.observation)
+        extra = extra + imitation_weight * imitation
+        terms = {**terms, "imitation": imitation}
     return loss + extra, {**metrics, **terms, "total_loss": loss + extra}
 
 
-__all__ = ["SmoothnessConfig", "ppo_loss_with_smoothness", "smoothness_loss"]
+__all__ = [
+    "DistillConfig",
+    "SmoothnessConfig",
+    "imitation_loss",
+    "ppo_loss_with_terms",
+    "smoothness_loss",
+]

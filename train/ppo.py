@@ -41,7 +41,7 @@ from brax.training.agents.ppo import networks as ppo_networks
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from mecanum_jax.task.env import MecanumEnv, TrainingEnv
-from train import leaves, losses
+from train import distill, leaves, losses
 from train.config import TrainConfig
 from train.periodic import PeriodicEvaluation, Result
 from train.state import (
@@ -84,11 +84,14 @@ class Learner:
         self.make_policy = ppo_networks.make_inference_fn(self.networks)
         self.optimizer = make_optimizer(cfg)
         loss: Any = ppo_losses.compute_ppo_loss
-        if p.smoothness.enabled:  # CAPS-style terms (train/losses.py)
+        imitation = distill.imitation_target(cfg, self.env)  # a teacher's (train/distill.py)
+        self.teacher: distill.Teacher | None = imitation.pop("teacher", None)
+        if p.smoothness.enabled or imitation:  # CAPS-style terms, imitation (train/losses.py)
             loss = functools.partial(
-                losses.ppo_loss_with_smoothness,
+                losses.ppo_loss_with_terms,
                 smoothness=p.smoothness,
                 obs_key=policy_obs_key(cfg),
+                **imitation,
             )
         loss_fn = functools.partial(
             loss,

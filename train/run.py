@@ -293,6 +293,8 @@ class Run:
             if differs:
                 raise ValueError(f"learner was built for another config: {differs}")
         learner = self.learner = learner or Learner(cfg)
+        if learner.teacher is not None:
+            self.console.log(f"imitating {learner.teacher.describe()} (ppo.distill)")
         state, env_state = learner.init()
         loop = _Loop(self, learner, t_start, state, env_state)
         if checkpoint.latest_epoch(self.dir) is not None:

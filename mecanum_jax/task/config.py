@@ -16,6 +16,8 @@ from mecanum_jax.task.reward import RewardConfig
 
 RESIDUAL_SPACES = ("wheel", "twist")
 RESIDUAL_BASES = ("analytic", "feedback")
+MAX_OBS_HISTORY = 50
+"""The most earlier sensor frames a policy may observe (1 s at the default 20 ms)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,6 +53,11 @@ class EnvConfig:
     rotor inertia turns step-to-step changes of the setpoints into torque spikes that
     shake the chassis; a policy whose actions flicker by 0.03 makes the yaw rate swing by
     0.3 rad/s where a constant correction makes it swing by none.
+
+    ``obs_history`` = H > 0 appends the H sensor frames before the observed one (encoders,
+    gyro, accelerometer, odometry twist, as observed: noisy and as delayed as the current
+    frame), newest first: the 0.5 to 1 s of history (25 to 50 frames at 20 ms) from which a
+    student infers what a privileged teacher reads (friction, payload, motor gains).
     """
 
     robot: str = "o_rectangle"
@@ -79,6 +86,9 @@ class EnvConfig:
     """Time constant of the observed leaky yaw-rate error integral, s (>= 0; 0: off)."""
     action_filter: float = 0.0
     """Low-pass factor of the actions, f in [0, 1): applied = f·previous + (1 − f)·new (0: off)."""
+    obs_history: int = 0
+    """Earlier sensor frames the policy observes, one control period apart (0 to
+    :data:`MAX_OBS_HISTORY`; 0: none)."""
     commands: CommandConfig = CommandConfig()
     """How commands are drawn."""
     randomization: RandomizationConfig = RandomizationConfig()
@@ -142,6 +152,13 @@ class EnvConfig:
         )
         require(self, where, ("yaw_integral_tau",), lambda v: v >= 0, "must be >= 0 (0: off)")
         require(self, where, ("action_filter",), lambda v: 0 <= v < 1, "must be in [0, 1) (0: off)")
+        require(
+            self,
+            where,
+            ("obs_history",),
+            lambda v: 0 <= v <= MAX_OBS_HISTORY,
+            f"must be in [0, {MAX_OBS_HISTORY}] (frames of {self.control_dt} s; 0: none)",
+        )
 
     def description(self, where: str = "env") -> RobotDescription:
         """The robot description, with this task's physics timestep and contact time constant."""
@@ -170,6 +187,7 @@ def load_env_config(path: str | Path) -> EnvConfig:
 
 
 __all__ = [
+    "MAX_OBS_HISTORY",
     "RESIDUAL_BASES",
     "RESIDUAL_SPACES",
     "CommandConfig",

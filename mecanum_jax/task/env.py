@@ -80,11 +80,15 @@ class MecanumEnv(Env):
         self.max_latency = config.randomization.latency_steps[1]
         self.twist_residual = config.residual and config.residual_space == "twist"
         self._action_size = 3 if self.twist_residual else n
-        self.sensor_size = n + 1 + 3 + 3
+        self.sensor_size = obs_.sensor_size(n)
+        # the sensor frames kept: the latest latency_steps[1] + 1 and the observed history
+        self.history_frames = self.max_latency + 1 + config.obs_history
         tau = config.yaw_integral_tau
         self.yaw_decay = float(np.exp(-config.control_dt / tau)) if tau > 0 else 0.0
         self.feedback_base = config.residual and config.residual_base == "feedback"
-        self.layout = obs_.policy_layout(n, self._action_size, tau > 0, self.feedback_base)
+        self.layout = obs_.policy_layout(
+            n, self._action_size, tau > 0, self.feedback_base, config.obs_history
+        )
         self.privileged_layout = obs_.privileged_layout(self.layout, n)
 
     # --- Brax interface ---------------------------------------------------------------------
@@ -132,7 +136,7 @@ class MecanumEnv(Env):
             "next_resample": cmds.resample_time(self, k_time, jnp.asarray(0, jnp.int32)),
             "step": jnp.asarray(0, jnp.int32),
             "last_action": jnp.zeros(self.action_size),
-            "history": jnp.broadcast_to(sensors, (self.max_latency + 1, self.sensor_size)),
+            "history": jnp.broadcast_to(sensors, (self.history_frames, self.sensor_size)),
             "yaw_integral": jnp.asarray(0.0),
             "feedback_integral": jnp.asarray(0.0),
             "feedback_gains": self.feedback_gains(),

@@ -54,9 +54,14 @@ class NoiseConfig:
 
 
 def policy_layout(
-    n_wheels: int, action_size: int, yaw_integral: bool, feedback_integral: bool = False
+    n_wheels: int,
+    action_size: int,
+    yaw_integral: bool,
+    feedback_integral: bool = False,
+    history: int = 0,
 ) -> Layout:
-    """The policy observation's entries and their sizes, in order."""
+    """The policy observation's entries and their sizes, in order; ``history`` earlier
+    sensor frames come last."""
     layout: Layout = (
         ("command", 3),
         ("wheel_rate", n_wheels),
@@ -67,7 +72,16 @@ def policy_layout(
     )
     if yaw_integral:
         layout = (*layout, ("yaw_error_integral", 1))
-    return (*layout, ("feedback_integral", 1)) if feedback_integral else layout
+    if feedback_integral:
+        layout = (*layout, ("feedback_integral", 1))
+    if history > 0:
+        layout = (*layout, ("sensor_history", history * sensor_size(n_wheels)))
+    return layout
+
+
+def sensor_size(n_wheels: int) -> int:
+    """One sensor frame: encoder rates, gyro z, accelerometer (3), odometry twist (3)."""
+    return n_wheels + 1 + 3 + 3
 
 
 def privileged_layout(layout: Layout, n_wheels: int) -> Layout:
@@ -109,6 +123,12 @@ def delayed(info: dict[str, Any]) -> jax.Array:
     return jnp.take(info["history"], info["latency"], axis=0)
 
 
+def past_sensors(info: dict[str, Any], frames: int) -> jax.Array:
+    """The ``frames`` sensor frames before the one observed now, newest first, flattened."""
+    past = jax.lax.dynamic_slice_in_dim(info["history"], info["latency"] + 1, frames, axis=0)
+    return past.reshape(-1)
+
+
 def measured_yaw_rate(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
     """The gyro's yaw rate as a controller sees it now (noisy, ``latency`` steps old)."""
     return delayed(info)[env.n_wheels] * env.command_scale[2]
@@ -128,6 +148,8 @@ def observe(env: TaskEnv, sens: Sensors, info: dict[str, Any]) -> dict[str, jax.
         parts.append((info["yaw_integral"] / (tau * env.command_scale[2]))[None])
     if env.feedback_base:  # the integrator of the controller the residual corrects, rad/s
         parts.append((info["feedback_integral"] / env.command_scale[2])[None])
+    if env.config.obs_history > 0:
+        parts.append(past_sensors(info, env.config.obs_history))
     state = jnp.concatenate(parts)
     p: RobotParams = info["params"]
     nom = env.nominal_params
@@ -160,8 +182,10 @@ __all__ = [
     "delayed",
     "measured_yaw_rate",
     "observe",
+    "past_sensors",
     "policy_layout",
     "privileged_layout",
+    "sensor_size",
     "sensor_vector",
     "yaw_integral",
 ]

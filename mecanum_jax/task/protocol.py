@@ -33,6 +33,8 @@ class TaskSettings(Protocol):
     @property
     def residual(self) -> bool: ...
     @property
+    def obs_history(self) -> int: ...
+    @property
     def commands(self) -> Any: ...  # commands.CommandConfig
     @property
     def randomization(self) -> Any: ...  # randomization.RandomizationConfig

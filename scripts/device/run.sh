@@ -25,6 +25,11 @@
 #   ab MIN 'name|flags'...  variants trained concurrently for MIN minutes on one GPU, each
 #                           packaged as /tmp/model_NAME/o_rectangle and $OUT/model_NAME.tgz
 #                           (compare them next with: tune /tmp/model_NAME/o_rectangle ...)
+#   student TMIN SMIN 'flags' 'name|flags'...  a privileged teacher of the recipe 'flags' for
+#                           TMIN minutes (/tmp/run_teacher, packaged as model_teacher), then
+#                           students of it side by side for SMIN minutes as in ab (each
+#                           'flags' plus its own, e.g. '--env.obs-history 25'), imitating it
+#                           (--ppo.distill.teacher); compare them next with tune
 #   multi-gpu EPOCHS [VARIANT...]  throughput over several GPUs: sh1gpu sh2gpu sh2gpu_64k mp2gpu
 #                           (default) and pmap2gpu
 #   experiment SCRIPT ARGS...      python experiments/SCRIPT ARGS
@@ -144,6 +149,21 @@ ab() {  # MINUTES 'name|flags'...: trained side by side on one GPU, each package
   done
 }
 
+student() {  # TEACHER_MIN STUDENT_MIN 'recipe flags' 'name|flags'...: a teacher, then students
+  local tmin=$1 smin=$2 recipe=$3 spec; shift 3
+  echo "== teacher: $recipe --network.teacher True"
+  rm -rf /tmp/run_teacher
+  # shellcheck disable=SC2086
+  train /tmp/run_teacher "$tmin" $recipe --network.teacher True 2>&1 | quiet | tail -8
+  package /tmp/run_teacher /tmp/model_teacher "$tmin" "$recipe --network.teacher True" || return 1
+  tar czf "$O/model_teacher.tgz" -C /tmp/model_teacher o_rectangle
+  local specs=()
+  for spec in "$@"; do
+    specs+=("${spec%%|*}|$recipe ${spec#*|} --ppo.distill.teacher /tmp/run_teacher")
+  done
+  ab "$smin" "${specs[@]}"
+}
+
 multi_gpu() {  # EPOCHS [VARIANT...]: one process per variant, so a crash loses only that one
   local epochs=$1; shift
   declare -A spec=(
@@ -254,6 +274,7 @@ case "$TASK" in
     [ "${AGREE:-1}" = 1 ] && agree "${1:-models/o_rectangle}" ;;  # AGREE=0: skip the check
   agree) agree "${1:-models/o_rectangle}" ;;
   ab) ab "$@" ;;
+  student) student "$@" ;;
   multi-gpu) multi_gpu "$@" ;;
   experiment) script=$1; shift; python3 "experiments/$script" "$@" 2>&1 | quiet ;;
   profile) profile "$@" ;;
