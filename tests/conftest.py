@@ -58,8 +58,9 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 def pytest_configure(config: pytest.Config) -> None:
     """The fast tier's XLA flags, before XLA's CPU backend starts (the first computation),
     for this process and the command lines its tests start."""
-    if not config.getoption("--full"):
-        os.environ["XLA_FLAGS"] = f"{os.environ['XLA_FLAGS']} {FAST_TIER_XLA_FLAGS}"
+    flags = os.environ["XLA_FLAGS"]  # (pytest-xdist's workers inherit the controller's)
+    if not config.getoption("--full") and FAST_TIER_XLA_FLAGS not in flags:
+        os.environ["XLA_FLAGS"] = f"{flags} {FAST_TIER_XLA_FLAGS}"
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
