@@ -68,11 +68,6 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     skip_full = pytest.mark.skip(reason="full tier: run with ./dev test --full")
     gl_reason: list[str | None] = []
     for item in items:
-        # pytest-xdist (--dist loadgroup): a file's tests run in one worker, and every test
-        # of the shared tiny run in the same one, which trains it once
-        shared = {"full_run", "learner"} & set(getattr(item, "fixturenames", ()))
-        group = "tiny-run" if shared else item.nodeid.split("::")[0]
-        item.add_marker(pytest.mark.xdist_group(group))
         if "full" in item.keywords and not full:
             item.add_marker(skip_full)
         elif "render" in item.keywords:
