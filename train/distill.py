@@ -22,7 +22,6 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -95,10 +94,14 @@ def load_teacher(cfg: TrainConfig, env: MecanumEnv) -> Teacher:
             f"{WHERE} = {path!r}: the teacher trained another task; it differs from this run "
             f"in {differs}"
         )
-    teacher_env = MecanumEnv(dataclasses.replace(tcfg.env, physics_impl="jax"))
-    state = gather_indices(env.layout, teacher_env.layout, "policy observation")
+    # the teacher's layout as its checkpoint records it (restore_policy checked it against
+    # the teacher's config); the same robot, so the same privileged entries follow it
+    layout = tuple((str(name), int(size)) for name, size in restored.meta["observation_layout"])
+    state = gather_indices(env.layout, layout, "policy observation")
     privileged = gather_indices(
-        env.privileged_layout, teacher_env.privileged_layout, "privileged observation"
+        env.privileged_layout,
+        obs_.privileged_layout(layout, env.n_wheels),
+        "privileged observation",
     )
     params = jax.tree.map(jnp.asarray, (restored.normalizer, restored.params))
     apply = restored.apply
@@ -113,14 +116,4 @@ def load_teacher(cfg: TrainConfig, env: MecanumEnv) -> Teacher:
     return Teacher(action, restored.run_dir, restored.epoch, restored.seed, tcfg.network.teacher)
 
 
-def imitation_target(learner_cfg: TrainConfig, env: MecanumEnv) -> dict[str, Any]:
-    """The keywords :func:`train.losses.ppo_loss_with_terms` takes for ``ppo.distill``
-    (none when it is off), and the teacher under ``"teacher"`` for the log."""
-    d = learner_cfg.ppo.distill
-    if not d.enabled:
-        return {}
-    teacher = load_teacher(learner_cfg, env)
-    return {"teacher_action": teacher.action, "imitation_weight": d.weight, "teacher": teacher}
-
-
-__all__ = ["FREE", "WHERE", "Teacher", "gather_indices", "imitation_target", "load_teacher"]
+__all__ = ["FREE", "WHERE", "Teacher", "gather_indices", "load_teacher"]

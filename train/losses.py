@@ -61,8 +61,9 @@ class DistillConfig:
     """A privileged teacher to imitate (train/distill.py), and the imitation term's weight."""
 
     teacher: str = ""
-    """The teacher's run or model directory ("": no teacher). It must have trained the
-    same task with ``network.teacher = true``; of a run, its first seed is the teacher
+    """The teacher's run or model directory ("": no teacher): a policy of the same task
+    (``env`` may differ only in ``obs_history`` and ``physics_impl``), usually a privileged
+    one (``network.teacher = true``); of a run, its first seed is the teacher
     (``mecanum-export --model`` packs another)."""
     weight: float = 1.0
     """Weight of ``‖μ(s) − μ_teacher(s)‖²`` in the policy loss (> 0)."""

@@ -84,14 +84,15 @@ class Learner:
         self.make_policy = ppo_networks.make_inference_fn(self.networks)
         self.optimizer = make_optimizer(cfg)
         loss: Any = ppo_losses.compute_ppo_loss
-        imitation = distill.imitation_target(cfg, self.env)  # a teacher's (train/distill.py)
-        self.teacher: distill.Teacher | None = imitation.pop("teacher", None)
-        if p.smoothness.enabled or imitation:  # CAPS-style terms, imitation (train/losses.py)
+        # a teacher to imitate (train/distill.py)
+        self.teacher = distill.load_teacher(cfg, self.env) if p.distill.enabled else None
+        if p.smoothness.enabled or self.teacher:  # CAPS-style terms, imitation (losses.py)
             loss = functools.partial(
                 losses.ppo_loss_with_terms,
                 smoothness=p.smoothness,
                 obs_key=policy_obs_key(cfg),
-                **imitation,
+                teacher_action=None if self.teacher is None else self.teacher.action,
+                imitation_weight=p.distill.weight,
             )
         loss_fn = functools.partial(
             loss,
