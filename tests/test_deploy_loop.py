@@ -334,7 +334,11 @@ def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
     """The same 8 nominal episodes (5 s) through mecanum-eval (MJX) and through the NumPy
     loop on C MuJoCo's fast model: the loop's pooled ss v and ss ωz lie inside the
     evaluation's 95% bootstrap interval, and each episode's within 2% of that interval's
-    width (a loop that advances the yaw integral with the new command misses it)."""
+    width, but for at most one episode (a loop that advances the yaw integral with the new
+    command misses it in several). MJX and C MuJoCo agree to about 1e-5 m/s until a
+    contact or saturation event falls on the other side of its threshold: the episodes
+    follow each other to 1e-6 in ss ωz, and one of them, at 4.5 rad/s, branched at step
+    155 of 250 when both sides ran MJX's JAX implementation."""
     from mecanum_jax.evaluation import metrics, scenarios
     from mecanum_jax.evaluation import rollout as ev
     from train import evaluate as cli
@@ -371,7 +375,7 @@ def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
         assert lo <= deployed[key].value() <= hi, key
         tolerance = 0.02 * (hi - lo)
         gap = np.abs(per_episode(deployed[key]) - per_episode(evaluated[key]))
-        assert gap.max() <= tolerance, (key, gap, tolerance)
+        assert (gap > tolerance).sum() <= 1, (key, gap, tolerance)
         if key == "ss_wz":  # the check can fail: a frozen yaw-rate integrator shows in ωz
             wrong_gap = np.abs(per_episode(wrong[key]) - per_episode(evaluated[key]))
-            assert wrong_gap.max() > tolerance, (wrong_gap, tolerance)
+            assert (wrong_gap > tolerance).sum() >= 2, (wrong_gap, tolerance)

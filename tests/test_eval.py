@@ -639,3 +639,20 @@ def _onnx_props(path):
     import onnx
 
     return onnx.load(str(path)).metadata_props
+
+
+def test_a_warp_task_is_evaluated_under_jax_on_the_cpu(monkeypatch):
+    """Without --physics-impl, a task trained under Warp evaluates under MJX's JAX
+    implementation on the CPU (30x faster there, and Warp's CPU kernels crashed later
+    compilations of long XLA:CPU processes) and where the extra is absent; elsewhere, and
+    for a JAX task, it keeps its own."""
+    from train.evaluate import default_impl
+
+    assert jax.default_backend() == "cpu"
+    assert default_impl("warp") == "jax"
+    assert default_impl("jax") == "" and default_impl("") == ""
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    monkeypatch.setattr("importlib.util.find_spec", lambda name, *a: object())
+    assert default_impl("warp") == ""
+    monkeypatch.setattr("importlib.util.find_spec", lambda name, *a: None)
+    assert default_impl("warp") == "jax"

@@ -60,7 +60,8 @@ class EvalArgs:
     jaxlib 0.10.2; 16384 on GPU, so a whole evaluation is one rollout)."""
     physics_impl: str = ""
     """MJX implementation to simulate with: "jax", "warp" (the warp extra), or "" (the
-    task's own). Both simulate the same robot (docs/benchmarks.md)."""
+    task's own, except that a Warp task evaluates under JAX on the CPU, where Warp's kernels
+    are about 30x slower). Both simulate the same robot (docs/benchmarks.md)."""
     fidelity: str = "fast"
     """Physics model: "fast" (the training model) or "reference" (the roller model at its own
     timestep, same control period; docs/evaluation.md)."""

@@ -68,6 +68,20 @@ from train.run_records import write_json  # noqa: E402
 console = Console(stderr=True)
 
 
+def default_impl(trained: str) -> str:
+    """The MJX implementation to evaluate a task trained under ``trained`` with, when
+    ``--physics-impl`` is not given: "" (the task's own), or "jax" for a Warp task where
+    the warp extra is absent or the backend is the CPU. Both simulate the same robot
+    (docs/benchmarks.md); on the CPU Warp's kernels run about 30x slower than JAX's, and
+    long XLA:CPU processes that had run them crashed in later compilations
+    (docs/history.md, 2026-11-25)."""
+    if trained != "warp":
+        return ""
+    if importlib.util.find_spec("warp") is None or jax.default_backend() == "cpu":
+        return "jax"
+    return ""
+
+
 class Target:
     """What is evaluated: the environment, and the learned policy if any."""
 
@@ -103,10 +117,12 @@ class Target:
         set_matmul_precision(self.precision, "--matmul-precision")
         fidelity = fid.check_fidelity(args.fidelity, "--fidelity")
         max_batch = fid.eval_batch(fidelity, args.max_batch, "--max-batch", 16384)
-        impl = args.physics_impl
-        if not impl and base.physics_impl == "warp" and importlib.util.find_spec("warp") is None:
-            impl = "jax"  # the same robot (docs/benchmarks.md); Warp is an optional extra
-            console.log("trained under MJX's Warp implementation; evaluating under its JAX one")
+        impl = args.physics_impl or default_impl(base.physics_impl)
+        if impl and impl != base.physics_impl:
+            console.log(
+                f"trained under MJX's {base.physics_impl} implementation; evaluating under its "
+                f"{impl} one, the same robot (--physics-impl to choose)"
+            )
         if impl:
             base = dataclasses.replace(base, physics_impl=impl)
         eval_cfg = scenarios.eval_env_config(base.validate("env"), scenario_set)
