@@ -650,7 +650,8 @@ def test_a_warp_task_is_evaluated_under_jax_on_the_cpu(monkeypatch):
 
     assert jax.default_backend() == "cpu"
     assert default_impl("warp") == "jax"
-    assert default_impl("jax") == "" and default_impl("") == ""
+    assert default_impl("jax") == ""
+    assert default_impl("") == ""
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     monkeypatch.setattr("importlib.util.find_spec", lambda name, *a: object())
     assert default_impl("warp") == ""
