@@ -14,7 +14,12 @@
   faster; the full tier compiles as users do.
 """
 
+import dataclasses
+import fcntl
+import gc
+import json
 import os
+from pathlib import Path
 
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
@@ -86,6 +91,44 @@ def x64():
         yield
 
 
+# --- the process's memory maps ------------------------------------------------------------
+
+
+def _map_limit() -> int:
+    try:
+        return int(Path("/proc/sys/vm/max_map_count").read_text())
+    except (OSError, ValueError):
+        return 65530  # Linux's default
+
+
+MAP_LIMIT = _map_limit()
+
+
+def mapped_regions() -> int | None:
+    """How many memory maps this process holds (Linux), else None."""
+    try:
+        with open("/proc/self/maps", "rb") as maps:
+            return sum(1 for _ in maps)
+    except OSError:
+        return None
+
+
+@pytest.fixture(autouse=True)
+def _release_compiled_programs():
+    """Every program XLA:CPU compiles keeps about three memory maps (its code and data)
+    for as long as JAX's caches hold it, and a test process that compiles thousands of
+    them reaches the kernel's limit (``vm.max_map_count``, 65530 by default): the next
+    compilation then dies with a segmentation fault inside LLVM. The full tier did, at
+    about 70%, in every CI run of 2026-11-25 but one. Past half the limit, JAX's caches are
+    emptied after the test (its programs compile again, or come from the persistent
+    cache, when next called)."""
+    yield
+    regions = mapped_regions()
+    if regions is not None and regions > MAP_LIMIT // 2:
+        jax.clear_caches()
+        gc.collect()
+
+
 # --- a tiny trained run, shared by the trainer and evaluation tests --------------------------
 
 
@@ -103,11 +146,29 @@ def learner(tiny):
     return Learner(tiny)
 
 
+@dataclasses.dataclass(frozen=True)
+class FinishedRun:
+    """A finished run directory that another test process trained (``full_run``)."""
+
+    dir: Path
+
+
 @pytest.fixture(scope="session")
-def full_run(tiny, learner, tmp_path_factory):
-    """The uninterrupted reference run of configs/train/tiny.toml (3 epochs)."""
+def full_run(tiny, learner, tmp_path_factory, worker_id):
+    """The uninterrupted reference run of configs/train/tiny.toml (3 epochs): ``(run,
+    summary)``. Tests read it and never write into it. Under pytest-xdist the first worker
+    that needs it trains it, in the session's shared temporary directory, and the others
+    wait for it and read it (it costs a worker a minute or more to train)."""
     from train.run import Run
 
-    run = Run.create(tiny, tmp_path_factory.mktemp("runs") / "full")
-    summary = run.train(learner=learner)
-    return run, summary
+    if worker_id == "master":  # one process
+        run = Run.create(tiny, tmp_path_factory.mktemp("runs") / "full")
+        return run, run.train(learner=learner)
+    shared = tmp_path_factory.getbasetemp().parent  # the workers' common directory
+    with open(shared / "tiny-run.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        summary = shared / "tiny-run" / "summary.json"
+        if not summary.exists():
+            run = Run.create(tiny, shared / "tiny-run")
+            return run, run.train(learner=learner)
+    return FinishedRun(summary.parent), json.loads(summary.read_text())

@@ -643,9 +643,8 @@ def _onnx_props(path):
 
 def test_a_warp_task_is_evaluated_under_jax_on_the_cpu(monkeypatch):
     """Without --physics-impl, a task trained under Warp evaluates under MJX's JAX
-    implementation on the CPU (30x faster there, and Warp's CPU kernels crashed later
-    compilations of long XLA:CPU processes) and where the extra is absent; elsewhere, and
-    for a JAX task, it keeps its own."""
+    implementation on the CPU (30x faster there) and where the extra is absent; elsewhere,
+    and for a JAX task, it keeps its own."""
     from train.evaluate import default_impl
 
     assert jax.default_backend() == "cpu"

@@ -482,9 +482,8 @@ def test_warp_steps_the_robot_as_jax_does(tmp_path):
     re-zeroed carriers, per-robot friction, payload and wheel radius) under MuJoCo Warp
     follows MJX's JAX implementation to 1 mm/s.
 
-    It runs in a child process, as every test that runs Warp's kernels does: Warp's CPU
-    kernels inside a long XLA:CPU test process were followed by segmentation faults in
-    later, unrelated compilations (three CI runs; docs/history.md)."""
+    It runs in a child process, as every other test that runs Warp's kernels does: the
+    test process then never loads Warp's own LLVM beside XLA's."""
     import subprocess
     import sys
 

@@ -72,9 +72,7 @@ def default_impl(trained: str) -> str:
     """The MJX implementation to evaluate a task trained under ``trained`` with, when
     ``--physics-impl`` is not given: "" (the task's own), or "jax" for a Warp task where
     the warp extra is absent or the backend is the CPU. Both simulate the same robot
-    (docs/benchmarks.md); on the CPU Warp's kernels run about 30x slower than JAX's, and
-    long XLA:CPU processes that had run them crashed in later compilations
-    (docs/history.md, 2026-11-25)."""
+    (docs/benchmarks.md), and on the CPU Warp's kernels run about 30x slower than JAX's."""
     if trained != "warp":
         return ""
     if importlib.util.find_spec("warp") is None or jax.default_backend() == "cpu":
