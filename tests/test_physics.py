@@ -449,55 +449,27 @@ def test_select_takes_fresh_robots_where_done(fast_robot):
     assert not np.array_equal(np.asarray(moved.setpoint[1]), np.asarray(fresh.setpoint[1]))
 
 
-_WARP_AND_JAX_STEPS = """
-import dataclasses, sys
-import jax.numpy as jnp, numpy as np
-from mecanum_jax.sim import physics
-from mecanum_jax.sim.description import builtin_description
-
-base = builtin_description("o_rectangle")
-cases = [(1.0, 1.0, 0.0), (0.3, 1.05, 2.0), (0.1, 0.95, 0.0), (0.6, 1.0, 4.0)]
-cmd = jnp.array([[10.0, -10.0, 10.0, -10.0]]) * jnp.array([[1.0], [1.0], [-1.0], [0.5]])
-twists = {}
-for impl in ("jax", "warp"):
-    desc = dataclasses.replace(base, sim=dataclasses.replace(base.sim, impl=impl))
-    robot = physics.Robot(desc, "fast", robots=len(cases))
-    p = physics.stack_params(
-        [robot.nominal_params(friction=f, radius_scale=r, payload_mass=m) for f, r, m in cases]
-    )
-    reset, step, sensors = robot.batched(substeps=10)
-    state, out = reset(p), []
-    for _ in range(25):
-        state = step(state, cmd, p)
-        out.append(np.asarray(sensors(state).twist))
-    twists[impl] = np.stack(out)
-    twists[impl + "_unstable"] = np.asarray(state.unstable)
-np.savez(sys.argv[1], **twists)
-"""
-
-
 @pytest.mark.full
-def test_warp_steps_the_robot_as_jax_does(tmp_path):
+def test_warp_steps_the_robot_as_jax_does():
     """With the warp extra installed (CPU is enough): the product's step (chord servo,
     re-zeroed carriers, per-robot friction, payload and wheel radius) under MuJoCo Warp
-    follows MJX's JAX implementation to 1 mm/s.
-
-    It runs in a child process, as every other test that runs Warp's kernels does: the
-    test process then never loads Warp's own LLVM beside XLA's."""
-    import subprocess
-    import sys
-
+    follows MJX's JAX implementation to 1 mm/s."""
     pytest.importorskip("warp")
-    out = tmp_path / "twists.npz"
-    child = subprocess.run(
-        [sys.executable, "-c", _WARP_AND_JAX_STEPS, str(out)],
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
-    assert child.returncode == 0, child.stderr[-4000:]
-    twists = np.load(out)
-    assert int(twists["jax_unstable"].sum()) == 0
-    assert int(twists["warp_unstable"].sum()) == 0
+    base = builtin_description("o_rectangle")
+    cases = [(1.0, 1.0, 0.0), (0.3, 1.05, 2.0), (0.1, 0.95, 0.0), (0.6, 1.0, 4.0)]
+    cmd = jnp.array([[10.0, -10.0, 10.0, -10.0]]) * jnp.array([[1.0], [1.0], [-1.0], [0.5]])
+    twists = {}
+    for impl in ("jax", "warp"):
+        robot = physics.Robot(_with_impl(base, impl), "fast", robots=len(cases))
+        p = physics.stack_params(
+            [robot.nominal_params(friction=f, radius_scale=r, payload_mass=m) for f, r, m in cases]
+        )
+        reset, step, sensors = robot.batched(substeps=10)
+        state, out = reset(p), []
+        for _ in range(25):
+            state = step(state, cmd, p)
+            out.append(np.asarray(sensors(state).twist))
+        assert int(np.asarray(state.unstable).sum()) == 0
+        twists[impl] = np.stack(out)
     assert np.abs(twists["warp"] - twists["jax"]).max() < 1e-3
     assert abs(twists["jax"][-1, 2, 1] - 0.239) < 0.01  # on ice the robot still moves

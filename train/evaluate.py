@@ -116,7 +116,7 @@ class Target:
         fidelity = fid.check_fidelity(args.fidelity, "--fidelity")
         max_batch = fid.eval_batch(fidelity, args.max_batch, "--max-batch", 16384)
         impl = args.physics_impl or default_impl(base.physics_impl)
-        if impl and impl != base.physics_impl:
+        if impl and not args.physics_impl:  # chosen here, not asked for: say so
             console.log(
                 f"trained under MJX's {base.physics_impl} implementation; evaluating under its "
                 f"{impl} one, the same robot (--physics-impl to choose)"
