@@ -16,7 +16,9 @@
 #   seeds MIN 'K ...' ARGS  one run of MIN minutes training seeds K... side by side (vmapped),
 #                           each packaged as /tmp/model_sK/o_rectangle and $OUT/model_sK.tgz
 #   tune [MODEL...]         each MODEL (default /tmp/model/o_rectangle) and models/o_rectangle
-#                           on the tuning episodes (configs/eval/tuning.toml, a seed of its own)
+#                           on the tuning episodes (configs/eval/tuning.toml, a seed of its own),
+#                           TUNE_JOBS at a time (default 1); then scripts/pick_candidate.py ranks
+#                           them by its fixed rule and prints the chosen model's path last
 #   eval [MODEL]            the evaluation table: MODEL (default models/o_rectangle) against the
 #                           references on the default scenarios and 1024 randomized episodes,
 #                           then `agree MODEL`
@@ -255,15 +257,21 @@ case "$TASK" in
     cp /tmp/gpu/metrics.jsonl /tmp/gpu/summary.json "$O/" ;;
   ship) ship "$@" ;;
   seeds) seeds "$@" ;;
-  tune)
-    i=0
+  tune)  # TUNE_JOBS=N: N evaluations at once (they share the GPU; compiling is most of each)
+    i=0; names=()
     for model in "${@:-/tmp/model/o_rectangle}" models/o_rectangle; do
       i=$((i + 1)); name=$(basename "$(dirname "$model")")_$i
       [ "$model" = models/o_rectangle ] && name=shipped
-      echo "== $name ($model) on the tuning episodes"
-      evaluate "$model" tuning "/tmp/tune-$name" --no-plots 2>&1 | quiet | tail -34
+      names+=("$name")
+      evaluate "$model" tuning "/tmp/tune-$name" --no-plots > "/tmp/tune-$name.log" 2>&1 &
+      while [ "$(jobs -rp | wc -l)" -ge "${TUNE_JOBS:-1}" ]; do wait -n; done
+    done
+    wait
+    for name in "${names[@]}"; do
+      echo "== $name on the tuning episodes"; quiet < "/tmp/tune-$name.log" | tail -34
       cp "/tmp/tune-$name/report.json" "$O/tune_$name.json"
-    done ;;
+    done
+    python3 scripts/pick_candidate.py "$O"/tune_*.json ;;
   eval)
     for set in default randomized; do
       echo "== ${1:-models/o_rectangle}, scenarios: $set"

@@ -1,0 +1,97 @@
+"""Choose among trained candidates on the tuning episodes, by a rule fixed before the runs.
+
+Reads ``mecanum-eval`` reports of ``configs/eval/tuning.toml`` (``run.sh tune`` writes
+them as ``tune_NAME.json``) and ranks every candidate against ``analytic`` on the same
+episodes:
+
+1. fewest **losses** (``train.eval_output.score``: the paired 95% interval on the worse
+   side and an excess above the metric's margin) over the three tuning scenarios;
+2. then the lowest **geometric mean of the ratios** to ``analytic`` over the figures the
+   product is judged on: the training mix's ss v, ss ωz, settling of v and ωz and energy;
+   the nominal robot's ss ωz and settling of ωz; the translations' ss ωz and energy.
+
+Prints one row per candidate and, last, the path of the chosen one's model (the report's
+``target``), so that a device call can evaluate it on held-out scenarios next::
+
+    python scripts/pick_candidate.py tune_s0_1.json tune_s1_2.json ... [--exclude shipped]
+
+Held-out scenarios never enter the choice.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from train.eval_output import score
+
+FIGURES = (
+    ("tuning_randomized", "ss_lin"),
+    ("tuning_randomized", "ss_wz"),
+    ("tuning_randomized", "settle_lin_s"),
+    ("tuning_randomized", "settle_wz_s"),
+    ("tuning_randomized", "energy_j"),
+    ("tuning_nominal", "ss_wz"),
+    ("tuning_nominal", "settle_wz_s"),
+    ("tuning_translations", "ss_wz"),
+    ("tuning_translations", "energy_j"),
+)
+"""(scenario, metric) pairs whose ratios to ``analytic`` the geometric mean takes."""
+
+
+def rank_key(report: dict[str, Any]) -> tuple[int, float, dict[str, float]]:
+    """(losses, geometric mean of :data:`FIGURES`' ratios, the ratios) of one report."""
+    scenarios = report["scenarios"]
+    missing = [s for s, _ in FIGURES if s not in scenarios]
+    if missing:
+        raise ValueError(f"report of {report.get('target')!r} lacks scenarios {missing}")
+    losses = sum(len(card["losses"]) for card in score(scenarios, "policy/analytic").values())
+    ratios = {}
+    for name, key in FIGURES:
+        a, b = scenarios[name]["policy"].get(key), scenarios[name]["analytic"].get(key)
+        if a is None or b is None or b <= 0:
+            raise ValueError(f"{name}.{key} is undefined in the report of {report['target']}")
+        ratios[f"{name.removeprefix('tuning_')}.{key}"] = a / b
+    gmean = math.exp(sum(math.log(r) for r in ratios.values()) / len(ratios))
+    return losses, gmean, ratios
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("reports", nargs="+", type=Path, help="tuning reports (report.json)")
+    ap.add_argument(
+        "--exclude", nargs="*", default=["shipped"],
+        help="report file names containing any of these are shown but not chosen",
+    )  # fmt: skip
+    args = ap.parse_args(argv)
+    rows = []
+    for path in args.reports:
+        try:
+            report = json.loads(path.read_text())
+        except (OSError, ValueError) as e:
+            print(f"pick_candidate: cannot read {path}: {e}", file=sys.stderr)
+            return 2
+        losses, gmean, ratios = rank_key(report)
+        eligible = not any(x in path.name for x in args.exclude)
+        rows.append((losses, gmean, path.name, report["target"], ratios, eligible))
+    rows.sort(key=lambda r: (r[0], r[1]))
+    names = list(rows[0][4])
+    print("candidate".ljust(28), "losses", "gmean", *names)
+    for losses, gmean, name, _, ratios, eligible in rows:
+        mark = "" if eligible else " (not a candidate)"
+        cells = " ".join(f"{ratios[k]:.3f}" for k in names)
+        print(f"{name + mark:28s} {losses:6d} {gmean:.3f} {cells}")
+    chosen = [r for r in rows if r[5]]
+    if not chosen:
+        print("pick_candidate: no eligible candidate", file=sys.stderr)
+        return 2
+    print(chosen[0][3])
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
