@@ -97,7 +97,8 @@ def test_shipped_model_loads_evaluates_and_exports(tmp_path):
         got = np.stack([policy.action(o) for o in obs])
         command = np.asarray(s.info["command"])
         setpoints = policy.wheel_setpoints(command, got, obs)
-        integral = policy.feedback_integral_step(obs) if policy.feedback_base else None
+        age = np.asarray(s.info["command_age"]) if "command_age" in s.info else None
+        integral = policy.feedback_integral_step(obs, age) if policy.feedback_base else None
         before = s
         s = step(s, raw)
         # NumPy returns the action the environment applies (low-passed, if trained so)
@@ -112,5 +113,9 @@ def test_shipped_model_loads_evaluates_and_exports(tmp_path):
             onnx_action, onnx_setpoints, *rest = session.run(None, {"observation": obs})
             np.testing.assert_allclose(onnx_action, got, atol=1e-4)
             np.testing.assert_allclose(onnx_setpoints, setpoints, atol=2e-3)
-            if integral is not None:
-                np.testing.assert_allclose(rest[0][:, 0], integral, atol=1e-5)
+            if integral is not None:  # the caller keeps the integrator while it holds
+                held = age is not None and age < policy.feedback_hold_steps
+                onnx_next = np.where(
+                    held, np.asarray(before.info["feedback_integral"]), rest[0][:, 0]
+                )
+                np.testing.assert_allclose(onnx_next, integral, atol=1e-5)

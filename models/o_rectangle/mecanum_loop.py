@@ -26,7 +26,9 @@ It then does what the environment does between two policy calls, in its order:
 1. advances the policy's own states with the command tracked *since the last tick* and
    the new readings (the leaky yaw-rate error integral, ``yaw_integral_step``; the
    ``feedback`` controller's integrator, ``feedback_integral_step``; none on
-   the first tick after :meth:`Controller.reset`, where they start at 0);
+   the first tick after :meth:`Controller.reset`, where they start at 0) and, for a
+   policy that observes earlier sensor frames, their history (``sensor_frame``; on the
+   first tick, that tick's frame repeated);
 2. builds the observation (``NumpyPolicy.observation``) from the new command, the
    readings, the last *applied* action and those states;
 3. runs the policy: the action comes back low-passed with the last one
@@ -67,23 +69,27 @@ class Reading(NamedTuple):
 
 class PolicyState(NamedTuple):
     """One state the policy observes: its observation entry, the keyword
-    ``NumpyPolicy.observation`` takes it by, its value after a reset, and its update
+    ``NumpyPolicy.observation`` takes it by, its value after a reset (``None``: set by the
+    update on the first tick, from that tick's reading), and its update
     ``(controller, value, tracked, reading) -> value``."""
 
     entry: str
     keyword: str
-    initial: float
-    update: Callable[[Any, float, np.ndarray, Reading], float]
+    initial: float | None
+    update: Callable[[Any, Any, Any, Reading], Any]
 
 
-def policy_state(entry: str, keyword: str, initial: float = 0.0) -> Callable[[Any], Any]:
+def policy_state(entry: str, keyword: str, initial: float | None = 0.0) -> Callable[[Any], Any]:
     """Mark a :class:`Controller` method as the update of one policy state: the value of
     observation entry ``entry``, passed to ``NumpyPolicy.observation`` as ``keyword``,
     ``initial`` after :meth:`Controller.reset`. The method maps ``(value, tracked,
-    reading)`` to the new value, ``tracked`` being the command of the period that ended."""
+    reading)`` to the new value, ``tracked`` being the command of the period that ended;
+    it runs from the second tick on, or, with ``initial=None``, on the first tick too
+    (``value`` and ``tracked`` then ``None``)."""
 
     def mark(update: Any) -> Any:
-        update.policy_state = PolicyState(entry, keyword, float(initial), update)
+        first = None if initial is None else float(initial)
+        update.policy_state = PolicyState(entry, keyword, first, update)
         return update
 
     return mark
@@ -144,7 +150,9 @@ class Controller:
         self.last_action = np.zeros(self.policy.action_size, np.float32)
         self.values = {e: s.initial for e, s in self.states.items()}
         self.tracked: np.ndarray | None = None  # the command of the period now ending
+        self.command_age = 0  # periods since the tracked command changed (0: its first)
         self.observation: np.ndarray | None = None  # the last tick's, for logging
+        self.reading: Reading | None = None  # the last tick's
         self.ticks = 0
 
     def step(
@@ -158,8 +166,8 @@ class Controller:
             float(_vector("gyro_z", gyro_z, (), "rad/s")),
             _vector("accel", accel, 3, "m/s², body frame"),
         )
-        if self.tracked is not None:
-            for entry, state in self.states.items():
+        for entry, state in self.states.items():
+            if self.tracked is not None or state.initial is None:
                 self.values[entry] = state.update(self, self.values[entry], self.tracked, reading)
         keywords = {self.states[e].keyword: v for e, v in self.values.items()}
         obs = self.policy.observation(
@@ -174,7 +182,10 @@ class Controller:
                 for x in self.session.run(["action", "wheel_setpoints"], {"observation": obs[None]})
             )
         self.last_action = np.asarray(action, np.float32)
+        if self.tracked is not None:
+            self.command_age = 0 if np.any(cmd != self.tracked) else self.command_age + 1
         self.tracked = cmd
+        self.reading = reading
         self.observation = obs
         self.ticks += 1
         return np.asarray(setpoints, np.float32), self.last_action.copy()
@@ -189,10 +200,24 @@ class Controller:
     @policy_state("feedback_integral", "feedback_integral")
     def _feedback_integral(self, value: float, tracked: np.ndarray, reading: Reading) -> float:
         """The integrator of the ``feedback`` controller the residual corrects: advanced
-        from the last tick's observation (its command, gyro and integrator), as the
-        environment advances it from the state its action answered."""
+        from the last tick's observation (its command, gyro and integrator) and that
+        command's age, as the environment advances it from the state its action answered."""
         assert self.observation is not None  # updates run from the second tick on
-        return float(self.policy.feedback_integral_step(self.observation))
+        return float(self.policy.feedback_integral_step(self.observation, self.command_age))
+
+    @policy_state("sensor_history", "sensor_history", initial=None)
+    def _sensor_history(
+        self, value: np.ndarray | None, tracked: np.ndarray | None, reading: Reading
+    ) -> np.ndarray:
+        """The sensor frames of the ticks before this one, newest first
+        (``obs_history``): after a reset, this tick's frame repeated (as the environment's
+        reset fills its history with the first reading)."""
+        policy = self.policy
+        if value is None or self.reading is None:
+            frame = policy.sensor_frame(*reading)
+            return np.repeat(frame[None], policy.obs_history, axis=0)
+        last = policy.sensor_frame(*self.reading)
+        return np.concatenate([last[None], value[:-1]], axis=0)
 
 
 def _vector(name: str, value: Any, size: int | tuple[()], unit: str) -> np.ndarray:

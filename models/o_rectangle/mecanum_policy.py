@@ -12,7 +12,10 @@ This file depends only on NumPy and the standard library. Copy it next to the ex
 A policy whose residual corrects the ``feedback`` controller (``meta["residual_base"]``)
 observes that controller's integrator: keep it with ``integral =
 policy.feedback_integral_step(obs)`` after each step (0 at start) and pass it to the next
-``observation(..., feedback_integral=integral)``.
+``observation(..., feedback_integral=integral)``. A policy that observes earlier sensor
+frames (``meta["obs_history"]`` > 0, a student) takes the last ones, each
+``policy.sensor_frame(wheel_rate, gyro_z, accel)``, newest first, as
+``observation(..., sensor_history=frames)``; ``mecanum_loop.Controller`` keeps them all.
 
 The export holds the policy network's weights, the observation normalizer (mean and
 standard deviation, as Brax's running statistics apply it) and what the control loop
@@ -136,15 +139,32 @@ class NumpyPolicy:
         u = np.float32(self.feedback["kp"]) * err + integral
         return command + np.asarray([0, 0, 1], np.float32) * u[..., None], err, integral
 
-    def feedback_integral_step(self, obs: np.ndarray) -> np.ndarray:
+    @property
+    def feedback_hold_steps(self) -> int:
+        """Control periods the ``feedback`` integrator holds after a command change (the
+        export's ``feedback.hold_s``; 0 in exports made before it existed)."""
+        hold_s = float(self.feedback.get("hold_s") or 0.0)
+        return round(hold_s / float(self.meta["control_dt"]))
+
+    def feedback_integral_step(self, obs: np.ndarray, command_age: Any = None) -> np.ndarray:
         """The ``feedback`` controller's integrator after this step (rad/s): ``I + ki·e·dt``
         clipped to ``± i_max``, held while the corrected twist is out of the wheels' reach
-        and the error would drive it further (the environment's rule)."""
+        and the error would drive it further, and while ``command_age`` (control periods
+        since the command of ``obs`` changed, 0 on its first) is below
+        :attr:`feedback_hold_steps` (the environment's rules)."""
         twist, err, integral = self.feedback_twist(obs)
         rates = twist @ self.jacobian.T
         saturated = np.max(np.abs(rates) / self.max_rates, axis=-1) > 1.0
         u = twist[..., 2] - np.asarray(obs, np.float32)[..., 2] * self.command_scale[2]
         hold = saturated & (err * u > 0)
+        if self.feedback_hold_steps > 0:
+            if command_age is None:
+                raise ValueError(
+                    f"command_age = None: this policy's feedback integrator holds for "
+                    f"{self.feedback_hold_steps} control periods after a command change "
+                    f"(feedback.hold_s), so its step needs the command's age"
+                )
+            hold = hold | (np.asarray(command_age) < self.feedback_hold_steps)
         ki, i_max = np.float32(self.feedback["ki"]), np.float32(self.feedback["i_max"])
         dt = np.float32(self.meta["control_dt"])
         grown = np.clip(integral + ki * err * dt, -i_max, i_max)
@@ -174,6 +194,7 @@ class NumpyPolicy:
         last_action: Any,
         yaw_integral: float | None = None,
         feedback_integral: float | None = None,
+        sensor_history: Any = None,
     ) -> np.ndarray:
         """The policy observation from raw measurements (what the environment builds).
 
@@ -188,6 +209,9 @@ class NumpyPolicy:
             observes it (``yaw_integral_tau > 0``), rad.
           feedback_integral: the state of :meth:`feedback_integral_step`, required when the
             residual corrects the ``feedback`` controller (:attr:`feedback_base`), rad/s.
+          sensor_history: (obs_history, frame size) the :meth:`sensor_frame` outputs of the
+            control periods before this one, newest first (after a reset: this one's,
+            repeated); required when the policy observes them (:attr:`obs_history` > 0).
         """
         tau = self.yaw_integral_tau
         if tau > 0 and yaw_integral is None:
@@ -200,26 +224,45 @@ class NumpyPolicy:
                 "feedback_integral = None: this policy corrects the feedback controller; "
                 "keep its integrator with feedback_integral_step()"
             )
+        frame = self.sensor_frame(wheel_rate, gyro_z, accel)
+        parts = [
+            np.asarray(command, np.float32) / self.command_scale,
+            frame,
+            np.asarray(last_action, np.float32),
+        ]
+        if tau > 0:
+            parts.append(np.asarray([yaw_integral], np.float32) / (tau * self.command_scale[2]))
+        if self.feedback_base:
+            parts.append(np.asarray([feedback_integral], np.float32) / self.command_scale[2])
+        if self.obs_history > 0:
+            past = None if sensor_history is None else np.asarray(sensor_history, np.float32)
+            if past is None or past.shape != (self.obs_history, frame.size):
+                shape = None if past is None else past.shape
+                raise ValueError(
+                    f"sensor_history: shape {shape}, expected ({self.obs_history}, "
+                    f"{frame.size}): this policy observes the {self.obs_history} "
+                    "sensor_frame()s before this one, newest first"
+                )
+            parts.append(past.reshape(-1))
+        return np.concatenate(parts).astype(np.float32)
+
+    @property
+    def obs_history(self) -> int:
+        """How many earlier sensor frames the policy observes (0: none)."""
+        return int(self.meta.get("obs_history") or 0)
+
+    def sensor_frame(self, wheel_rate: Any, gyro_z: Any, accel: Any) -> np.ndarray:
+        """One scaled sensor frame as the policy observes it: encoder rates, gyro z,
+        accelerometer and the wheel-odometry twist. A policy with :attr:`obs_history` > 0
+        observes the frames of the control periods before this one, newest first
+        (:meth:`observation`'s ``sensor_history``)."""
         rate = np.asarray(wheel_rate, np.float32)
-        odometry = self.forward @ rate
         return np.concatenate(
             [
-                np.asarray(command, np.float32) / self.command_scale,
                 rate / self.max_rates,
-                np.asarray([gyro_z], np.float32) / self.command_scale[2],
+                np.asarray(gyro_z, np.float32).reshape(1) / self.command_scale[2],
                 np.asarray(accel, np.float32) / np.float32(self.meta["gravity"]),
-                odometry / self.command_scale,
-                np.asarray(last_action, np.float32),
-                *(
-                    [np.asarray([yaw_integral], np.float32) / (tau * self.command_scale[2])]
-                    if tau > 0
-                    else []
-                ),
-                *(
-                    [np.asarray([feedback_integral], np.float32) / self.command_scale[2]]
-                    if self.feedback_base
-                    else []
-                ),
+                (self.forward @ rate) / self.command_scale,
             ]
         ).astype(np.float32)
 

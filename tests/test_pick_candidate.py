@@ -1,0 +1,65 @@
+"""scripts/pick_candidate.py: the fixed rule that chooses among candidates on tuning episodes."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from scripts.pick_candidate import FIGURES, main, rank_key
+
+SCENARIOS = sorted({s for s, _ in FIGURES})
+
+
+def report(target: str, ratio: float, lost_key: str | None = None) -> dict:
+    """A tuning report whose policy reads ``ratio`` x analytic on every figure; where
+    ``lost_key`` is given, that metric of the training mix is lost (worse by 0.1)."""
+    scenarios = {}
+    for name in SCENARIOS:
+        base = {k: 1.0 for _, k in FIGURES} | {"ss_lin": 1.0, "settle_lin_s": 1.0}
+        policy = {k: v * ratio for k, v in base.items()}
+        compare = {
+            k: {"ratio": ratio, "lo": ratio - 0.01, "hi": ratio + 0.01, "verdict": "tie"}
+            for k in base
+        }
+        if lost_key and name == "tuning_randomized":
+            policy[lost_key] = base[lost_key] + 0.1
+            compare[lost_key] = {"ratio": 1.1, "lo": 1.05, "hi": 1.15, "verdict": "worse"}
+        scenarios[name] = {
+            "policy": policy,
+            "analytic": base,
+            "compare": {"policy/analytic": compare},
+        }
+    return {"target": target, "scenarios": scenarios}
+
+
+def test_fewer_losses_beat_a_lower_mean(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    files = []
+    for name, rep in {
+        "tune_a_1.json": report("A", 0.8, lost_key="ss_wz"),  # better on average, one loss
+        "tune_b_2.json": report("B", 0.95),
+        "tune_c_3.json": report("C", 0.97),
+        "tune_shipped.json": report("S", 0.5),  # shown, never chosen
+    }.items():
+        (tmp_path / name).write_text(json.dumps(rep))
+        files.append(str(tmp_path / name))
+    assert main(files) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert out[-1] == "B"
+    assert any("(not a candidate)" in line for line in out)
+
+
+def test_the_geometric_mean_is_over_every_figure() -> None:
+    losses, gmean, ratios = rank_key(report("X", 0.9))
+    assert losses == 0
+    assert len(ratios) == len(FIGURES)
+    assert gmean == pytest.approx(0.9)
+    assert rank_key(report("Y", 0.9, lost_key="ss_wz"))[0] == 1
+
+
+def test_a_report_without_the_tuning_scenarios_is_refused() -> None:
+    rep = report("X", 0.9)
+    del rep["scenarios"]["tuning_nominal"]
+    with pytest.raises(ValueError, match="tuning_nominal"):
+        rank_key(rep)
