@@ -17,7 +17,8 @@
 #                           each packaged as /tmp/model_sK/o_rectangle and $OUT/model_sK.tgz
 #   tune [MODEL...]         each MODEL (default /tmp/model/o_rectangle) and models/o_rectangle
 #                           on the tuning episodes (configs/eval/tuning.toml, a seed of its own),
-#                           TUNE_JOBS at a time (default 1); then scripts/pick_candidate.py ranks
+#                           TUNE_JOBS at a time (default 1; on an H100 3 fit, 4 ran out of
+#                           memory); then scripts/pick_candidate.py ranks
 #                           them by its fixed rule and prints the chosen model's path last
 #   eval [MODEL]            the evaluation table: MODEL (default models/o_rectangle) against the
 #                           references on the default scenarios and 1024 randomized episodes,
