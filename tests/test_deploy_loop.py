@@ -103,13 +103,16 @@ def _lockstep(env, ctrl, commands, latency, seed=0):
 @pytest.mark.full  # compiles the shipped task's step (the loop against mecanum-eval is full too)
 def test_the_loop_builds_the_environments_observations_tick_by_tick(shipped_task, controller):
     """The shipped policy's task (a twist residual on the feedback controller, whose
-    integrator it observes; action filter 0.8) with sensor noise and one period of
-    latency; the command changes twice. The loop's observations and setpoints are the
+    integrator it observes and which holds for ``hold_s`` after each change; an action
+    filter) with sensor noise and one period of latency; the command changes twice, each
+    held 4 periods past the hold. The loop's observations and setpoints are the
     environment's; a loop that does not advance the integrator is caught."""
     env = MecanumEnv(shipped_task)
     assert env.config.action_filter > 0
     assert "feedback_integral" in controller.states
-    commands = np.repeat(np.array([[0.3, 0.0, 0.5], [0.0, -0.4, -1.5], [0.5, 0.2, 2.0]]), 4, 0)
+    held = env.config.feedback.hold_steps(env.config.control_dt) + 4
+    commands = np.array([[0.3, 0.0, 0.5], [0.0, -0.4, -1.5], [0.5, 0.2, 2.0]])
+    commands = np.repeat(commands, held, 0)
     obs_err, set_err, integral = _lockstep(env, controller, commands.astype(np.float32), 1)
     assert obs_err < 1e-5
     assert set_err < 1e-3
