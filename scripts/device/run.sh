@@ -27,7 +27,9 @@
 #                           steady-state figures agree to 1%? (scripts/eval_agreement.py)
 #   ab MIN 'name|flags'...  variants trained concurrently for MIN minutes on one GPU, each
 #                           packaged as /tmp/model_NAME/o_rectangle and $OUT/model_NAME.tgz
-#                           (compare them next with: tune /tmp/model_NAME/o_rectangle ...)
+#                           (compare them next with: tune /tmp/model_NAME/o_rectangle ...); a
+#                           variant of several --run.seeds K... as /tmp/model_NAME_sK/o_rectangle,
+#                           all of them in $OUT/model_NAME.tgz
 #   student TMIN SMIN 'flags' 'name|flags'...  a privileged teacher of the recipe 'flags' for
 #                           TMIN minutes (/tmp/run_teacher, packaged as model_teacher), then
 #                           students of it side by side for SMIN minutes as in ab (each
@@ -143,11 +145,21 @@ ab() {  # MINUTES 'name|flags'...: trained side by side on one GPU, each package
       > "/tmp/train_$name.log" 2>&1 &
   done
   wait
+  local seeds k
   for spec in "$@"; do
     name="${spec%%|*}"
     echo "== $name"; quiet < "/tmp/train_$name.log" | tail -8
-    package "/tmp/run_$name" "/tmp/model_$name" "$min" "${spec#*|}" \
-      && tar czf "$O/model_$name.tgz" -C "/tmp/model_$name" o_rectangle
+    seeds=$(python3 -c "import json, sys; print(*json.load(open(sys.argv[1]))['run']['seeds'])" \
+      "/tmp/run_$name/config.json" 2>/dev/null)
+    if [ "$(wc -w <<< "$seeds")" -gt 1 ]; then  # every seed: /tmp/model_NAME_sK/o_rectangle
+      for k in $seeds; do
+        package "/tmp/run_$name" "/tmp/model_${name}_s$k" "$min" "${spec#*|}" "$k"
+      done
+      (cd /tmp && tar czf "$O/model_$name.tgz" "model_${name}"_s*/o_rectangle)
+    else
+      package "/tmp/run_$name" "/tmp/model_$name" "$min" "${spec#*|}" \
+        && tar czf "$O/model_$name.tgz" -C "/tmp/model_$name" o_rectangle
+    fi
     cp "/tmp/run_$name/metrics.jsonl" "$O/${name}_metrics.jsonl" || true
   done
 }
