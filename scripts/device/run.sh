@@ -282,7 +282,8 @@ case "$TASK" in
     wait
     for name in "${names[@]}"; do
       echo "== $name on the tuning episodes"; quiet < "/tmp/tune-$name.log" | tail -34
-      cp "/tmp/tune-$name/report.json" "$O/tune_$name.json"
+      cp "/tmp/tune-$name/report.json" "$O/tune_$name.json" 2>/dev/null \
+        || echo "tune: $name has no report: its evaluation failed (log above); not ranked"
     done
     python3 scripts/pick_candidate.py "$O"/tune_*.json ;;
   eval)
