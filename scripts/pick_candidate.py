@@ -75,10 +75,10 @@ def main(argv: list[str] | None = None) -> int:
     for path in args.reports:
         try:
             report = json.loads(path.read_text())
-        except (OSError, ValueError) as e:
-            print(f"pick_candidate: cannot read {path}: {e}", file=sys.stderr)
+            losses, gmean, ratios = rank_key(report)
+        except (OSError, ValueError, KeyError) as e:
+            print(f"pick_candidate: cannot rank {path}: {e}", file=sys.stderr)
             return 2
-        losses, gmean, ratios = rank_key(report)
         eligible = not any(x in path.name for x in args.exclude)
         rows.append((losses, gmean, path.name, report["target"], ratios, eligible))
     rows.sort(key=lambda r: (r[0], r[1]))

@@ -63,3 +63,14 @@ def test_a_report_without_the_tuning_scenarios_is_refused() -> None:
     del rep["scenarios"]["tuning_nominal"]
     with pytest.raises(ValueError, match="tuning_nominal"):
         rank_key(rep)
+
+
+def test_the_command_names_a_report_it_cannot_rank(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rep = report("X", 0.9)
+    del rep["scenarios"]["tuning_path"]
+    bad = tmp_path / "tune_x.json"
+    bad.write_text(json.dumps(rep))
+    assert main([str(bad)]) == 2
+    assert "tune_x.json" in capsys.readouterr().err
