@@ -34,7 +34,9 @@
 #                           TMIN minutes (/tmp/run_teacher, packaged as model_teacher), then
 #                           students of it side by side for SMIN minutes as in ab (each
 #                           'flags' plus its own, e.g. '--env.obs-history 25'), imitating it
-#                           (--ppo.distill.teacher); compare them next with tune
+#                           (--ppo.distill.teacher); compare them next with tune. Two
+#                           students of 25 and 50 frames side by side ran out of memory on
+#                           an H100 (one of them died): give each its own call
 #   multi-gpu EPOCHS [VARIANT...]  throughput over several GPUs: sh1gpu sh2gpu sh2gpu_64k mp2gpu
 #                           (default) and pmap2gpu
 #   experiment SCRIPT ARGS...      python experiments/SCRIPT ARGS
@@ -135,7 +137,7 @@ seeds() {  # MINUTES SEEDS [flags]: one run training the seeds (e.g. "0 1 2") si
 
 ab() {  # MINUTES 'name|flags'...: trained side by side on one GPU, each packaged
   local min=$1; shift
-  local spec name evals=$((4096 / $#))  # the periodic evaluations share the GPU's memory
+  local spec name evals=$((2048 / $#))  # the periodic evaluations share the GPU's memory
   for spec in "$@"; do
     name="${spec%%|*}"
     rm -rf "/tmp/run_$name"
