@@ -1,7 +1,7 @@
 """Choose among trained candidates on the tuning episodes, by a rule fixed before the runs.
 
 Reads ``mecanum-eval`` reports of ``configs/eval/tuning.toml`` (``run.sh tune`` writes
-them as ``tune_NAME.json``) and ranks every candidate against ``analytic`` on the same
+them as ``/tmp/tune-reports/tune_NAME.json``) and ranks every candidate against ``analytic`` on the same
 episodes:
 
 1. fewest **losses** (``train.eval_output.score``: the paired 95% interval on the worse
@@ -16,7 +16,9 @@ Prints one row per candidate and, last, the path of the chosen one's model (the 
 
     python scripts/pick_candidate.py tune_s0_1.json tune_s1_2.json ... [--exclude shipped]
 
-Held-out scenarios never enter the choice.
+``--bundle FILE`` also writes every report into one JSON keyed by file name (their
+per-episode data left out), which is how ``run.sh tune`` sends any number of candidates
+back from the GPU machine as one file. Held-out scenarios never enter the choice.
 """
 
 from __future__ import annotations
@@ -63,6 +65,15 @@ def rank_key(report: dict[str, Any]) -> tuple[int, float, dict[str, float]]:
     return losses, gmean, ratios
 
 
+def without_episodes(report: dict[str, Any]) -> dict[str, Any]:
+    """``report`` less each scenario's ``per_episode`` data (most of its size)."""
+    scenarios = {
+        name: {k: v for k, v in sc.items() if k != "per_episode"}
+        for name, sc in report["scenarios"].items()
+    }
+    return {**report, "scenarios": scenarios}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("reports", nargs="+", type=Path, help="tuning reports (report.json)")
@@ -70,8 +81,13 @@ def main(argv: list[str] | None = None) -> int:
         "--exclude", nargs="*", default=["shipped"],
         help="report file names containing any of these are shown but not chosen",
     )  # fmt: skip
+    ap.add_argument(
+        "--bundle", type=Path, default=None,
+        help="also write every report, per-episode data left out, into this one JSON file",
+    )  # fmt: skip
     args = ap.parse_args(argv)
     rows = []
+    bundle: dict[str, Any] = {}
     for path in args.reports:
         try:
             report = json.loads(path.read_text())
@@ -79,8 +95,11 @@ def main(argv: list[str] | None = None) -> int:
         except (OSError, ValueError, KeyError) as e:
             print(f"pick_candidate: cannot rank {path}: {e}", file=sys.stderr)
             return 2
+        bundle[path.stem] = without_episodes(report)
         eligible = not any(x in path.name for x in args.exclude)
         rows.append((losses, gmean, path.name, report["target"], ratios, eligible))
+    if args.bundle is not None:
+        args.bundle.write_text(json.dumps(bundle, indent=1))
     rows.sort(key=lambda r: (r[0], r[1]))
     names = list(rows[0][4])
     print("candidate".ljust(28), "losses", "gmean", *names)

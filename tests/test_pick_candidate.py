@@ -74,3 +74,20 @@ def test_the_command_names_a_report_it_cannot_rank(
     bad.write_text(json.dumps(rep))
     assert main([str(bad)]) == 2
     assert "tune_x.json" in capsys.readouterr().err
+
+
+def test_the_bundle_holds_every_report_without_its_episodes(tmp_path: Path) -> None:
+    files = []
+    for name, ratio in (("tune_a_1", 0.9), ("tune_shipped", 0.95)):
+        rep = report(name.upper(), ratio)
+        rep["scenarios"]["tuning_path"]["per_episode"] = {"drift_m": [0.1] * 32}
+        (tmp_path / f"{name}.json").write_text(json.dumps(rep))
+        files.append(str(tmp_path / f"{name}.json"))
+    out = tmp_path / "tuning.json"
+    assert main([*files, "--bundle", str(out)]) == 0
+    bundle = json.loads(out.read_text())
+    assert sorted(bundle) == ["tune_a_1", "tune_shipped"]
+    assert bundle["tune_a_1"]["target"] == "TUNE_A_1"
+    path = bundle["tune_a_1"]["scenarios"]["tuning_path"]
+    assert "per_episode" not in path
+    assert path["policy"]["drift_m"] == pytest.approx(0.9)

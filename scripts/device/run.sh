@@ -19,7 +19,9 @@
 #                           on the tuning episodes (configs/eval/tuning.toml, a seed of its own),
 #                           TUNE_JOBS at a time (default 1; on an H100 3 fit, 4 ran out of
 #                           memory); then scripts/pick_candidate.py ranks
-#                           them by its fixed rule and prints the chosen model's path last
+#                           them by its fixed rule and prints the chosen model's path last;
+#                           every report comes back in $OUT/tuning.json (per-episode data
+#                           left out; full reports stay in /tmp/tune-reports)
 #   eval [MODEL]            the evaluation table: MODEL (default models/o_rectangle) against the
 #                           references on the default scenarios and 1024 randomized episodes,
 #                           then `agree MODEL`
@@ -273,7 +275,7 @@ case "$TASK" in
   ship) ship "$@" ;;
   seeds) seeds "$@" ;;
   tune)  # TUNE_JOBS=N: N evaluations at once (they share the GPU; compiling is most of each)
-    i=0; names=()
+    i=0; names=(); rm -rf /tmp/tune-reports; mkdir -p /tmp/tune-reports
     for model in "${@:-/tmp/model/o_rectangle}" models/o_rectangle; do
       i=$((i + 1)); name=$(basename "$(dirname "$model")")_$i
       [ "$model" = models/o_rectangle ] && name=shipped
@@ -284,10 +286,10 @@ case "$TASK" in
     wait
     for name in "${names[@]}"; do
       echo "== $name on the tuning episodes"; quiet < "/tmp/tune-$name.log" | tail -34
-      cp "/tmp/tune-$name/report.json" "$O/tune_$name.json" 2>/dev/null \
+      cp "/tmp/tune-$name/report.json" "/tmp/tune-reports/tune_$name.json" 2>/dev/null \
         || echo "tune: $name has no report: its evaluation failed (log above); not ranked"
-    done
-    python3 scripts/pick_candidate.py "$O"/tune_*.json ;;
+    done  # one file back however many candidates ($OUT takes 8): $O/tuning.json
+    python3 scripts/pick_candidate.py /tmp/tune-reports/tune_*.json --bundle "$O/tuning.json" ;;
   eval)
     for set in default randomized; do
       echo "== ${1:-models/o_rectangle}, scenarios: $set"
