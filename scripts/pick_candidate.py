@@ -1,8 +1,8 @@
 """Choose among trained candidates on the tuning episodes, by a rule fixed before the runs.
 
 Reads ``mecanum-eval`` reports of ``configs/eval/tuning.toml`` (``run.sh tune`` writes
-them as ``/tmp/tune-reports/tune_NAME.json``) and ranks every candidate against ``analytic`` on the same
-episodes:
+them as ``/tmp/tune-reports/tune_NAME.json``) and ranks every candidate against
+``analytic`` on the same episodes:
 
 1. fewest **losses** (``train.eval_output.score``: the paired 95% interval on the worse
    side and an excess above the metric's margin) over the four tuning scenarios;
