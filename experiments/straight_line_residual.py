@@ -1,0 +1,73 @@
+"""What does a residual policy do on the scripted straight lines it loses?
+
+On six_modes and singular_pass (the nominal robot translating, ωz = 0) the shipped policy
+holds 5 to 10 times `analytic`'s steady yaw error. This plays those scenarios and prints,
+per straight segment, from 0.5 s after the command change to its end (the steady-state
+metric's window): the mean true yaw rate of the policy and of `analytic`, the mean and
+standard deviation of the policy's applied action (the twist residual, in units of
+``residual_scale`` of each axis' reach) and the policy's and `analytic`'s linear error
+against the command::
+
+    .venv/bin/python experiments/straight_line_residual.py models/o_rectangle [MODEL ...]
+
+A constant action (small std) whose sign follows the command's direction is a
+feedforward bias learned for the command, not a correction of a measured error.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from mecanum_jax.evaluation.rollout import Trace
+from train import evaluate as train_eval
+from train.eval_args import EvalArgs
+
+SETTLE_STEPS = 25  # 0.5 s at the 20 ms control period: the steady-state window's start
+
+
+def segments(command: np.ndarray) -> list[tuple[int, int]]:
+    """``(start, end)`` step ranges over which the command is constant."""
+    edges = np.nonzero(np.any(np.diff(command, axis=0) != 0, axis=1))[0] + 1
+    bounds = np.r_[0, edges, len(command)]
+    return list(zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True))
+
+
+def v_error(trace: Trace, command: np.ndarray, steps: slice) -> float:
+    """RMS linear error against the command over ``steps`` of episode 0, m/s."""
+    e = trace.twist[0][steps, :2] - command[steps, :2]
+    return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("models", nargs="+")
+    ap.add_argument("--episodes", type=int, default=2)
+    args = ap.parse_args()
+    for model in args.models:
+        argv = [model, "--only", "singular_pass", "six_modes", "--episodes", str(args.episodes)]
+        argv += ["--no-plots", "--physics-impl", "jax", "--references", "analytic"]
+        eargs = train_eval._parse(argv, "straight_line_residual", EvalArgs)
+        target, sset, _ = train_eval._prepare(eargs)
+        _, traces, _ = train_eval.evaluate(target, sset, eargs)
+        print(f"\n{model}: episode 0, steps from 0.5 s after each change")
+        for name, by_who in traces.items():
+            pol, ana = by_who["policy"], by_who["analytic"]
+            cmd = pol.command[0]
+            for a, b in segments(cmd):
+                if b - a <= SETTLE_STEPS or cmd[a, 2] != 0 or not np.any(cmd[a, :2]):
+                    continue
+                s = slice(a + SETTLE_STEPS, b)
+                act = pol.action[0][s]
+                print(
+                    f"  {name:13s} v_cmd {np.round(cmd[a, :2], 2)}: ωz policy "
+                    f"{pol.twist[0][s, 2].mean():+.3f}, analytic {ana.twist[0][s, 2].mean():+.3f} "
+                    f"rad/s | action {np.round(act.mean(axis=0), 3)} (std "
+                    f"{act.std(axis=0).max():.3f}) | v error policy {v_error(pol, cmd, s):.3f}, "
+                    f"analytic {v_error(ana, cmd, s):.3f} m/s"
+                )
+
+
+if __name__ == "__main__":
+    main()
