@@ -20,6 +20,7 @@ import argparse
 
 import numpy as np
 
+from mecanum_jax.evaluation import metrics
 from mecanum_jax.evaluation.rollout import Trace
 from train import evaluate as train_eval
 from train.eval_args import EvalArgs
@@ -27,14 +28,7 @@ from train.eval_args import EvalArgs
 SETTLE_STEPS = 25  # 0.5 s at the 20 ms control period: the steady-state window's start
 
 
-def segments(command: np.ndarray) -> list[tuple[int, int]]:
-    """``(start, end)`` step ranges over which the command is constant."""
-    edges = np.nonzero(np.any(np.diff(command, axis=0) != 0, axis=1))[0] + 1
-    bounds = np.r_[0, edges, len(command)]
-    return list(zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True))
-
-
-def v_error(trace: Trace, command: np.ndarray, steps: slice) -> float:
+def v_error(trace: Trace, command: np.ndarray, steps: np.ndarray) -> float:
     """RMS linear error against the command over ``steps`` of episode 0, m/s."""
     e = trace.twist[0][steps, :2] - command[steps, :2]
     return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
@@ -55,10 +49,13 @@ def main() -> None:
         for name, by_who in traces.items():
             pol, ana = by_who["policy"], by_who["analytic"]
             cmd = pol.command[0]
-            for a, b in segments(cmd):
-                if b - a <= SETTLE_STEPS or cmd[a, 2] != 0 or not np.any(cmd[a, :2]):
+            seg = metrics.segment_ids(cmd[None])[0]
+            steady = metrics.steps_since_change(cmd[None])[0] >= SETTLE_STEPS
+            for k in range(seg[-1] + 1):
+                s = np.nonzero((seg == k) & steady)[0]
+                if len(s) == 0 or cmd[s[0], 2] != 0 or not np.any(cmd[s[0], :2]):
                     continue
-                s = slice(a + SETTLE_STEPS, b)
+                a = s[0]
                 act = pol.action[0][s]
                 print(
                     f"  {name:13s} v_cmd {np.round(cmd[a, :2], 2)}: ωz policy "
