@@ -26,7 +26,7 @@ from mecanum_jax.config import (
 from mecanum_jax.task import EnvConfig
 from mecanum_jax.task.fidelity import check_task
 from train.loggers import check_wandb
-from train.losses import DistillConfig, SmoothnessConfig
+from train.losses import AnchorConfig, DistillConfig, SmoothnessConfig
 
 TRAIN_CONFIG_DIR = CONFIG_DIR / "train"
 
@@ -101,6 +101,9 @@ class PPOConfig:
     distill: DistillConfig = DistillConfig()
     """A privileged teacher the policy imitates on its own rollouts (train/distill.py;
     off by default)."""
+    anchor: AnchorConfig = AnchorConfig()
+    """No yaw correction where the base controller is exact (train/losses.py; off by
+    default; needs env.residual_space = "twist")."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -200,6 +203,15 @@ class TrainConfig:
         require(p, "ppo", ("policy_warmup_steps",), lambda v: v >= 0, "must be >= 0 (0: off)")
         p.smoothness.validate("ppo.smoothness")
         p.distill.validate("ppo.distill")
+        p.anchor.validate("ppo.anchor")
+        twist = self.env.residual and self.env.residual_space == "twist"
+        if p.anchor.enabled and not twist:
+            raise invalid(
+                "ppo.anchor.weight",
+                p.anchor.weight,
+                "needs a twist-space residual (env.residual = true, env.residual_space = "
+                '"twist"): it penalizes the yaw part of the correction',
+            )
         if p.distill.enabled and self.network.teacher:
             raise invalid(
                 "ppo.distill.teacher",

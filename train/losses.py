@@ -20,19 +20,31 @@ goes, as DAgger does (Ross et al., AISTATS 2011; the teacher-student scheme of R
 Kumar et al., RSS 2021), beside the PPO terms ("kickstarting", Schmitt et al. 2018).
 Its weight and the teacher are :class:`DistillConfig`; the teacher's action comes from
 ``train.distill``. Reported as ``imitation``.
+
+:func:`anchor_loss` asks the yaw part of a twist-space residual to be zero where its base is
+already exact (:func:`mecanum_jax.task.anchor.base_exact`: steady no-yaw commands on the
+nominal robot): ``mean(μ_ωz(s)²)`` over those states. Without it the policy learns a constant,
+direction-dependent yaw correction on straight lines from the randomized robots and applies
+it to every robot (experiments/straight_line_residual.py). Its weight is
+:class:`AnchorConfig`; reported as ``anchor``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
 from brax.training.agents.ppo import losses as ppo_losses
 
 from mecanum_jax.config import require
+from mecanum_jax.task.anchor import YAW, base_exact
+
+if TYPE_CHECKING:
+    from mecanum_jax.task.protocol import TaskEnv
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,6 +87,41 @@ class DistillConfig:
     @property
     def enabled(self) -> bool:
         return bool(self.teacher)
+
+
+@dataclasses.dataclass(frozen=True)
+class AnchorConfig:
+    """Weight of :func:`anchor_loss` (0: off); needs a twist-space residual."""
+
+    weight: float = 0.0
+    """Weight of ``mean(μ_ωz(s)²)`` over the states where the base is exact (>= 0; 0: off)."""
+
+    def validate(self, where: str = "ppo.anchor") -> None:
+        """Check values; raise :class:`ConfigError` naming the field."""
+        require(self, where, ("weight",), lambda v: v >= 0, "must be >= 0 (0: off)")
+
+    @property
+    def enabled(self) -> bool:
+        return self.weight > 0
+
+
+def anchor_loss(action: jax.Array, mask: jax.Array, index: int) -> jax.Array:
+    """Mean of ``action[..., index]²`` over the samples where ``mask`` is 1 (0 without any)."""
+    count = jnp.sum(mask)
+    total = jnp.sum(mask * action[..., index] ** 2)
+    return jnp.where(count > 0, total / jnp.maximum(count, 1.0), 0.0)
+
+
+def state_extras(
+    env: TaskEnv, info: dict[str, Any], next_info: dict[str, Any], anchor: AnchorConfig
+) -> dict[str, jax.Array]:
+    """What the loss reads of a batch of transitions besides the observations:
+    ``truncation`` (Brax's), and with ``anchor`` on the mask of
+    :func:`~mecanum_jax.task.anchor.base_exact` on the states acted from (``info``)."""
+    extras = {"truncation": next_info["truncation"]}
+    if anchor.enabled:
+        extras["anchor"] = jax.vmap(functools.partial(base_exact, env))(info)
+    return extras
 
 
 def imitation_loss(
@@ -126,11 +173,14 @@ def ppo_loss_with_terms(
     obs_key: str = "state",
     teacher_action: Callable[[Any], jax.Array] | None = None,
     imitation_weight: float = 0.0,
+    anchor_weight: float = 0.0,
     **ppo_kwargs: Any,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """Brax's ``compute_ppo_loss`` plus :func:`smoothness_loss` and, with a teacher,
-    ``imitation_weight`` times :func:`imitation_loss` (same signature as Brax's loss once
-    ``ppo_network``, these terms' settings and Brax's own keywords are bound)."""
+    """Brax's ``compute_ppo_loss`` plus :func:`smoothness_loss`, with a teacher
+    ``imitation_weight`` times :func:`imitation_loss`, and with ``anchor_weight`` > 0 that
+    times :func:`anchor_loss` on the mask ``data.extras["state_extras"]["anchor"]`` (same
+    signature as Brax's loss once ``ppo_network``, these terms' settings and Brax's own
+    keywords are bound)."""
     k_ppo, k_smooth = jax.random.split(rng)
     loss, metrics = ppo_losses.compute_ppo_loss(
         params, normalizer_params, data, k_ppo, ppo_network, **ppo_kwargs
@@ -147,13 +197,21 @@ def ppo_loss_with_terms(
         imitation = imitation_loss(mean_action, teacher_action, data.observation)
         extra = extra + imitation_weight * imitation
         terms = {**terms, "imitation": imitation}
+    if anchor_weight > 0:
+        mask = data.extras["state_extras"]["anchor"]
+        anchor = anchor_loss(mean_action(data.observation), mask, YAW)
+        extra = extra + anchor_weight * anchor
+        terms = {**terms, "anchor": anchor}
     return loss + extra, {**metrics, **terms, "total_loss": loss + extra}
 
 
 __all__ = [
+    "AnchorConfig",
     "DistillConfig",
     "SmoothnessConfig",
+    "anchor_loss",
     "imitation_loss",
     "ppo_loss_with_terms",
     "smoothness_loss",
+    "state_extras",
 ]

@@ -86,13 +86,14 @@ class Learner:
         loss: Any = ppo_losses.compute_ppo_loss
         # a teacher to imitate (train/distill.py)
         self.teacher = distill.load_teacher(cfg, self.env) if p.distill.enabled else None
-        if p.smoothness.enabled or self.teacher:  # CAPS-style terms, imitation (losses.py)
+        if p.smoothness.enabled or self.teacher or p.anchor.enabled:  # losses.py's terms
             loss = functools.partial(
                 losses.ppo_loss_with_terms,
                 smoothness=p.smoothness,
                 obs_key=policy_obs_key(cfg),
                 teacher_action=None if self.teacher is None else self.teacher.action,
                 imitation_weight=p.distill.weight,
+                anchor_weight=p.anchor.weight,
             )
         loss_fn = functools.partial(
             loss,
@@ -261,7 +262,9 @@ class Learner:
                 next_observation=ns.obs,
                 extras={
                     "policy_extras": extras,
-                    "state_extras": {"truncation": ns.info["truncation"]},
+                    "state_extras": losses.state_extras(
+                        self.env, s.info, ns.info, self.cfg.ppo.anchor
+                    ),
                 },
             )
             return (ns, k), (transition, ns.metrics)
