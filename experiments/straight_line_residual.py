@@ -12,6 +12,11 @@ against the command::
 
 A constant action (small std) whose sign follows the command's direction is a
 feedforward bias learned for the command, not a correction of a measured error.
+
+``--all-segments`` prints instead every steady segment of six_modes (translations, spins
+and the stop) in two episodes: the mean absolute yaw-rate error of the policy,
+`analytic` and `feedback`, and the policy's mean yaw action: where the scenario's steady
+ωz error comes from.
 """
 
 from __future__ import annotations
@@ -34,11 +39,42 @@ def v_error(trace: Trace, command: np.ndarray, steps: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
 
 
+def all_segments(model: str, episodes: int) -> None:
+    """Per steady segment of six_modes: mean |ωz error| of the policy and the references."""
+    argv = [model, "--only", "six_modes", "--episodes", str(episodes), "--no-plots"]
+    argv += ["--physics-impl", "jax", "--references", "analytic", "feedback"]
+    eargs = train_eval._parse(argv, "straight_line_residual", EvalArgs)
+    target, sset, _ = train_eval._prepare(eargs)
+    _, traces, _ = train_eval.evaluate(target, sset, eargs)
+    print(f"\n{model}: six_modes, mean |ωz error| (rad/s) from 0.5 s after each change")
+    by_who = traces["six_modes"]
+    for ep in range(episodes):
+        cmd = by_who["policy"].command[ep]
+        seg = metrics.segment_ids(cmd[None])[0]
+        steady = metrics.steps_since_change(cmd[None])[0] >= SETTLE_STEPS
+        for k in range(seg[-1] + 1):
+            s = np.nonzero((seg == k) & steady)[0]
+            if len(s) == 0:
+                continue
+            c = cmd[s[0]]
+            err = {w: np.abs(by_who[w].twist[ep][s, 2] - c[2]).mean() for w in by_who}
+            print(
+                f"  episode {ep} command {np.round(c, 2)}: policy {err['policy']:.3f}, "
+                f"analytic {err['analytic']:.3f}, feedback {err['feedback']:.3f} | "
+                f"yaw action {by_who['policy'].action[ep][s, 2].mean():+.3f}"
+            )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("models", nargs="+")
     ap.add_argument("--episodes", type=int, default=2)
+    ap.add_argument("--all-segments", action="store_true", help="every six_modes segment")
     args = ap.parse_args()
+    if args.all_segments:
+        for model in args.models:
+            all_segments(model, args.episodes)
+        return
     for model in args.models:
         argv = [model, "--only", "singular_pass", "six_modes", "--episodes", str(args.episodes)]
         argv += ["--no-plots", "--physics-impl", "jax", "--references", "analytic"]
