@@ -19,8 +19,8 @@ from loops import network_free
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.deploy import policy as deploy
+from mecanum_jax.evaluation import paired, scenarios
 from mecanum_jax.evaluation import rollout as evaluation
-from mecanum_jax.evaluation import scenarios
 from mecanum_jax.kinematics import singularity
 from mecanum_jax.kinematics.modes import SIX_MODES
 from mecanum_jax.task import EnvConfig, MecanumEnv
@@ -316,6 +316,12 @@ def test_eval_baseline_cli_reduced_set(tmp_path, capsys):
     cmp = sp["compare"]["analytic/feedback"]["drift_m"]
     assert cmp["lo"] <= cmp["ratio"] <= cmp["hi"]
     assert cmp["verdict"] in ("better", "worse", "tie")
+    # every controller's per-episode parts, for scripts/compare_policies.py
+    parts = paired.load_parts(out)
+    assert parts["singular_pass"]["analytic"]["drift_m"].value() == pytest.approx(
+        sp["analytic"]["drift_m"]
+    )
+    assert "parts.npz" in report["files"]
     for name in ("errors.png", "trajectories.png", "twist_nominal.png", "twist_singular_pass.png"):
         assert (out / name).stat().st_size > 1000
     assert not (tmp_path / "base.partial").exists()

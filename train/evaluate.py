@@ -46,7 +46,7 @@ import tyro  # noqa: E402
 from rich.console import Console  # noqa: E402
 
 from mecanum_jax.config import ConfigError  # noqa: E402
-from mecanum_jax.evaluation import metrics, scenarios  # noqa: E402
+from mecanum_jax.evaluation import metrics, paired, scenarios  # noqa: E402
 from mecanum_jax.evaluation import rollout as ev  # noqa: E402
 from mecanum_jax.kinematics import model as kinematics  # noqa: E402
 from mecanum_jax.precision import set_matmul_precision  # noqa: E402
@@ -181,10 +181,14 @@ def compare(
 
 
 def evaluate(
-    target: Target, scenario_set: scenarios.ScenarioSet, args: EvalArgs
+    target: Target,
+    scenario_set: scenarios.ScenarioSet,
+    args: EvalArgs,
+    parts_out: paired.Parts | None = None,
 ) -> tuple[dict[str, Any], dict[str, dict[str, ev.Trace]], dict[str, float]]:
     """Every scenario with the policy (if any) and the references, all in as few compiled
-    chunks as the batch limit allows: results, traces and timings."""
+    chunks as the batch limit allows: results, traces and timings; ``parts_out``, if
+    given, also receives every controller's per-episode metric parts by scenario."""
     env = target.env
     dt = env.config.control_dt
     mcfg = metrics.MetricConfig(settle_s=args.settle_s)
@@ -206,6 +210,8 @@ def evaluate(
         if sc.scripted:
             for who, tr in per.items():
                 parts[who] |= ev.drift_parts(tr, dt)
+        if parts_out is not None:
+            parts_out[sc.name] = parts
         first = players[0]
         refs = [r for r in players if r != first] if first == "policy" else players[1:]
         results[sc.name] = {
@@ -348,11 +354,13 @@ def _evaluate_into(
     args: EvalArgs,
     t_start: float,
 ) -> dict[str, Any]:
-    """Run the evaluation and write its plots, videos, export and report.json into
-    ``partial``; returns the results."""
-    results, traces, timing = evaluate(target, scenario_set, args)
+    """Run the evaluation and write its plots, videos, export, per-episode parts
+    (``parts.npz``) and report.json into ``partial``; returns the results."""
+    parts: paired.Parts = {}
+    results, traces, timing = evaluate(target, scenario_set, args, parts)
     dt = target.env.config.control_dt
-    files: list[Path] = []
+    paired.save_parts(partial / paired.PARTS_FILE, parts)  # for scripts/compare_policies.py
+    files: list[Path] = [partial / paired.PARTS_FILE]
     if args.plots:
         files += write_plots(results, traces, dt, partial)
     if args.video:
