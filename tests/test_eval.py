@@ -269,6 +269,24 @@ def test_baseline_rollout_tracks_and_is_deterministic(env, small, baseline_evalu
     assert m["rmse_lin"] < 0.6 * still
 
 
+def test_references_apply_no_action_beside_a_policy(env, small):
+    """In a policy's evaluation the references' traces hold no action (flicker 0): the
+    policy's output, computed on every rollout, is applied and recorded only for it."""
+
+    def jittery(params, obs):  # a policy whose action follows its (noisy) sensors
+        del params
+        return jnp.tanh(10.0 * obs["state"][..., 3 : 3 + env.action_size])
+
+    ev = evaluation.Evaluator(env, jittery)
+    batch = scenarios.prepare(env, small.scenarios[2])
+    pol, ana = ev.run_many([(batch, "policy"), (batch, "analytic")])
+    assert np.max(np.abs(pol.action)) > 0.01
+    np.testing.assert_array_equal(ana.action, 0.0)
+    jac, dt = env.jacobian, env.config.control_dt
+    assert evaluation.trace_parts(ana, jac, dt)["flicker"].value() == 0.0
+    assert evaluation.trace_parts(pol, jac, dt)["flicker"].value() > 0.0
+
+
 def _tiny_restored(full_run):
     run, _ = full_run
     return checkpoint.restore_policy(run.dir)

@@ -132,6 +132,9 @@ class Evaluator:
             if self.apply is not None:
                 with jax.numpy_rank_promotion("allow"):  # Brax's normalizer broadcasts
                     action = self.apply(params, s.obs)
+                # a reference applies no action: its trace (flicker) must not hold the
+                # policy's, computed on the reference's trajectory
+                action = jnp.where(jnp.expand_dims(jnp.asarray(who) < 0, -1), action, 0.0)
             ns = jax.vmap(env.step)(s, action, who)
             sens = jax.vmap(env.robot.sensors)(ns.pipeline_state)
             m = ns.metrics
