@@ -269,6 +269,7 @@ def test_baseline_rollout_tracks_and_is_deterministic(env, small, baseline_evalu
     assert m["rmse_lin"] < 0.6 * still
 
 
+@pytest.mark.full  # a policy's rollout program: about 35 s of compilation on 2 cores
 def test_references_apply_no_action_beside_a_policy(env, small):
     """In a policy's evaluation the references' traces hold no action (flicker 0): the
     policy's output, computed on every rollout, is applied and recorded only for it."""
