@@ -52,6 +52,10 @@
 #                           4096 16384 32768 65536; batch N/8: 2 unrolls per iteration as at
 #                           32768), one process each: $OUT/scaling.json, $OUT/scaling.png
 #
+# COMMIT=HASH names the commit a packaged model's provenance records: the device's copy of
+# .git can lag the working tree (on 2026-11-26 it gave the session's first HEAD, not the
+# commit that trained the shipped policy), so pass COMMIT=$(git rev-parse --short HEAD).
+#
 # docs/benchmarks.md and docs/training.md list the call behind each figure.
 set -uo pipefail
 WARP=0
