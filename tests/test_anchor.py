@@ -13,7 +13,7 @@ from test_losses import OBS, _Shapes
 from mecanum_jax.config import ConfigError
 from mecanum_jax.task import EnvConfig, FeedbackConfig, MecanumEnv, RandomizationConfig
 from mecanum_jax.task.anchor import YAW, base_exact
-from train.config import TrainConfig, parse_train_config
+from train.config import TrainConfig, load_train_config, parse_train_config
 from train.losses import AnchorConfig, anchor_loss, ppo_loss_with_terms, state_extras
 from train.state import make_networks
 
@@ -109,3 +109,14 @@ def test_bad_anchor_settings_name_the_field():
     wheel = {"env": {"residual_space": "wheel"}, "ppo": {"anchor": {"weight": 1.0}}}
     with pytest.raises(ConfigError, match=r"ppo\.anchor\.weight = 1\.0.*twist"):
         parse_train_config(wheel, "test")
+    no_nominal = {
+        "env": {
+            "residual_space": "twist",
+            "randomization": {"enabled": True, "nominal_share": 0.0},
+        },
+        "ppo": {"anchor": {"weight": 1.0}},
+    }
+    with pytest.raises(ConfigError, match=r"ppo\.anchor\.weight = 1\.0.*nominal_share"):
+        parse_train_config(no_nominal, "test")
+    gpu = load_train_config("gpu")  # as shipped: a twist residual with nominal robots
+    assert gpu.ppo.anchor.weight == 100.0

@@ -212,6 +212,14 @@ class TrainConfig:
                 "needs a twist-space residual (env.residual = true, env.residual_space = "
                 '"twist"): it penalizes the yaw part of the correction',
             )
+        rand = self.env.randomization
+        if p.anchor.enabled and rand.enabled and rand.nominal_share == 0:
+            raise invalid(
+                "ppo.anchor.weight",
+                p.anchor.weight,
+                "acts on nominal robots only, and env.randomization.nominal_share = 0 trains "
+                "none: give it a share (gpu.toml: 0.25) or set the weight to 0",
+            )
         if p.distill.enabled and self.network.teacher:
             raise invalid(
                 "ppo.distill.teacher",
