@@ -18,7 +18,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from mecanum_jax.evaluation import paired
+from mecanum_jax.evaluation import metrics, paired
 
 METRICS = (
     ("ss v", "ss_lin"),
@@ -31,6 +31,7 @@ METRICS = (
     ("energy", "energy_j"),
     ("flicker", "flicker"),
 )
+MARK = {"better": " ✓", "worse": " ✗"}
 
 
 def table(a: paired.Parts, b: paired.Parts, reference: str, tolerance: float) -> list[str]:
@@ -45,7 +46,7 @@ def table(a: paired.Parts, b: paired.Parts, reference: str, tolerance: float) ->
                 continue
             c = row[key]
             va, vb = a[scenario]["policy"][key].value(), b[scenario]["policy"][key].value()
-            mark = " ✓" if c.hi < 1 else " ✗" if c.lo > 1 else ""
+            mark = MARK.get(metrics.verdict(c), "")
             lines.append(
                 f"| {name} | {label} | {va:.4g} | {vb:.4g} | "
                 f"{c.ratio:.2f} [{c.lo:.2f}, {c.hi:.2f}]{mark} |"
