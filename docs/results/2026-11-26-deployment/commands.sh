@@ -9,7 +9,7 @@ mkdir -p runs/robot
 rm -rf runs/eval-nominal runs/eval-sensor-noise runs/robot/policy.npz runs/robot/policy.onnx
 $P -m train.export models/o_rectangle runs/robot/policy.npz > $D/export_npz.txt 2>&1
 $P -m train.export models/o_rectangle runs/robot/policy.onnx --format onnx > $D/export_onnx.txt 2>&1
-cp $D/robot_loop.py runs/robot/
+cp docs/results/2026-11-25-deployment/robot_loop.py runs/robot/  # the same loop as that day
 (cd runs/robot && ../../.venv/bin/python robot_loop.py) > $D/loop_demo.txt 2>&1
 $P -m train.evaluate models/o_rectangle --only nominal --physics-impl jax --no-plots --out runs/eval-nominal > $D/eval_nominal.txt 2>&1
 cp runs/eval-nominal/report.json $D/eval_nominal_report.json
