@@ -39,23 +39,31 @@ def v_error(trace: Trace, command: np.ndarray, steps: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
 
 
-def all_segments(model: str, episodes: int) -> None:
-    """Per steady segment of six_modes: mean |ωz error| of the policy and the references."""
-    argv = [model, "--only", "six_modes", "--episodes", str(episodes), "--no-plots"]
-    argv += ["--physics-impl", "jax", "--references", "analytic", "feedback"]
+def play(model: str, only: list[str], episodes: int, references: list[str]) -> dict:
+    """Traces of ``only`` (scenario names) under MJX's JAX physics, by scenario and player."""
+    argv = [model, "--only", *only, "--episodes", str(episodes), "--no-plots"]
+    argv += ["--physics-impl", "jax", "--references", *references]
     eargs = train_eval._parse(argv, "straight_line_residual", EvalArgs)
     target, sset, _ = train_eval._prepare(eargs)
-    _, traces, _ = train_eval.evaluate(target, sset, eargs)
+    return train_eval.evaluate(target, sset, eargs)[1]
+
+
+def steady_segments(command: np.ndarray) -> list[np.ndarray]:
+    """Per constant-command segment of one episode's ``command`` (T, 3), its steps from
+    the steady-state window's start on (segments shorter than that are left out)."""
+    seg = metrics.segment_ids(command[None])[0]
+    steady = metrics.steps_since_change(command[None])[0] >= SETTLE_STEPS
+    out = [np.nonzero((seg == k) & steady)[0] for k in range(seg[-1] + 1)]
+    return [s for s in out if len(s)]
+
+
+def all_segments(model: str, episodes: int) -> None:
+    """Per steady segment of six_modes: mean |ωz error| of the policy and the references."""
+    by_who = play(model, ["six_modes"], episodes, ["analytic", "feedback"])["six_modes"]
     print(f"\n{model}: six_modes, mean |ωz error| (rad/s) from 0.5 s after each change")
-    by_who = traces["six_modes"]
     for ep in range(episodes):
         cmd = by_who["policy"].command[ep]
-        seg = metrics.segment_ids(cmd[None])[0]
-        steady = metrics.steps_since_change(cmd[None])[0] >= SETTLE_STEPS
-        for k in range(seg[-1] + 1):
-            s = np.nonzero((seg == k) & steady)[0]
-            if len(s) == 0:
-                continue
+        for s in steady_segments(cmd):
             c = cmd[s[0]]
             err = {w: np.abs(by_who[w].twist[ep][s, 2] - c[2]).mean() for w in by_who}
             print(
@@ -76,22 +84,15 @@ def main() -> None:
             all_segments(model, args.episodes)
         return
     for model in args.models:
-        argv = [model, "--only", "singular_pass", "six_modes", "--episodes", str(args.episodes)]
-        argv += ["--no-plots", "--physics-impl", "jax", "--references", "analytic"]
-        eargs = train_eval._parse(argv, "straight_line_residual", EvalArgs)
-        target, sset, _ = train_eval._prepare(eargs)
-        _, traces, _ = train_eval.evaluate(target, sset, eargs)
+        traces = play(model, ["singular_pass", "six_modes"], args.episodes, ["analytic"])
         print(f"\n{model}: episode 0, steps from 0.5 s after each change")
         for name, by_who in traces.items():
             pol, ana = by_who["policy"], by_who["analytic"]
             cmd = pol.command[0]
-            seg = metrics.segment_ids(cmd[None])[0]
-            steady = metrics.steps_since_change(cmd[None])[0] >= SETTLE_STEPS
-            for k in range(seg[-1] + 1):
-                s = np.nonzero((seg == k) & steady)[0]
-                if len(s) == 0 or cmd[s[0], 2] != 0 or not np.any(cmd[s[0], :2]):
-                    continue
+            for s in steady_segments(cmd):
                 a = s[0]
+                if cmd[a, 2] != 0 or not np.any(cmd[a, :2]):
+                    continue
                 act = pol.action[0][s]
                 print(
                     f"  {name:13s} v_cmd {np.round(cmd[a, :2], 2)}: ωz policy "
