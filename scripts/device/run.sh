@@ -53,8 +53,8 @@
 #                           32768), one process each: $OUT/scaling.json, $OUT/scaling.png
 #
 # COMMIT=HASH names the commit a packaged model's provenance records: the device's copy of
-# .git can lag the working tree (on 2026-11-26 it gave the session's first HEAD, not the
-# commit that trained the shipped policy), so pass COMMIT=$(git rev-parse --short HEAD).
+# .git can lag the working tree (on 2026-11-26 it gave an older HEAD, not the commit that
+# trained the shipped policy), so pass COMMIT=$(git rev-parse --short HEAD).
 #
 # docs/benchmarks.md and docs/training.md list the call behind each figure.
 set -uo pipefail
