@@ -1,5 +1,6 @@
-"""``ppo.anchor``: no yaw correction where the residual's base is exact (steady no-yaw
-commands on the nominal robot; mecanum_jax/task/anchor.py, train/losses.py)."""
+"""``ppo.anchor``: no correction where the residual's base is exact (the yaw of steady no-yaw
+commands on the nominal robot, and with spins every component of its steady spins and
+stops; mecanum_jax/task/anchor.py, train/losses.py)."""
 
 from __future__ import annotations
 
@@ -11,8 +12,9 @@ from brax.training.acme import running_statistics
 from test_losses import OBS, _Shapes
 
 from mecanum_jax.config import ConfigError
+from mecanum_jax.kinematics import limits
 from mecanum_jax.task import EnvConfig, FeedbackConfig, MecanumEnv, RandomizationConfig
-from mecanum_jax.task.anchor import YAW, base_exact
+from mecanum_jax.task.anchor import YAW, exact_components, is_nominal
 from train.config import TrainConfig, load_train_config, parse_train_config
 from train.losses import AnchorConfig, anchor_loss, ppo_loss_with_terms, state_extras
 from train.state import make_networks
@@ -31,41 +33,69 @@ def _with(info, command, age):
     return {**info, "command": jnp.asarray(command, jnp.float32), "command_age": jnp.asarray(age)}
 
 
-def test_the_mask_marks_steady_no_yaw_commands_on_the_nominal_robot_only():
+def _mask(env, info, command, age, spins=False):
+    return [float(x) for x in exact_components(env, _with(info, command, age), spins)]
+
+
+def test_the_mask_marks_the_yaw_of_steady_no_yaw_commands_on_the_nominal_robot_only():
     nominal = _env(RandomizationConfig(enabled=True, nominal_share=1.0))
     info = jax.jit(nominal.reset)(jax.random.PRNGKey(0)).info
-    assert float(base_exact(nominal, _with(info, [0.4, 0.2, 0.0], 20))) == 1.0
-    assert float(base_exact(nominal, _with(info, [0.0, 0.0, 0.0], 30))) == 1.0  # a stop
-    assert float(base_exact(nominal, _with(info, [0.4, 0.2, 0.0], 19))) == 0.0  # transient
-    assert float(base_exact(nominal, _with(info, [0.4, 0.2, 0.5], 40))) == 0.0  # a turn
+    assert _mask(nominal, info, [0.4, 0.2, 0.0], 20) == [0.0, 0.0, 1.0]
+    assert _mask(nominal, info, [0.0, 0.0, 0.0], 30) == [0.0, 0.0, 1.0]  # a stop
+    assert _mask(nominal, info, [0.4, 0.2, 0.0], 19) == [0.0, 0.0, 0.0]  # transient
+    assert _mask(nominal, info, [0.4, 0.2, 0.5], 40) == [0.0, 0.0, 0.0]  # a turn
+    assert _mask(nominal, info, [0.0, 0.0, 2.0], 40) == [0.0, 0.0, 0.0]  # a spin: not without
     randomized = _env(RandomizationConfig(enabled=True, nominal_share=0.0))
     info = jax.jit(randomized.reset)(jax.random.PRNGKey(0)).info
-    assert float(base_exact(randomized, _with(info, [0.4, 0.2, 0.0], 40))) == 0.0
+    assert _mask(randomized, info, [0.4, 0.2, 0.0], 40) == [0.0, 0.0, 0.0]
+
+
+def test_with_spins_the_mask_marks_every_component_of_steady_spins_within_reach_and_stops():
+    nominal = _env(RandomizationConfig(enabled=True, nominal_share=1.0))
+    info = jax.jit(nominal.reset)(jax.random.PRNGKey(0)).info
+    reach = float(limits.max_speed(nominal.geometry, jnp.array([0.0, 0.0, 1.0]), nominal.max_rates))
+    assert _mask(nominal, info, [0.0, 0.0, 0.5 * reach], 20, True) == [1.0, 1.0, 1.0]
+    assert _mask(nominal, info, [0.0, 0.0, -0.8 * reach], 20, True) == [1.0, 1.0, 1.0]
+    assert _mask(nominal, info, [0.0, 0.0, 0.0], 20, True) == [1.0, 1.0, 1.0]  # a stop
+    assert _mask(nominal, info, [0.0, 0.0, 1.2 * reach], 40, True) == [0.0, 0.0, 0.0]  # beyond
+    assert _mask(nominal, info, [0.0, 0.0, 0.5 * reach], 19, True) == [0.0, 0.0, 0.0]  # transient
+    assert _mask(nominal, info, [0.4, 0.2, 0.0], 20, True) == [0.0, 0.0, 1.0]  # translation
+    assert _mask(nominal, info, [0.4, 0.0, 0.5], 20, True) == [0.0, 0.0, 0.0]  # a turn
+    randomized = _env(RandomizationConfig(enabled=True, nominal_share=0.0))
+    info = jax.jit(randomized.reset)(jax.random.PRNGKey(0)).info
+    assert _mask(randomized, info, [0.0, 0.0, 0.5 * reach], 40, True) == [0.0, 0.0, 0.0]
 
 
 def test_state_extras_carry_the_mask_only_when_the_anchor_is_on():
     env = _env(RandomizationConfig(enabled=True, nominal_share=0.5))
     batch = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(1), 64))
-    info = {**batch.info, "command": batch.info["command"].at[:, YAW].set(0.0),
+    info = {**batch.info, "command": batch.info["command"].at[:, :YAW].set(0.0),
             "command_age": jnp.full((64,), 25)}  # fmt: skip
     off = state_extras(env, info, batch.info, AnchorConfig())
     assert set(off) == {"truncation"}
-    on = state_extras(env, info, batch.info, AnchorConfig(weight=1.0))
-    mask = on["anchor"]
-    assert mask.shape == (64,)
-    assert 0 < float(mask.sum()) < 64  # about half the robots are nominal
-    one = jax.tree.map(lambda x: x[int(jnp.argmax(mask))], info)
-    assert float(base_exact(env, one)) == 1.0
+    yaw_only = state_extras(env, info, batch.info, AnchorConfig(weight=1.0))["anchor"]
+    spins = state_extras(env, info, batch.info, AnchorConfig(weight=1.0, spins=True))["anchor"]
+    assert yaw_only.shape == spins.shape == (64, 3)
+    nominal = jax.vmap(lambda i: is_nominal(env, i))(info)
+    assert 0 < int(nominal.sum()) < 64  # about half the robots are nominal
+    # without spins=True only the stops' yaw is marked; marks follow the robot: none on
+    # the randomized ones
+    stop = nominal & (info["command"][:, YAW] == 0.0)
+    assert float(yaw_only[:, :YAW].sum()) == 0.0
+    assert bool(jnp.all(yaw_only[:, YAW] == stop))
+    assert float(spins[~nominal].sum()) == 0.0
+    assert float(spins.sum()) > 0
+    one = jax.tree.map(lambda x: x[int(jnp.argmax(spins[:, YAW]))], info)
+    assert [float(x) for x in exact_components(env, one, True)] == [1.0, 1.0, 1.0]
 
 
-def test_the_loss_is_the_masked_mean_of_the_yaw_part():
+def test_the_loss_is_the_masked_mean_over_states_and_components():
     action = jnp.asarray([[0.1, 0.2, 0.3], [0.5, 0.5, -0.6], [1.0, 1.0, 2.0]])
-    assert float(anchor_loss(action, jnp.asarray([0.0, 0.0, 0.0]), YAW)) == 0.0
-    got = anchor_loss(action, jnp.asarray([1.0, 1.0, 0.0]), YAW)
-    assert float(got) == pytest.approx((0.09 + 0.36) / 2)
-    # the translation parts never count
-    flat = action.at[:, :YAW].set(0.0)
-    assert float(anchor_loss(flat, jnp.asarray([1.0, 1.0, 0.0]), YAW)) == pytest.approx(float(got))
+    assert float(anchor_loss(action, jnp.zeros((3, 3)))) == 0.0
+    yaw = jnp.asarray([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]])
+    assert float(anchor_loss(action, yaw)) == pytest.approx((0.09 + 0.36) / 2)
+    every = jnp.asarray([[1.0, 1.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]])
+    assert float(anchor_loss(action, every)) == pytest.approx((0.01 + 0.04 + 0.09 + 0.36) / 4)
 
 
 def test_the_ppo_loss_adds_the_weighted_term():
@@ -86,7 +116,7 @@ def test_the_ppo_loss_adds_the_weighted_term():
         discount=jnp.ones((b, t)), next_observation=obs,
         extras={"policy_extras": {"raw_action": raw, "log_prob": jnp.zeros((b, t)),
                                   "distribution_params": dist},
-                "state_extras": {"truncation": jnp.zeros((b, t)), "anchor": jnp.ones((b, t))}},
+                "state_extras": {"truncation": jnp.zeros((b, t)), "anchor": jnp.ones((b, t, 3))}},
     )  # fmt: skip
 
     class P:  # what the loss reads of Brax's PPO parameters

@@ -210,7 +210,7 @@ class TrainConfig:
                 "ppo.anchor.weight",
                 p.anchor.weight,
                 "needs a twist-space residual (env.residual = true, env.residual_space = "
-                '"twist"): it penalizes the yaw part of the correction',
+                '"twist"): it penalizes parts of the twist correction',
             )
         rand = self.env.randomization
         if p.anchor.enabled and rand.enabled and rand.nominal_share == 0:

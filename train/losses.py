@@ -21,12 +21,13 @@ Kumar et al., RSS 2021), beside the PPO terms ("kickstarting", Schmitt et al. 20
 Its weight and the teacher are :class:`DistillConfig`; the teacher's action comes from
 ``train.distill``. Reported as ``imitation``.
 
-:func:`anchor_loss` asks the yaw part of a twist-space residual to be zero where its base is
-already exact (:func:`mecanum_jax.task.anchor.base_exact`: steady no-yaw commands on the
-nominal robot): ``mean(μ_ωz(s)²)`` over those states. Without it the policy learns a constant,
-direction-dependent yaw correction on straight lines from the randomized robots and applies
-it to every robot (experiments/straight_line_residual.py). Its weight is
-:class:`AnchorConfig`; reported as ``anchor``.
+:func:`anchor_loss` asks the components of a twist-space residual to be zero where its base
+is already exact (:func:`mecanum_jax.task.anchor.exact_components`: the yaw part on steady
+no-yaw commands on the nominal robot; with ``spins`` every part on its steady pure spins and
+stops too): the mean of ``μ_k(s)²`` over those states and components. Without it the policy
+learns a constant, direction-dependent yaw correction on straight lines from the randomized
+robots and applies it to every robot (experiments/straight_line_residual.py), and a constant
+correction on spins. Its weight is :class:`AnchorConfig`; reported as ``anchor``.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ import jax.numpy as jnp
 from brax.training.agents.ppo import losses as ppo_losses
 
 from mecanum_jax.config import require
-from mecanum_jax.task.anchor import YAW, base_exact
+from mecanum_jax.task.anchor import exact_components
 
 if TYPE_CHECKING:
     from mecanum_jax.task.protocol import TaskEnv
@@ -91,10 +92,15 @@ class DistillConfig:
 
 @dataclasses.dataclass(frozen=True)
 class AnchorConfig:
-    """Weight of :func:`anchor_loss` (0: off); needs a twist-space residual."""
+    """Weight of :func:`anchor_loss` (0: off) and where it applies; needs a twist-space
+    residual."""
 
     weight: float = 0.0
-    """Weight of ``mean(μ_ωz(s)²)`` over the states where the base is exact (>= 0; 0: off)."""
+    """Weight of the mean of ``μ_k(s)²`` over the states and components where the base is
+    exact (>= 0; 0: off)."""
+    spins: bool = False
+    """Also every component on the nominal robot's steady pure spins (within reach) and
+    stops, where the base holds v and ωz exactly; off: only ωz on steady no-yaw commands."""
 
     def validate(self, where: str = "ppo.anchor") -> None:
         """Check values; raise :class:`ConfigError` naming the field."""
@@ -105,10 +111,11 @@ class AnchorConfig:
         return self.weight > 0
 
 
-def anchor_loss(action: jax.Array, mask: jax.Array, index: int) -> jax.Array:
-    """Mean of ``action[..., index]²`` over the samples where ``mask`` is 1 (0 without any)."""
+def anchor_loss(action: jax.Array, mask: jax.Array) -> jax.Array:
+    """Mean of ``action²`` over the samples and components where ``mask`` (same shape) is 1
+    (0 without any)."""
     count = jnp.sum(mask)
-    total = jnp.sum(mask * action[..., index] ** 2)
+    total = jnp.sum(mask * action**2)
     return jnp.where(count > 0, total / jnp.maximum(count, 1.0), 0.0)
 
 
@@ -117,10 +124,11 @@ def state_extras(
 ) -> dict[str, jax.Array]:
     """What the loss reads of a batch of transitions besides the observations:
     ``truncation`` (Brax's), and with ``anchor`` on the mask of
-    :func:`~mecanum_jax.task.anchor.base_exact` on the states acted from (``info``)."""
+    :func:`~mecanum_jax.task.anchor.exact_components` on the states acted from (``info``)."""
     extras = {"truncation": next_info["truncation"]}
     if anchor.enabled:
-        extras["anchor"] = jax.vmap(functools.partial(base_exact, env))(info)
+        exact = functools.partial(exact_components, env, spins=anchor.spins)
+        extras["anchor"] = jax.vmap(exact)(info)
     return extras
 
 
@@ -199,7 +207,7 @@ def ppo_loss_with_terms(
         terms = {**terms, "imitation": imitation}
     if anchor_weight > 0:
         mask = data.extras["state_extras"]["anchor"]
-        anchor = anchor_loss(mean_action(data.observation), mask, YAW)
+        anchor = anchor_loss(mean_action(data.observation), mask)
         extra = extra + anchor_weight * anchor
         terms = {**terms, "anchor": anchor}
     return loss + extra, {**metrics, **terms, "total_loss": loss + extra}

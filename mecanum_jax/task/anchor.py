@@ -1,12 +1,21 @@
-"""Where the residual's base controller is already exact: the states on which a training-time
-penalty (``ppo.anchor`` in train/losses.py) asks the policy's yaw correction to be zero.
+"""Where the residual's base controller is already exact: the states and twist components on
+which a training-time penalty (``ppo.anchor`` in train/losses.py) asks the policy's
+correction to be zero.
 
 On the nominal robot (the description's friction, no payload, nominal radii, motors and
-gains, no latency) a pure translation or a stop (commanded ωz = 0) is held by the analytic
-inverse model with a yaw rate of at most 0.003 rad/s (experiments/straight_line_residual.py):
-any steady yaw correction there is a bias the policy learned from other robots, which the
-feedback integrator then has to undo. :func:`base_exact` marks those states once the command
-is older than the feedback controller's hold window (the transient is over).
+gains, no latency) the base holds, once the command is older than the feedback
+controller's hold window (the transient is over):
+
+- a pure translation or a stop (commanded ωz = 0) with a yaw rate of at most 0.003 rad/s
+  (experiments/straight_line_residual.py): the yaw component is exact;
+- a pure spin within reach, or a stop (commanded vx = vy = 0), with a linear speed of
+  0.000 m/s and, for a spin, a yaw-rate error of 0.003–0.008 rad/s (`feedback` on 32
+  nominal episodes of pure spins, 2026-11-26, docs/training.md): every component is exact.
+
+Any steady correction there is a bias the policy learned from other robots, which costs
+tracking and energy on the robot it was not needed for. :func:`exact_components` marks,
+per component (vx, vy, ωz), where that holds; ``spins=False`` keeps to the yaw component
+of no-yaw commands only.
 """
 
 from __future__ import annotations
@@ -15,6 +24,8 @@ from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
+
+from mecanum_jax.kinematics import limits
 
 if TYPE_CHECKING:
     from mecanum_jax.task.protocol import TaskEnv
@@ -30,15 +41,29 @@ def is_nominal(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
     return jnp.all(jnp.stack(same)) & (info["latency"] == 0)
 
 
-def base_exact(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
-    """1.0 where one robot's state is a steady no-yaw command on the nominal robot (see the
-    module), else 0.0. Without a hold window every step of such a command counts."""
-    steady = jnp.asarray(True)
+def _steady(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
+    """The command is older than the feedback controller's hold window (every step counts
+    without one)."""
     hold = env.config.feedback.hold_steps(env.config.control_dt)
-    if hold > 0:
-        steady = info["command_age"] >= hold
-    no_yaw = info["command"][YAW] == 0.0
-    return (is_nominal(env, info) & no_yaw & steady).astype(jnp.float32)
+    return info["command_age"] >= hold if hold > 0 else jnp.asarray(True)
 
 
-__all__ = ["YAW", "base_exact", "is_nominal"]
+def exact_components(env: TaskEnv, info: dict[str, Any], spins: bool = False) -> jax.Array:
+    """(3,) float mask of one robot's state: 1.0 for each twist component (vx, vy, ωz) the
+    base holds exactly (see the module), else 0.0. ``spins`` adds steady pure spins within
+    reach and stops, on every component; without it only ωz of steady no-yaw commands."""
+    command = info["command"]
+    base = is_nominal(env, info) & _steady(env, info)
+    no_yaw = command[YAW] == 0.0
+    yaw = base & no_yaw
+    lin = jnp.asarray(False)
+    if spins:
+        no_v = jnp.all(command[:YAW] == 0.0)
+        reach = limits.max_speed(env.geometry, jnp.array([0.0, 0.0, 1.0]), env.max_rates)
+        within = jnp.abs(command[YAW]) <= reach
+        lin = base & no_v & within
+        yaw = yaw | lin
+    return jnp.stack([lin, lin, yaw]).astype(jnp.float32)
+
+
+__all__ = ["YAW", "exact_components", "is_nominal"]

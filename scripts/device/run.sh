@@ -18,7 +18,9 @@
 #   tune [MODEL...]         each MODEL (default /tmp/model/o_rectangle) and models/o_rectangle
 #                           on the tuning episodes (configs/eval/tuning.toml, a seed of its own),
 #                           TUNE_JOBS at a time (default 1; on an H100 3 fit, 4 ran out of
-#                           memory); then scripts/pick_candidate.py ranks
+#                           memory; TUNE_SHIPPED=0 leaves models/o_rectangle out, e.g. for
+#                           a screen whose recipe variant stands in for it); then
+#                           scripts/pick_candidate.py ranks
 #                           them by its fixed rule and prints the chosen model's path last;
 #                           every report comes back in $OUT/tuning.json (per-episode data
 #                           left out; full reports stay in /tmp/tune-reports)
@@ -280,7 +282,8 @@ case "$TASK" in
   seeds) seeds "$@" ;;
   tune)  # TUNE_JOBS=N: N evaluations at once (they share the GPU; compiling is most of each)
     i=0; names=(); rm -rf /tmp/tune-reports; mkdir -p /tmp/tune-reports
-    for model in "${@:-/tmp/model/o_rectangle}" models/o_rectangle; do
+    shipped=(models/o_rectangle); [ "${TUNE_SHIPPED:-1}" = 0 ] && shipped=()
+    for model in "${@:-/tmp/model/o_rectangle}" "${shipped[@]}"; do
       i=$((i + 1)); name=$(basename "$(dirname "$model")")_$i
       [ "$model" = models/o_rectangle ] && name=shipped
       names+=("$name")
