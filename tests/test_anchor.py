@@ -149,4 +149,5 @@ def test_bad_anchor_settings_name_the_field():
     with pytest.raises(ConfigError, match=r"ppo\.anchor\.weight = 1\.0.*nominal_share"):
         parse_train_config(no_nominal, "test")
     gpu = load_train_config("gpu")  # as shipped: a twist residual with nominal robots
-    assert gpu.ppo.anchor.weight == 100.0
+    assert gpu.ppo.anchor.weight == 1000.0
+    assert gpu.ppo.anchor.spins

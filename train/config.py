@@ -116,7 +116,7 @@ class RunConfig:
     those of a named ``vmap``). With jax 0.11.2 on 2 GPUs, ``pmap`` (and ``shard_map``)
     of any MJX step crashes XLA's compiler, while sharded ``jit`` compiles; ``"auto"``
     therefore picks ``"sharded"`` for several GPUs or several processes
-    (``--distributed``), ``"pmap"`` otherwise.
+    (``--distributed``), ``"pmap"`` otherwise (train/parallel.py).
     ``epoch_iterations`` training iterations run per compiled call; logging, the NaN
     check and Ctrl-C checkpoints happen between calls.
     """
@@ -141,7 +141,8 @@ class RunConfig:
     eval_episode_length: int = 250
     """Control steps per evaluation episode (>= 1)."""
     max_devices: int = 0
-    """Use at most this many local devices (>= 0; 0: all)."""
+    """Use at most this many local devices (>= 0; 0: all, but one GPU under MuJoCo Warp:
+    train/parallel.py)."""
     matmul_precision: Literal["default", "high", "highest"] = "highest"
     """jax's default matmul precision for the run."""
     parallel: Literal["auto", "pmap", "sharded"] = "auto"

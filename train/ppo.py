@@ -9,8 +9,8 @@ observation normalizer) from an outer loop whose whole state is explicit:
   environment state are the only things that change between epochs, and both go into
   every checkpoint, so a resumed run continues exactly as the uninterrupted one would have;
 - several seeds train side by side in one compiled program (``jax.vmap`` over a seed
-  axis), and the program is ``jax.pmap``-ed over local devices, or (``run.parallel =
-  "sharded"``) jitted with its device axis sharded over a mesh (gradients and normalizer
+  axis), and the program is spread over the devices as ``run.parallel`` says
+  (train/parallel.py: ``jax.pmap``, or jitted over a device mesh; gradients and normalizer
   statistics are averaged across devices, as in Brax);
 - between epochs the host checks for NaNs, evaluates the policy and the analytic
   baseline on the same fixed, held-out episodes, logs and checkpoints.
@@ -38,11 +38,12 @@ from brax.training import gradients, types
 from brax.training.acme import running_statistics
 from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jax.sharding import NamedSharding
 
 from mecanum_jax.task.env import MecanumEnv, TrainingEnv
-from train import distill, leaves, losses
+from train import distill, leaves, losses, parallel
 from train.config import TrainConfig
+from train.parallel import AXIS
 from train.periodic import PeriodicEvaluation, Result
 from train.state import (
     TrainingState,
@@ -52,9 +53,6 @@ from train.state import (
     make_optimizer,
     policy_obs_key,
 )
-
-AXIS = "devices"
-MESH_AXIS = "d"  # the device mesh axis of run.parallel = "sharded"
 
 
 def all_finite(tree: Any) -> jax.Array:
@@ -70,7 +68,7 @@ class Learner:
 
     def __init__(self, cfg: TrainConfig, devices: list[Any] | None = None):
         self.cfg = cfg.validate()
-        self.devices = devices or jax.local_devices()[: cfg.run.max_devices or None]
+        self.devices = devices or parallel.devices_for(cfg)
         self.n_devices = len(self.devices)
         self.n_processes = jax.process_count()
         cfg.check_devices(self.n_devices * self.n_processes)
@@ -106,7 +104,6 @@ class Learner:
             normalize_advantage=True,
         )
         self._loss_and_grad = gradients.loss_and_pgrad(loss_fn, pmap_axis_name=AXIS, has_aux=True)
-        self._sharding: NamedSharding | None = None
         self._compiled_epoch: Any = None
         self.parallel = cfg.run.parallel
         if self.parallel == "auto":
@@ -114,10 +111,8 @@ class Learner:
             self.parallel = "sharded" if several_gpus or self.n_processes > 1 else "pmap"
         if self.parallel == "pmap":
             self._identity = jax.pmap(lambda *x: x, axis_name=AXIS, devices=self.devices)
-        else:
-            devices = self.devices if self.n_processes == 1 else jax.devices()
-            mesh = Mesh(np.array(devices), (MESH_AXIS,))
-            self._sharding = NamedSharding(mesh, PartitionSpec(MESH_AXIS))
+        devices = self.devices if self.n_processes == 1 else jax.devices()
+        self._sharding = parallel.mesh_sharding(self.parallel, devices)
         self._parallel_epoch = self.program(self._epoch)
         # reset on one device, then :meth:`place` spreads it (a pmapped MJX reset crashed
         # XLA's compiler on 2 H200s with jax 0.11.2)
@@ -163,16 +158,9 @@ class Learner:
     # --- training ---------------------------------------------------------------------------
 
     def program(self, fn: Callable[..., Any]) -> Any:
-        """``fn`` of one seed's states as the epoch runs: vmapped over seeds, then pmapped
-        over the devices or (``sharded``) a named vmap over them (the collectives are
-        vmap's), jitted with that axis sharded over a mesh of all processes' devices."""
-        if self._sharding is None:
-            return jax.pmap(jax.vmap(fn), axis_name=AXIS, devices=self.devices)
-        return jax.jit(
-            jax.vmap(jax.vmap(fn), axis_name=AXIS, spmd_axis_name=MESH_AXIS),
-            in_shardings=self._sharding,
-            out_shardings=self._sharding,
-        )
+        """``fn`` of one seed's states as the epoch runs: vmapped over seeds, then spread over
+        the devices as ``run.parallel`` says (train/parallel.py)."""
+        return parallel.spread(fn, self.parallel, self.devices, self._sharding)
 
     def epoch(self, ts: TrainingState, env_state: Any) -> tuple[TrainingState, Any, Any]:
         """One compiled epoch on all devices and seeds: ``(state, env_state, metrics)``.

@@ -44,7 +44,8 @@ from brax.training.acme import running_statistics
 from brax.training.agents.ppo import losses as ppo_losses
 
 from mecanum_jax.sim.physics import chunked_vmap
-from train.ppo import AXIS, Learner, TrainingState, allow_rank_promotion
+from train.parallel import AXIS
+from train.ppo import Learner, TrainingState, allow_rank_promotion
 
 
 def zero_policy(policy: Callable[..., Any]) -> Callable[..., Any]:

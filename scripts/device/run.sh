@@ -41,8 +41,9 @@
 #                           (--ppo.distill.teacher); compare them next with tune. Two
 #                           students of 25 and 50 frames side by side ran out of memory on
 #                           an H100 (one of them died): give each its own call
-#   multi-gpu EPOCHS [VARIANT...]  throughput over several GPUs: sh1gpu sh2gpu sh2gpu_64k mp2gpu
-#                           (default) and pmap2gpu
+#   multi-gpu EPOCHS [VARIANT...] [-- FLAGS...]  throughput over several GPUs: sh1gpu sh2gpu
+#                           sh2gpu_64k mp2gpu (default) and pmap2gpu, each with FLAGS too
+#                           (e.g. -- --env.physics-impl warp, with --warp)
 #   experiment SCRIPT ARGS...      python experiments/SCRIPT ARGS
 #   profile [--trace] ARGS...      where one epoch's time goes (python -m train.profile, gpu
 #                           config + ARGS): $OUT/profile.json; --trace also sends a
@@ -189,29 +190,33 @@ student() {  # TEACHER_MIN STUDENT_MIN 'recipe flags' 'name|flags'...: a teacher
   ab "$smin" "${specs[@]}"
 }
 
-multi_gpu() {  # EPOCHS [VARIANT...]: one process per variant, so a crash loses only that one
+multi_gpu() {  # EPOCHS [VARIANT...] [-- FLAGS...]: one process per variant, so a crash loses only that one
   local epochs=$1; shift
+  local names=() extra=""
+  while [ $# -gt 0 ] && [ "$1" != -- ]; do names+=("$1"); shift; done
+  [ "${1:-}" = -- ] && { shift; extra="$*"; }
   declare -A spec=(
     [sh1gpu]="--run.parallel sharded --run.max-devices 1"
-    [sh2gpu]="--run.parallel sharded"
-    [sh2gpu_64k]="--run.parallel sharded --ppo.num-envs 65536 --ppo.batch-size 8192"
+    [sh2gpu]="--run.parallel sharded --run.max-devices 2"
+    [sh2gpu_64k]="--run.parallel sharded --run.max-devices 2 --ppo.num-envs 65536 --ppo.batch-size 8192"
     [mp2gpu]="--run.parallel sharded"
     [pmap2gpu]="--run.parallel pmap"  # Brax's path: crashes XLA's compiler with MJX on GPUs
   )
   local v i
-  for v in ${*:-sh1gpu sh2gpu sh2gpu_64k mp2gpu}; do
+  [ ${#names[@]} -gt 0 ] || names=(sh1gpu sh2gpu sh2gpu_64k mp2gpu)
+  for v in "${names[@]}"; do
     if [ "$v" = mp2gpu ]; then  # two processes, one GPU each, joined through jax.distributed
       for i in 0 1; do
         JAX_COORDINATOR_ADDRESS=localhost:12355 JAX_NUM_PROCESSES=2 JAX_PROCESS_ID=$i \
           JAX_LOCAL_DEVICE_IDS=$i python3 -m train.bench --config gpu --epochs "$epochs" \
-          --variant "$v ${spec[$v]}" --json-out "$O/gpu2_$v.json" --distributed \
+          --variant "$v ${spec[$v]} $extra" --json-out "$O/gpu2_$v.json" --distributed \
           > "$O/${v}_p$i.log" 2>&1 &
       done
       wait
       grep -hE "│ $v|Error" "$O/${v}"_p*.log | head -4
     else
       # shellcheck disable=SC2086
-      python3 -m train.bench --config gpu --epochs "$epochs" --variant "$v ${spec[$v]}" \
+      python3 -m train.bench --config gpu --epochs "$epochs" --variant "$v ${spec[$v]} $extra" \
         --json-out "$O/gpu2_$v.json" > "$O/$v.log" 2>&1
       grep -hE "│ $v|Error" "$O/$v.log" | head -3
     fi

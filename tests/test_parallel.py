@@ -1,0 +1,50 @@
+"""train/parallel.py: which devices a run takes, and how its program spreads over them."""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+
+import jax
+import pytest
+
+from train import parallel
+from train.config import load_train_config
+
+
+def _gpus(n: int) -> list[types.SimpleNamespace]:
+    return [types.SimpleNamespace(platform="gpu", id=i) for i in range(n)]
+
+
+def _cfg(impl: str, max_devices: int = 0):
+    cfg = load_train_config("gpu")
+    env = dataclasses.replace(cfg.env, physics_impl=impl)
+    return dataclasses.replace(
+        cfg, env=env, run=dataclasses.replace(cfg.run, max_devices=max_devices)
+    )
+
+
+def test_a_warp_run_on_several_gpus_takes_one_and_says_why(monkeypatch, capsys):
+    monkeypatch.setattr(jax, "local_devices", lambda: _gpus(2))
+    assert [d.id for d in parallel.devices_for(_cfg("warp"))] == [0]
+    assert "training on 1 of 2 GPUs" in capsys.readouterr().err
+    # asked for: as many as asked; under MJX's JAX physics: all of them
+    assert [d.id for d in parallel.devices_for(_cfg("warp", max_devices=2))] == [0, 1]
+    assert [d.id for d in parallel.devices_for(_cfg("jax"))] == [0, 1]
+    assert capsys.readouterr().err == ""
+
+
+def test_cpu_devices_are_all_taken_whatever_the_physics(monkeypatch):
+    cpus = [types.SimpleNamespace(platform="cpu", id=i) for i in range(2)]
+    monkeypatch.setattr(jax, "local_devices", lambda: cpus)
+    assert len(parallel.devices_for(_cfg("warp"))) == 2
+
+
+@pytest.mark.parametrize("how", ["sharded", "pmap"])
+def test_the_mesh_is_the_sharded_paths_only(how):
+    sharding = parallel.mesh_sharding(how, jax.local_devices())
+    if how == "pmap":
+        assert sharding is None
+    else:
+        assert sharding is not None
+        assert sharding.spec[0] == parallel.MESH_AXIS

@@ -1,0 +1,80 @@
+"""How one epoch's program spreads over the devices (``run.parallel``).
+
+The program is ``fn`` of one seed's states, vmapped over the seeds; its collectives
+(gradients, normalizer statistics, metrics) are named :data:`AXIS`. Over the device axis:
+
+- ``"pmap"``: Brax's path, ``jax.pmap``.
+- ``"sharded"``: a named ``vmap`` over the devices, jitted with that axis sharded over a
+  mesh of all processes' devices; XLA's SPMD partitioner splits the program. With jax
+  0.11.2 on 2 GPUs it compiles where ``pmap`` of an MJX step crashes XLA's compiler.
+
+The partitioner cannot split a custom call it knows nothing of, such as the FFI call of
+MuJoCo Warp's step: it gathers the whole batch onto every device, so under Warp each GPU
+simulates every robot and 2 H200s run at 1.01x one (docs/benchmarks.md). ``jax.shard_map``
+over the same mesh, which would give each GPU its own slice, crashed (a segmentation
+fault) on 2 H200s under Warp with jax 0.11.2; so :func:`devices_for` keeps a Warp run to
+one GPU unless ``run.max_devices`` asks for more.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
+
+import jax
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+if TYPE_CHECKING:
+    from train.config import TrainConfig
+
+AXIS = "devices"
+"""Name of the device axis in the program's collectives (``jax.lax.pmean``)."""
+MESH_AXIS = "d"
+"""The device mesh's axis under ``run.parallel = "sharded"``."""
+
+
+def devices_for(cfg: TrainConfig) -> list[Any]:
+    """The local devices a run trains on: ``run.max_devices`` of them (0: all), except that
+    a Warp run left at 0 on several GPUs takes the first only, and says so on stderr: the
+    others would only repeat its physics (see the module)."""
+    local = jax.local_devices()
+    if cfg.run.max_devices:
+        return local[: cfg.run.max_devices]
+    warp = cfg.env.description().sim.impl == "warp"
+    if warp and len(local) > 1 and all(d.platform == "gpu" for d in local):
+        print(
+            f"note: training on 1 of {len(local)} GPUs: under MuJoCo Warp the device mesh "
+            "splits no physics, so more GPUs only repeat it (docs/benchmarks.md); "
+            "--run.max-devices N uses N",
+            file=sys.stderr,
+        )
+        return local[:1]
+    return local
+
+
+def mesh_sharding(parallel: str, devices: Sequence[Any]) -> NamedSharding | None:
+    """The sharding of the ``(D, ...)`` states over a mesh of ``devices`` (``None``: pmap)."""
+    if parallel == "pmap":
+        return None
+    return NamedSharding(Mesh(np.array(devices), (MESH_AXIS,)), PartitionSpec(MESH_AXIS))
+
+
+def spread(
+    fn: Callable[..., Any],
+    parallel: str,
+    devices: Sequence[Any],
+    sharding: NamedSharding | None,
+) -> Any:
+    """``fn`` of one seed's states as one program over seeds and devices (see the module)."""
+    if sharding is None:
+        return jax.pmap(jax.vmap(fn), axis_name=AXIS, devices=devices)
+    return jax.jit(
+        jax.vmap(jax.vmap(fn), axis_name=AXIS, spmd_axis_name=MESH_AXIS),
+        in_shardings=sharding,
+        out_shardings=sharding,
+    )
+
+
+__all__ = ["AXIS", "MESH_AXIS", "devices_for", "mesh_sharding", "spread"]
