@@ -556,3 +556,24 @@ def test_checkpoints_hold_only_numpy_arrays(learner):
         packed = checkpoint.pack(tree)
         assert packed
         assert all(isinstance(v, np.ndarray) for v in packed.values())
+
+
+def test_the_epoch_a_time_limit_stops_at_is_evaluated_and_logged(
+    tiny, learner, tmp_path, monkeypatch
+):
+    """Between periodic evaluations (here: none but the final one), a run stopped by its
+    time limit evaluates the epoch it stops at, and logs it in metrics.jsonl as the
+    summary has it."""
+    monkeypatch.setattr("train.run._Loop.eval_due", lambda self, final: final)
+    run = Run.create(tiny, tmp_path / "limited")
+    summary = run.train(learner=learner, time_limit_s=0.0)
+    lines = [json.loads(x) for x in (run.dir / "metrics.jsonl").read_text().splitlines()]
+    assert [x["epoch"] for x in lines] == [1]
+    assert json.loads((run.dir / "status.json").read_text())["state"] == "stopped"
+    (logged,) = [x for x in lines if "eval" in x]
+    (seed,) = summary["seeds"]
+    assert seed["eval"]
+    for scenario, figures in seed["eval"].items():
+        for k, v in figures.items():
+            if isinstance(v, float):
+                assert logged["eval"][scenario][k] == pytest.approx(v, rel=1e-6), (scenario, k)

@@ -262,16 +262,15 @@ class Run:
                 while loop.epoch < last:
                     sps, metrics = self._train_epoch(loop)
                     is_last = loop.epoch == total
-                    results = self._evaluate(loop) if loop.eval_due(is_last) else []
+                    out_of_time = time_limit_s is not None and loop.session_s() > time_limit_s
+                    # the epoch a run stops at is evaluated and logged like any other
+                    results = self._evaluate(loop) if loop.eval_due(is_last or out_of_time) else []
                     self._log_epoch(loop, metrics, results, sps)
                     done = loop.steps(loop.epoch)
                     progress.update(loop.epoch, done, sps, results, loop.comparisons, loop.shown)
-                    out_of_time = time_limit_s is not None and loop.session_s() > time_limit_s
                     if loop.checkpoint_due(is_last) or out_of_time:
                         loop.save()
                     if out_of_time and not is_last:
-                        if not results:
-                            self._evaluate(loop)
                         self.console.log(f"time limit reached after epoch {loop.epoch}")
                         break
         finally:
