@@ -1,12 +1,12 @@
 # the documented commands, from the repository root, on the 2-core CPU (2026-11-26), for the
-# policy shipped that day; console scripts stand for these modules. Outputs go to
+# policy shipped last that day (the spin anchor); console scripts stand for these modules. Outputs go to
 # runs/ and the logs beside this file: bash docs/results/2026-11-26-deployment/commands.sh
 set -e
 D=docs/results/2026-11-26-deployment
 export GLIBC_TUNABLES=glibc.malloc.hugetlb=1 JAX_PLATFORMS=cpu
 P=.venv/bin/python
 mkdir -p runs/robot
-rm -rf runs/eval-nominal runs/eval-sensor-noise runs/robot/policy.npz runs/robot/policy.onnx
+rm -rf runs/eval-nominal runs/eval-sensor-noise runs/robot/policy.npz runs/robot/policy.onnx $D/deploy-*.json  # deploy_sim never overwrites
 $P -m train.export models/o_rectangle runs/robot/policy.npz > $D/export_npz.txt 2>&1
 $P -m train.export models/o_rectangle runs/robot/policy.onnx --format onnx > $D/export_onnx.txt 2>&1
 cp docs/results/2026-11-25-deployment/robot_loop.py runs/robot/  # the same loop as that day
