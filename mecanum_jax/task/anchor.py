@@ -10,7 +10,7 @@ controller's hold window (the transient is over):
   (experiments/straight_line_residual.py): the yaw component is exact;
 - a pure spin within reach, or a stop (commanded vx = vy = 0), with a linear speed of
   0.000 m/s and, for a spin, a yaw-rate error of 0.003–0.008 rad/s (`feedback` on 32
-  nominal episodes of pure spins, 2026-11-26, docs/training.md): every component is exact.
+  nominal episodes of pure spins, 2026-11-26, docs/evaluation.md): every component is exact.
 
 Any steady correction there is a bias the policy learned from other robots, which costs
 tracking and energy on the robot it was not needed for. :func:`exact_components` marks,
