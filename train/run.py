@@ -96,11 +96,13 @@ class _Loop:
         evaluation included) plus the sessions before a resume."""
         return self.walltime_before + self.session_s()
 
-    def eval_due(self, is_last: bool) -> bool:
-        return self.epoch % self.run.cfg.run.eval_every == 0 or is_last
+    def eval_due(self, final: bool) -> bool:
+        """Evaluate this epoch: on the period, and on the epoch a run ends or stops at."""
+        return self.epoch % self.run.cfg.run.eval_every == 0 or final
 
-    def checkpoint_due(self, is_last: bool) -> bool:
-        return self.epoch % self.run.cfg.run.checkpoint_every == 0 or is_last
+    def checkpoint_due(self, final: bool) -> bool:
+        """Checkpoint this epoch: on the period, and on the epoch a run ends or stops at."""
+        return self.epoch % self.run.cfg.run.checkpoint_every == 0 or final
 
     def meta(self) -> dict[str, Any]:
         env = self.learner.env
@@ -263,12 +265,12 @@ class Run:
                     sps, metrics = self._train_epoch(loop)
                     is_last = loop.epoch == total
                     out_of_time = time_limit_s is not None and loop.session_s() > time_limit_s
-                    # the epoch a run stops at is evaluated and logged like any other
-                    results = self._evaluate(loop) if loop.eval_due(is_last or out_of_time) else []
+                    final = is_last or out_of_time  # evaluated, logged and saved like any other
+                    results = self._evaluate(loop) if loop.eval_due(final) else []
                     self._log_epoch(loop, metrics, results, sps)
                     done = loop.steps(loop.epoch)
                     progress.update(loop.epoch, done, sps, results, loop.comparisons, loop.shown)
-                    if loop.checkpoint_due(is_last) or out_of_time:
+                    if loop.checkpoint_due(final):
                         loop.save()
                     if out_of_time and not is_last:
                         self.console.log(f"time limit reached after epoch {loop.epoch}")
