@@ -5,11 +5,12 @@ them as ``/tmp/tune-reports/tune_NAME.json``) and ranks every candidate against
 ``analytic`` on the same episodes:
 
 1. fewest **losses** (``train.eval_output.score``: the paired 95% interval on the worse
-   side and an excess above the metric's margin) over the five tuning scenarios;
+   side and an excess above the metric's margin) over the six tuning scenarios;
 2. then the lowest **geometric mean of the ratios** to ``analytic`` over the figures the
    product is judged on: the training mix's ss v, ss ωz, settling of v and ωz and energy;
    the nominal robot's ss ωz and settling of ωz; the translations' ss ωz and energy; the
-   closed path's ss ωz and final drift; the spins' ss ωz and energy.
+   closed path's ss ωz and final drift; the spins' ss ωz and energy; the motion modes' ss ωz
+   and final drift.
 
 Prints one row per candidate and, last, the path of the chosen one's model (the report's
 ``target``), so that a device call can evaluate it on held-out scenarios next::
@@ -46,6 +47,8 @@ FIGURES = (
     ("tuning_path", "drift_m"),
     ("tuning_spins", "ss_wz"),
     ("tuning_spins", "energy_j"),
+    ("tuning_modes", "ss_wz"),
+    ("tuning_modes", "drift_m"),
 )
 """(scenario, metric) pairs whose ratios to ``analytic`` the geometric mean takes."""
 
