@@ -136,7 +136,7 @@ def test_nearest_feasible_is_the_optimum(x64, layout, omega_weight):
         assert np.sum(((t - c) * d) ** 2) <= np.sum(((s - c) * d) ** 2) + 1e-12
     # the weight trades ω error for v error, as documented
     if omega_weight == 1.0 and layout == "o_rectangle":
-        light = np.asarray(limits.nearest_feasible(g, twists, m, 0.01))
+        light = np.asarray(jax.jit(lambda t: limits.nearest_feasible(g, t, m, 0.01))(twists))
         v_err = lambda t: np.hypot(*(t - twists)[:, :2].T).mean()  # noqa: E731
         w_err = lambda t: np.abs(t - twists)[:, 2].mean()  # noqa: E731
         assert v_err(light) < v_err(got)
