@@ -91,3 +91,12 @@ def test_the_bundle_holds_every_report_without_its_episodes(tmp_path: Path) -> N
     path = bundle["tune_a_1"]["scenarios"]["tuning_path"]
     assert "per_episode" not in path
     assert path["policy"]["drift_m"] == pytest.approx(0.9)
+
+
+def test_every_figure_of_the_rule_is_a_scenario_of_the_tuning_file() -> None:
+    from mecanum_jax.evaluation.scenarios import load_scenarios
+
+    tuning = load_scenarios("tuning")
+    assert set(SCENARIOS) <= set(tuning.names), sorted(set(SCENARIOS) - set(tuning.names))
+    scripted = {s.name for s in tuning.scenarios if s.commands.kind != "random"}
+    assert {"tuning_path", "tuning_modes"} <= scripted  # their final drift is a figure
