@@ -21,6 +21,8 @@ import fcntl
 import gc
 import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
@@ -177,3 +179,38 @@ def full_run(tiny, learner, tmp_path_factory, worker_id):
             run = Run.create(tiny, shared / "tiny-run")
             return run, run.train(learner=learner)
     return FinishedRun(summary.parent), json.loads(summary.read_text())
+
+
+# --- one fresh interpreter's imports, shared by the import tests ----------------------------
+
+FRESH_IMPORTS = """
+import json, sys, types
+import jax
+before = dict(vars(jax))
+import mecanum_jax, mecanum_jax.task.env, mecanum_jax.evaluation.rollout
+import mecanum_jax.sim.physics
+after = dict(vars(jax))
+# submodules that other packages import (jax.extend) are not patches
+changed = sorted(k for k in set(before) | set(after) if before.get(k) is not after.get(k)
+                 and not isinstance(after.get(k), types.ModuleType))
+import train, train.ppo
+from mecanum_jax import compat
+shim = compat.has_native_device_put_replicated() or (
+    vars(jax)["device_put_replicated"] is compat.device_put_replicated)
+with open(sys.argv[1], "w") as f:  # not printed: what the imports print is checked
+    json.dump({"changed": changed, "shim": shim}, f)
+"""
+
+
+@pytest.fixture(scope="session")
+def fresh_imports(tmp_path_factory):
+    """One fresh interpreter that imports the library, then the trainer, as a user's
+    script does (``MJX_WARP_ENABLED`` unset): ``(process, findings)``, where findings
+    holds the ``jax`` attributes the library's imports changed and whether the trainer's
+    shim is in place. tests/test_compat.py and tests/test_first_hour.py check it (a fresh
+    interpreter takes seconds to import them)."""
+    out = tmp_path_factory.mktemp("imports") / "findings.json"
+    env = {k: v for k, v in os.environ.items() if k != "MJX_WARP_ENABLED"}
+    cmd = [sys.executable, "-c", FRESH_IMPORTS, str(out)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    return proc, json.loads(out.read_text()) if out.exists() else None
