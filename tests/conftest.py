@@ -153,6 +153,40 @@ def learner(tiny):
     return Learner(tiny)
 
 
+# The test files that build the tiny run's learner: they compile its programs (the reset, the
+# epoch and the evaluation's rollout: a minute on 2 cores) and train or read the tiny run.
+TINY_RUN_FILES = frozenset(
+    {
+        "test_aot.py",
+        "test_distributed.py",
+        "test_eval.py",
+        "test_first_hour.py",
+        "test_progress.py",
+        "test_train.py",
+    }
+)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log):
+    """Under ``--dist loadfile`` (what ``./dev test`` passes), the files of
+    ``TINY_RUN_FILES`` go to one worker, as one work unit (the largest, so it starts
+    first): the learner's programs compile in one process. File by file, a second worker
+    that needed them waited for the first to train the tiny run (``full_run``), then
+    compiled them again to train runs of its own: a minute of the fast tier's 4. Every
+    other file is a work unit of its own, as usual."""
+    if config.getoption("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class TinyRunTogether(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            file = super()._split_scope(nodeid)
+            return "tiny run" if Path(file).name in TINY_RUN_FILES else file
+
+    return TinyRunTogether(config, log)
+
+
 @dataclasses.dataclass(frozen=True)
 class FinishedRun:
     """A finished run directory that another test process trained (``full_run``)."""
@@ -165,7 +199,8 @@ def full_run(tiny, learner, tmp_path_factory, worker_id):
     """The uninterrupted reference run of configs/train/tiny.toml (3 epochs): ``(run,
     summary)``. Tests read it and never write into it. Under pytest-xdist the first worker
     that needs it trains it, in the session's shared temporary directory, and the others
-    wait for it and read it (it costs a worker a minute or more to train)."""
+    wait for it and read it (it costs a worker a minute or more to train); under
+    ``--dist loadfile`` the files that use it share one worker (``TINY_RUN_FILES``)."""
     from train.run import Run
 
     if worker_id == "master":  # one process
