@@ -29,6 +29,23 @@ def _env(randomization: RandomizationConfig) -> MecanumEnv:
     return MecanumEnv(cfg)
 
 
+@pytest.fixture(scope="module")
+def robots():
+    """An environment whose robots are nominal half the time, and 64 of them reset (one
+    compiled reset for the module): ``(env, batch)``."""
+    env = _env(RandomizationConfig(enabled=True, nominal_share=0.5))
+    return env, jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(1), 64))
+
+
+def _one(robots, nominal: bool):
+    """The info of the batch's first nominal (or first randomized) robot."""
+    env, batch = robots
+    which = jax.vmap(lambda i: is_nominal(env, i))(batch.info) == nominal
+    assert bool(which.any())
+    index = int(jnp.argmax(which))
+    return jax.tree.map(lambda x: x[index], batch.info)
+
+
 def _with(info, command, age):
     return {**info, "command": jnp.asarray(command, jnp.float32), "command_age": jnp.asarray(age)}
 
@@ -37,22 +54,21 @@ def _mask(env, info, command, age, spins=False):
     return [float(x) for x in exact_components(env, _with(info, command, age), spins)]
 
 
-def test_the_mask_marks_the_yaw_of_steady_no_yaw_commands_on_the_nominal_robot_only():
-    nominal = _env(RandomizationConfig(enabled=True, nominal_share=1.0))
-    info = jax.jit(nominal.reset)(jax.random.PRNGKey(0)).info
+def test_the_mask_marks_the_yaw_of_steady_no_yaw_commands_on_the_nominal_robot_only(robots):
+    nominal, info = robots[0], _one(robots, True)
     assert _mask(nominal, info, [0.4, 0.2, 0.0], 20) == [0.0, 0.0, 1.0]
     assert _mask(nominal, info, [0.0, 0.0, 0.0], 30) == [0.0, 0.0, 1.0]  # a stop
     assert _mask(nominal, info, [0.4, 0.2, 0.0], 19) == [0.0, 0.0, 0.0]  # transient
     assert _mask(nominal, info, [0.4, 0.2, 0.5], 40) == [0.0, 0.0, 0.0]  # a turn
     assert _mask(nominal, info, [0.0, 0.0, 2.0], 40) == [0.0, 0.0, 0.0]  # a spin: not without
-    randomized = _env(RandomizationConfig(enabled=True, nominal_share=0.0))
-    info = jax.jit(randomized.reset)(jax.random.PRNGKey(0)).info
-    assert _mask(randomized, info, [0.4, 0.2, 0.0], 40) == [0.0, 0.0, 0.0]
+    randomized = _one(robots, False)
+    assert _mask(nominal, randomized, [0.4, 0.2, 0.0], 40) == [0.0, 0.0, 0.0]
 
 
-def test_with_spins_the_mask_marks_every_component_of_steady_spins_within_reach_and_stops():
-    nominal = _env(RandomizationConfig(enabled=True, nominal_share=1.0))
-    info = jax.jit(nominal.reset)(jax.random.PRNGKey(0)).info
+def test_with_spins_the_mask_marks_every_component_of_steady_spins_within_reach_and_stops(
+    robots,
+):
+    nominal, info = robots[0], _one(robots, True)
     reach = float(limits.max_speed(nominal.geometry, jnp.array([0.0, 0.0, 1.0]), nominal.max_rates))
     assert _mask(nominal, info, [0.0, 0.0, 0.5 * reach], 20, True) == [1.0, 1.0, 1.0]
     assert _mask(nominal, info, [0.0, 0.0, -0.8 * reach], 20, True) == [1.0, 1.0, 1.0]
@@ -61,14 +77,12 @@ def test_with_spins_the_mask_marks_every_component_of_steady_spins_within_reach_
     assert _mask(nominal, info, [0.0, 0.0, 0.5 * reach], 19, True) == [0.0, 0.0, 0.0]  # transient
     assert _mask(nominal, info, [0.4, 0.2, 0.0], 20, True) == [0.0, 0.0, 1.0]  # translation
     assert _mask(nominal, info, [0.4, 0.0, 0.5], 20, True) == [0.0, 0.0, 0.0]  # a turn
-    randomized = _env(RandomizationConfig(enabled=True, nominal_share=0.0))
-    info = jax.jit(randomized.reset)(jax.random.PRNGKey(0)).info
-    assert _mask(randomized, info, [0.0, 0.0, 0.5 * reach], 40, True) == [0.0, 0.0, 0.0]
+    randomized = _one(robots, False)
+    assert _mask(nominal, randomized, [0.0, 0.0, 0.5 * reach], 40, True) == [0.0, 0.0, 0.0]
 
 
-def test_state_extras_carry_the_mask_only_when_the_anchor_is_on():
-    env = _env(RandomizationConfig(enabled=True, nominal_share=0.5))
-    batch = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(1), 64))
+def test_state_extras_carry_the_mask_only_when_the_anchor_is_on(robots):
+    env, batch = robots
     info = {**batch.info, "command": batch.info["command"].at[:, :YAW].set(0.0),
             "command_age": jnp.full((64,), 25)}  # fmt: skip
     off = state_extras(env, info, batch.info, AnchorConfig())
@@ -124,10 +138,14 @@ def test_the_ppo_loss_adds_the_weighted_term():
             self.policy, self.value = policy, value
 
     kwargs = dict(ppo_network=networks, smoothness=cfg.ppo.smoothness, entropy_cost=0.0)
+
+    @jax.jit  # one program each, as the learner runs it, instead of operation by operation
+    def both(data):
+        base = ppo_loss_with_terms(P(), normalizer, data, key, **kwargs)
+        return base, ppo_loss_with_terms(P(), normalizer, data, key, anchor_weight=10.0, **kwargs)
+
     with jax.numpy_rank_promotion("allow"):
-        base, m0 = ppo_loss_with_terms(P(), normalizer, data, key, **kwargs)
-        with_term, m1 = ppo_loss_with_terms(P(), normalizer, data, key, anchor_weight=10.0,
-                                            **kwargs)  # fmt: skip
+        (base, m0), (with_term, m1) = both(data)
     assert "anchor" not in m0
     assert float(m1["anchor"]) > 0
     assert float(with_term) == pytest.approx(float(base) + 10.0 * float(m1["anchor"]), rel=1e-5)
