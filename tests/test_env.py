@@ -80,7 +80,8 @@ def test_default_physics_step_tracks_like_the_fine_step(env):
 
 
 def test_commands_cover_kinds_and_respect_reach(env):
-    cmds = np.asarray(jax.vmap(env.sample_command)(jax.random.split(jax.random.PRNGKey(1), 4000)))
+    sample = jax.jit(jax.vmap(env.sample_command))  # one program, not op by op
+    cmds = np.asarray(sample(jax.random.split(jax.random.PRNGKey(1), 4000)))
     sat = np.asarray(limits.saturation(env.geometry, cmds, env.max_rates))
     zero = np.all(cmds == 0, axis=1)
     spin = ~zero & (np.abs(cmds[:, 0]) < 1e-6) & (np.abs(cmds[:, 1]) < 1e-6)
@@ -194,8 +195,9 @@ def test_observation_latency_delays_sensors():
 
 def test_nominal_scenario_is_deterministic_and_unrandomized():
     env = MecanumEnv(EnvConfig().nominal())
-    a = env.reset(jax.random.PRNGKey(0))
-    b = env.reset(jax.random.PRNGKey(1))
+    reset = jax.jit(env.reset)  # one program, not op by op
+    a = reset(jax.random.PRNGKey(0))
+    b = reset(jax.random.PRNGKey(1))
     for x, y in zip(
         jax.tree.leaves(a.info["params"]), jax.tree.leaves(b.info["params"]), strict=True
     ):
