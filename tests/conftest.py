@@ -154,10 +154,12 @@ def learner(tiny):
 
 
 # The test files that build the tiny run's learner: they compile its programs (the reset, the
-# epoch and the evaluation's rollout: a minute on 2 cores) and train or read the tiny run.
+# epoch and the evaluation's rollout: a minute on 2 cores) and train or read the tiny run;
+# and test_compat.py, whose fresh interpreter (fresh_imports) test_first_hour.py shares.
 TINY_RUN_FILES = frozenset(
     {
         "test_aot.py",
+        "test_compat.py",
         "test_distributed.py",
         "test_eval.py",
         "test_first_hour.py",
@@ -171,7 +173,8 @@ TINY_RUN_FILES = frozenset(
 def pytest_xdist_make_scheduler(config: pytest.Config, log):
     """Under ``--dist loadfile`` (what ``./dev test`` passes), the files of
     ``TINY_RUN_FILES`` go to one worker, as one work unit (the largest, so it starts
-    first): the learner's programs compile in one process. File by file, a second worker
+    first): the learner's programs compile in one process, the fresh interpreter's
+    imports run once. File by file, a second worker
     that needed them waited for the first to train the tiny run (``full_run``), then
     compiled them again to train runs of its own: a minute of the fast tier's 4. Every
     other file is a work unit of its own, as usual."""
