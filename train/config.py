@@ -116,7 +116,9 @@ class RunConfig:
     those of a named ``vmap``). With jax 0.11.2 on 2 GPUs, ``pmap`` (and ``shard_map``)
     of any MJX step crashes XLA's compiler, while sharded ``jit`` compiles; ``"auto"``
     therefore picks ``"sharded"`` for several GPUs or several processes
-    (``--distributed``), ``"pmap"`` otherwise (train/parallel.py).
+    (``--distributed``), ``"pmap"`` otherwise (train/parallel.py). ``"split"`` runs each
+    device's rollouts in a program of its own and only the update over the mesh
+    (train/split_epoch.py), for a physics step the mesh cannot split (MuJoCo Warp's).
     ``epoch_iterations`` training iterations run per compiled call; logging, the NaN
     check and Ctrl-C checkpoints happen between calls.
     """
@@ -145,8 +147,8 @@ class RunConfig:
     train/parallel.py)."""
     matmul_precision: Literal["default", "high", "highest"] = "highest"
     """jax's default matmul precision for the run."""
-    parallel: Literal["auto", "pmap", "sharded"] = "auto"
-    """How the program spreads over devices: "pmap", "sharded", or "auto"."""
+    parallel: Literal["auto", "pmap", "sharded", "split"] = "auto"
+    """How the program spreads over devices: "pmap", "sharded", "split", or "auto"."""
     wandb_project: str = ""
     """Also log to this Weights & Biases project (needs ``pip install wandb``; empty: off)."""
     progress_every_s: float = 30.0

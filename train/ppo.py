@@ -45,22 +45,17 @@ from train import distill, leaves, losses, parallel
 from train.config import TrainConfig
 from train.parallel import AXIS
 from train.periodic import PeriodicEvaluation, Result
+from train.split_epoch import SplitEpoch
 from train.state import (
     TrainingState,
+    all_finite,
     allow_rank_promotion,
+    epoch_metrics,
     fresh_state,
     make_networks,
     make_optimizer,
     policy_obs_key,
 )
-
-
-def all_finite(tree: Any) -> jax.Array:
-    """Whether every floating-point leaf of ``tree`` is finite (a traced bool)."""
-    leaves = [
-        x for x in jax.tree.leaves(tree) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)
-    ]
-    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
 
 
 class Learner:
@@ -113,7 +108,9 @@ class Learner:
             self._identity = jax.pmap(lambda *x: x, axis_name=AXIS, devices=self.devices)
         devices = self.devices if self.n_processes == 1 else jax.devices()
         self._sharding = parallel.mesh_sharding(self.parallel, devices)
-        self._parallel_epoch = self.program(self._epoch)
+        self._parallel_epoch: Any = (
+            SplitEpoch(self) if self.parallel == "split" else self.program(self._epoch)
+        )
         # reset on one device, then :meth:`place` spreads it (a pmapped MJX reset crashed
         # XLA's compiler on 2 H200s with jax 0.11.2)
         self._reset = jax.jit(jax.vmap(jax.vmap(self.train_env.reset)))
@@ -175,6 +172,8 @@ class Learner:
     def compile_epoch(self, ts: TrainingState, env_state: Any) -> None:
         """Compile :meth:`epoch` for these states (or their ``ShapeDtypeStruct``s) now,
         ahead of its first call (train.aot: from shapes, while the robots reset)."""
+        if self.parallel == "split":
+            raise ValueError("run.parallel = 'split' compiles its programs on first use")
         self._compiled_epoch = self._parallel_epoch.lower(ts, env_state).compile()
 
     @property
@@ -334,13 +333,7 @@ class Learner:
         (ts, env_state), metrics = jax.lax.scan(
             self._iteration, (ts, env_state), None, length=self.cfg.run.epoch_iterations
         )
-        metrics = jax.tree.map(jnp.mean, metrics)
-        metrics = jax.lax.pmean(metrics, axis_name=AXIS)
-        metrics["finite"] = (all_finite(ts.params) & all_finite(ts.normalizer_params.mean)).astype(
-            jnp.float32
-        )
-        metrics["finite"] = jax.lax.pmin(metrics["finite"], axis_name=AXIS)
-        return ts, self.pack_env(env_state), metrics
+        return ts, self.pack_env(env_state), epoch_metrics(ts, metrics, AXIS)
 
     # --- evaluation -------------------------------------------------------------------------
 

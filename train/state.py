@@ -196,11 +196,31 @@ def state_template(cfg: TrainConfig, env: MecanumEnv, devices: int) -> TrainingS
     return jax.tree.map(lambda x: np.zeros((*lead, *x.shape), x.dtype), one)
 
 
+def all_finite(tree: Any) -> jax.Array:
+    """Whether every floating-point leaf of ``tree`` is finite (a traced bool)."""
+    leaves = [
+        x for x in jax.tree.leaves(tree) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)
+    ]
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
+
+
+def epoch_metrics(ts: TrainingState, metrics: Any, axis: str) -> dict[str, jax.Array]:
+    """An epoch's metrics from its iterations' (leading axis of each leaf): the mean over
+    iterations and over the devices of ``axis``, and ``finite``, 1.0 where every device's
+    parameters and normalizer are finite."""
+    metrics = jax.lax.pmean(jax.tree.map(jnp.mean, metrics), axis_name=axis)
+    finite = all_finite(ts.params) & all_finite(ts.normalizer_params.mean)
+    metrics["finite"] = jax.lax.pmin(finite.astype(jnp.float32), axis_name=axis)
+    return metrics
+
+
 __all__ = [
     "ACTIVATIONS",
     "TRAIN_STREAM",
     "TrainingState",
+    "all_finite",
     "allow_rank_promotion",
+    "epoch_metrics",
     "fresh_state",
     "gradient_clip",
     "initial_policy",

@@ -43,8 +43,9 @@
 #                           students of 25 and 50 frames side by side ran out of memory on
 #                           an H100 (one of them died): give each its own call
 #   multi-gpu EPOCHS [VARIANT...] [-- FLAGS...]  throughput over several GPUs: sh1gpu sh2gpu
-#                           sh2gpu_64k mp2gpu (default) and pmap2gpu, each with FLAGS too
-#                           (e.g. -- --env.physics-impl warp, with --warp)
+#                           sh2gpu_64k mp2gpu (default), pmap2gpu, sh1gpu_64k, and split2gpu
+#                           split2gpu_64k (each GPU its own rollout program), each with FLAGS
+#                           too (e.g. -- --env.physics-impl warp, with --warp)
 #   experiment SCRIPT ARGS...      python experiments/SCRIPT ARGS
 #   profile [--trace] ARGS...      where one epoch's time goes (python -m train.profile, gpu
 #                           config + ARGS): $OUT/profile.json; --trace also sends a
@@ -202,6 +203,9 @@ multi_gpu() {  # EPOCHS [VARIANT...] [-- FLAGS...]: one process per variant, so 
     [sh2gpu_64k]="--run.parallel sharded --run.max-devices 2 --ppo.num-envs 65536 --ppo.batch-size 8192"
     [mp2gpu]="--run.parallel sharded"
     [pmap2gpu]="--run.parallel pmap"  # Brax's path: crashes XLA's compiler with MJX on GPUs
+    [sh1gpu_64k]="--run.parallel sharded --run.max-devices 1 --ppo.num-envs 65536 --ppo.batch-size 8192"
+    [split2gpu]="--run.parallel split --run.max-devices 2"  # rollouts per GPU (train/split_epoch.py)
+    [split2gpu_64k]="--run.parallel split --run.max-devices 2 --ppo.num-envs 65536 --ppo.batch-size 8192"
   )
   local v i
   [ ${#names[@]} -gt 0 ] || names=(sh1gpu sh2gpu sh2gpu_64k mp2gpu)

@@ -1,0 +1,132 @@
+"""``run.parallel = "split"``: each device rolls out its own robots in a program of its own,
+and one program over the device mesh updates the policy.
+
+Why: under MuJoCo Warp the physics step is an XLA FFI custom call, and the batch-wide
+buffers it works in (its contact buffer and sizes) carry no robot axis. XLA's SPMD
+partitioner cannot split such a call, so the ``"sharded"`` path gathers the whole batch
+onto every GPU and each GPU simulates every robot (2 H200s: 1.01x one; docs/benchmarks.md),
+and ``jax.shard_map`` of the step crashed. Here no program that holds the physics spans
+more than one device: device ``d``'s rollout program takes that device's slice of the
+states (``(1, S, ...)``, zero-copy from the mesh-sharded arrays) and returns its slice of
+the transitions, which are put together, again without a copy, into mesh-sharded arrays
+for the update, the same program :meth:`~train.ppo.Learner.update` is on the ``"sharded"``
+path (gradients and normalizer statistics averaged across devices).
+
+An epoch is then ``epoch_iterations`` x (one rollout dispatch per device, one update)
+dispatched from the host without waiting on the devices; :meth:`SplitEpoch.__call__`
+takes and returns the states exactly as the other paths' epoch does, so checkpoints,
+evaluation and resume are unchanged. The rollout program compiles once per device.
+One process only: its devices are the mesh.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+import jax
+import jax.numpy as jnp
+from jax.sharding import NamedSharding
+
+from train.parallel import AXIS
+from train.state import TrainingState, allow_rank_promotion, epoch_metrics
+
+if TYPE_CHECKING:
+    from train.ppo import Learner
+
+
+def slices(tree: Any, devices: Sequence[Any]) -> list[Any]:
+    """Device ``d``'s ``(1, ...)`` slice of each mesh-sharded leaf of ``tree``, for each of
+    ``devices``: the arrays the device already holds, not copies."""
+
+    def on(device: Any) -> Any:
+        def part(x: jax.Array) -> jax.Array:
+            for shard in x.addressable_shards:
+                if shard.device == device:
+                    return shard.data
+            raise ValueError(f"split epoch: no slice of an array on {device}")
+
+        return jax.tree.map(part, tree)
+
+    return [on(d) for d in devices]
+
+
+def joined(trees: Sequence[Any], sharding: NamedSharding) -> Any:
+    """Inverse of :func:`slices`: one mesh-sharded array per leaf, from each device's
+    ``(1, ...)`` slices (no copy)."""
+
+    def join(*xs: jax.Array) -> jax.Array:
+        shape = (sum(x.shape[0] for x in xs), *xs[0].shape[1:])
+        return jax.make_array_from_single_device_arrays(shape, sharding, list(xs))
+
+    return jax.tree.map(join, *trees)
+
+
+class SplitEpoch:
+    """The ``"split"`` epoch of ``learner`` (see the module): callable as
+    ``(state, packed env state) -> (state, packed env state, metrics)``."""
+
+    def __init__(self, learner: Learner):
+        if learner.n_processes > 1:
+            raise ValueError(
+                "run.parallel = 'split': one process only (its devices are the mesh); "
+                "use 'sharded' with --distributed"
+            )
+        if learner.sharding is None:
+            raise ValueError("split epoch: the learner has no device mesh (parallel='pmap')")
+        self.learner = learner
+        self.devices = list(learner.devices)
+        self.sharding = learner.sharding
+        self.iterations = learner.cfg.run.epoch_iterations
+        # (1, S, ...) in: the device's slice, its seeds vmapped (no collectives)
+        self._rollout = jax.jit(jax.vmap(jax.vmap(self._rollout_one)))
+        self._update = learner.program(self._update_one)
+        self._finish = learner.program(self._finish_one)
+
+    @allow_rank_promotion
+    def _rollout_one(self, ts: TrainingState, packed: Any) -> tuple[Any, ...]:
+        """One seed's rollouts of one iteration on one device: what the iteration of the
+        one-program epoch does before its update (same keys)."""
+        learner = self.learner
+        env_state = learner.unpack_env(packed)
+        key, k_unroll, k_sgd = jax.random.split(ts.key, 3)
+        policy = learner.make_policy((ts.normalizer_params, ts.params.policy, ts.params.value))
+        env_state, data, env_metrics = learner.collect(policy, env_state, k_unroll)
+        metrics = {k: jnp.mean(v) for k, v in env_metrics.items()}
+        metrics["reward"] = jnp.mean(data.reward)
+        return learner.pack_env(env_state), data, jnp.stack([key, k_sgd]), metrics
+
+    @allow_rank_promotion
+    def _update_one(
+        self, ts: TrainingState, data: Any, keys: jax.Array, env_metrics: dict[str, jax.Array]
+    ) -> tuple[TrainingState, dict[str, jax.Array]]:
+        """One seed's update on one device, averaged across devices (``AXIS``)."""
+        ts, loss_metrics = self.learner.update(ts, data, keys[1])
+        ts = TrainingState(ts.optimizer_state, ts.params, ts.normalizer_params, keys[0])
+        metrics = {f"loss/{k}": jnp.mean(v) for k, v in loss_metrics.items()}
+        return ts, metrics | env_metrics
+
+    def _finish_one(
+        self, ts: TrainingState, per_iteration: tuple[dict[str, jax.Array], ...]
+    ) -> dict[str, jax.Array]:
+        """The epoch's metrics as the one-program epoch reports them."""
+        stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *per_iteration)
+        return epoch_metrics(ts, stacked, AXIS)
+
+    def __call__(self, ts: TrainingState, packed: Any) -> tuple[TrainingState, Any, Any]:
+        env = slices(packed, self.devices)
+        per_iteration = []
+        for _ in range(self.iterations):
+            states = slices(ts, self.devices)
+            parts = [self._rollout(t, e) for t, e in zip(states, env, strict=True)]
+            env = [p[0] for p in parts]
+            data, keys, env_metrics = (
+                joined([p[i] for p in parts], self.sharding) for i in (1, 2, 3)
+            )
+            ts, metrics = self._update(ts, data, keys, env_metrics)
+            per_iteration.append(metrics)
+        metrics = self._finish(ts, tuple(per_iteration))
+        return ts, joined(env, self.sharding), metrics
+
+
+__all__ = ["SplitEpoch", "joined", "slices"]
