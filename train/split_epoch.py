@@ -12,16 +12,21 @@ the transitions, which are put together, again without a copy, into mesh-sharded
 for the update, the same program :meth:`~train.ppo.Learner.update` is on the ``"sharded"``
 path (gradients and normalizer statistics averaged across devices).
 
-An epoch is then ``epoch_iterations`` x (one rollout dispatch per device, one update)
-dispatched from the host without waiting on the devices; :meth:`SplitEpoch.__call__`
-takes and returns the states exactly as the other paths' epoch does, so checkpoints,
-evaluation and resume are unchanged. The rollout program compiles once per device.
-One process only: its devices are the mesh.
+An epoch is then ``epoch_iterations`` x (one rollout per device, one update).
+:meth:`SplitEpoch.__call__` takes and returns the states exactly as the other paths'
+epoch does, so checkpoints, evaluation and resume are unchanged. The rollout program
+compiles once per device. One process only: its devices are the mesh.
+
+Each device's rollout is run from a host thread of its own (the first device's from the
+caller's thread, every other device's always from the same worker thread): the rollout's
+scans are loops the host drives on a GPU, so the thread that runs a program waits for it,
+and one thread would run the devices' rollouts one after the other.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 import jax
@@ -82,6 +87,11 @@ class SplitEpoch:
         self._rollout = jax.jit(jax.vmap(jax.vmap(self._rollout_one)))
         self._update = learner.program(self._update_one)
         self._finish = learner.program(self._finish_one)
+        # one worker thread per device but the first, always the same one for a device
+        self._threads = [
+            ThreadPoolExecutor(1, thread_name_prefix=f"rollout-{i}")
+            for i in range(1, len(self.devices))
+        ]
 
     @allow_rank_promotion
     def _rollout_one(self, ts: TrainingState, packed: Any) -> tuple[Any, ...]:
@@ -118,7 +128,11 @@ class SplitEpoch:
         per_iteration = []
         for _ in range(self.iterations):
             states = slices(ts, self.devices)
-            parts = [self._rollout(t, e) for t, e in zip(states, env, strict=True)]
+            jobs = [
+                pool.submit(self._rollout, t, e)
+                for pool, t, e in zip(self._threads, states[1:], env[1:], strict=True)
+            ]
+            parts = [self._rollout(states[0], env[0]), *(job.result() for job in jobs)]
             env = [p[0] for p in parts]
             data, keys, env_metrics = (
                 joined([p[i] for p in parts], self.sharding) for i in (1, 2, 3)
