@@ -312,6 +312,8 @@ class Run:
         pool = ThreadPoolExecutor(1, thread_name_prefix="baseline-eval")
         loop.baseline_job = pool.submit(learner.evaluate_baseline, first_device(loop.state))
         pool.shutdown(wait=False)
+        if learner.parallel == "split":  # no GPU program may load beside it (split_epoch.py)
+            loop.baseline_job.result()
         loop.setup_s = time.time() - t_start
         return loop
 

@@ -92,6 +92,21 @@ class SplitEpoch:
             ThreadPoolExecutor(1, thread_name_prefix=f"rollout-{i}")
             for i in range(1, len(self.devices))
         ]
+        self._loaded = False
+
+    def _rollouts(self, states: list[Any], env: list[Any]) -> list[tuple[Any, ...]]:
+        """Every device's rollout, each from its own thread; the first time one after the
+        other: a GPU program's first run loads it and MuJoCo Warp captures its CUDA graphs,
+        and a stream another thread synchronizes meanwhile fails
+        (CUDA_ERROR_STREAM_CAPTURE_UNSUPPORTED, 2 H200s)."""
+        jobs = []
+        for pool, t, e in zip(self._threads, states[1:], env[1:], strict=True):
+            jobs.append(pool.submit(self._rollout, t, e))
+            if not self._loaded:
+                jobs[-1].result()
+        first = self._rollout(states[0], env[0])
+        self._loaded = True
+        return [first, *(job.result() for job in jobs)]
 
     @allow_rank_promotion
     def _rollout_one(self, ts: TrainingState, packed: Any) -> tuple[Any, ...]:
@@ -127,12 +142,7 @@ class SplitEpoch:
         env = slices(packed, self.devices)
         per_iteration = []
         for _ in range(self.iterations):
-            states = slices(ts, self.devices)
-            jobs = [
-                pool.submit(self._rollout, t, e)
-                for pool, t, e in zip(self._threads, states[1:], env[1:], strict=True)
-            ]
-            parts = [self._rollout(states[0], env[0]), *(job.result() for job in jobs)]
+            parts = self._rollouts(slices(ts, self.devices), env)
             env = [p[0] for p in parts]
             data, keys, env_metrics = (
                 joined([p[i] for p in parts], self.sharding) for i in (1, 2, 3)
