@@ -44,6 +44,16 @@ def _final_train_state(run, learner):
     return host, meta
 
 
+def _trains_through_a_run(cfg, learner, run_dir, epochs):
+    """A whole run through ``learner``: checkpoints, logs, evaluation, a finite end."""
+    run = Run.create(cfg, run_dir)
+    summary = run.train(learner=learner)
+    assert json.loads((run.dir / "status.json").read_text())["state"] == "finished"
+    assert summary["epochs"] == epochs
+    restored, _ = _final_train_state(run, learner)
+    assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(restored))
+
+
 def _deterministic_policy(learner, state):
     """The deterministic policy of seed 0 (device 0) of a ``(D, S, ...)`` training state."""
     one = jax.tree.map(lambda x: x[0, 0], state)
@@ -210,12 +220,40 @@ def test_sharded_parallel_trains_like_pmap(full_run, tiny, learner, tmp_path):
         else:
             np.testing.assert_array_equal(y, x)
     # a whole run through it: checkpoints, logs, evaluation
-    run = Run.create(cfg, tmp_path / "sharded")
-    summary = run.train(learner=sharded)
-    assert json.loads((run.dir / "status.json").read_text())["state"] == "finished"
-    assert summary["epochs"] == full_run[1]["epochs"]
-    restored, _ = _final_train_state(run, sharded)
-    assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(restored))
+    _trains_through_a_run(cfg, sharded, tmp_path / "sharded", full_run[1]["epochs"])
+
+
+@pytest.mark.full
+def test_split_parallel_trains_like_pmap(full_run, tiny, learner, tmp_path):
+    """``run.parallel = "split"`` (each device's rollouts in a program of its own, the
+    update over the mesh: train/split_epoch.py) computes Brax's pmap path's epoch, with
+    each device's robots stepped on that device, and a whole run goes through it."""
+    cfg = dataclasses.replace(tiny, run=dataclasses.replace(tiny.run, parallel="split"))
+    split = Learner(cfg)
+    assert split.parallel == "split"
+    with pytest.raises(ValueError, match="compiles its programs on first use"):
+        split.compile_epoch(*split.init())
+    host = to_host(learner.init())
+    ts, es = split.place(*host)
+    ref_ts, ref_es, ref_m = learner.epoch(*learner.place(*host))
+    got_ts, got_es, got_m = split.epoch(ts, es)
+    for tree in (got_ts, got_es):  # each device keeps its own slice
+        for leaf in jax.tree.leaves(tree):
+            assert [s.data.shape[0] for s in leaf.addressable_shards] == [1, 1]
+            assert len(leaf.sharding.device_set) == 2
+    for k, v in to_host(ref_m).items():
+        np.testing.assert_allclose(to_host(got_m)[k], v, rtol=1e-4, atol=1e-6, err_msg=k)
+    pairs = itertools.chain(
+        zip(jax.tree.leaves(to_host(ref_ts)), jax.tree.leaves(to_host(got_ts)), strict=True),
+        zip(jax.tree.leaves(to_host(ref_es)), jax.tree.leaves(to_host(got_es)), strict=True),
+    )
+    for x, y in pairs:
+        assert x.shape == y.shape
+        if np.issubdtype(y.dtype, np.floating):
+            np.testing.assert_allclose(y, x, rtol=1e-3, atol=1e-5)
+        else:
+            np.testing.assert_array_equal(y, x)
+    _trains_through_a_run(cfg, split, tmp_path / "split", full_run[1]["epochs"])
 
 
 def test_nan_stops_and_keeps_last_good_checkpoint(tiny, learner, tmp_path, monkeypatch):

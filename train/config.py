@@ -115,10 +115,10 @@ class RunConfig:
     ``"sharded"`` (``jit`` with the device axis sharded over a mesh; the collectives are
     those of a named ``vmap``). With jax 0.11.2 on 2 GPUs, ``pmap`` (and ``shard_map``)
     of any MJX step crashes XLA's compiler, while sharded ``jit`` compiles; ``"auto"``
-    therefore picks ``"sharded"`` for several GPUs or several processes
-    (``--distributed``), ``"pmap"`` otherwise (train/parallel.py). ``"split"`` runs each
-    device's rollouts in a program of its own and only the update over the mesh
-    (train/split_epoch.py), for a physics step the mesh cannot split (MuJoCo Warp's).
+    picks ``"sharded"`` for several GPUs or several processes (``--distributed``),
+    ``"pmap"`` otherwise, except ``"split"`` for MuJoCo Warp on several GPUs of one
+    process: each device's rollouts in a program of its own and only the update over the
+    mesh, since the mesh cannot split Warp's step (train/parallel.py, train/split_epoch.py).
     ``epoch_iterations`` training iterations run per compiled call; logging, the NaN
     check and Ctrl-C checkpoints happen between calls.
     """
@@ -143,8 +143,8 @@ class RunConfig:
     eval_episode_length: int = 250
     """Control steps per evaluation episode (>= 1)."""
     max_devices: int = 0
-    """Use at most this many local devices (>= 0; 0: all, but one GPU under MuJoCo Warp:
-    train/parallel.py)."""
+    """Use at most this many local devices (>= 0; 0: all, but one GPU under MuJoCo Warp on
+    the "sharded" path: train/parallel.py)."""
     matmul_precision: Literal["default", "high", "highest"] = "highest"
     """jax's default matmul precision for the run."""
     parallel: Literal["auto", "pmap", "sharded", "split"] = "auto"

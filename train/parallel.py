@@ -7,13 +7,15 @@ The program is ``fn`` of one seed's states, vmapped over the seeds; its collecti
 - ``"sharded"``: a named ``vmap`` over the devices, jitted with that axis sharded over a
   mesh of all processes' devices; XLA's SPMD partitioner splits the program. With jax
   0.11.2 on 2 GPUs it compiles where ``pmap`` of an MJX step crashes XLA's compiler.
+- ``"split"``: each device rolls out its robots in a program of its own, and only the
+  update is one program over the mesh (train/split_epoch.py). One process.
 
 The partitioner cannot split a custom call it knows nothing of, such as the FFI call of
-MuJoCo Warp's step: it gathers the whole batch onto every device, so under Warp each GPU
-simulates every robot and 2 H200s run at 1.01x one (docs/benchmarks.md). ``jax.shard_map``
-over the same mesh, which would give each GPU its own slice, crashed (a segmentation
-fault) on 2 H200s under Warp with jax 0.11.2; so :func:`devices_for` keeps a Warp run to
-one GPU unless ``run.max_devices`` asks for more.
+MuJoCo Warp's step: on the ``"sharded"`` path it gathers the whole batch onto every
+device, so under Warp each GPU simulates every robot (2 H200s: 1.01x one), and
+``jax.shard_map`` of the step crashed. ``"split"`` has no program that both holds the
+physics and spans devices (2 H200s: 1.96x one; docs/benchmarks.md), so ``"auto"`` takes it
+for a Warp run on several GPUs of one process (:func:`choose`).
 """
 
 from __future__ import annotations
@@ -32,26 +34,42 @@ if TYPE_CHECKING:
 AXIS = "devices"
 """Name of the device axis in the program's collectives (``jax.lax.pmean``)."""
 MESH_AXIS = "d"
-"""The device mesh's axis under ``run.parallel = "sharded"``."""
+"""The device mesh's axis under ``run.parallel = "sharded"`` or ``"split"``."""
+
+
+def _warp_on_gpus(cfg: TrainConfig, devices: Sequence[Any]) -> bool:
+    warp = cfg.env.description().sim.impl == "warp"
+    return warp and len(devices) > 1 and all(d.platform == "gpu" for d in devices)
 
 
 def devices_for(cfg: TrainConfig) -> list[Any]:
     """The local devices a run trains on: ``run.max_devices`` of them (0: all), except that
-    a Warp run left at 0 on several GPUs takes the first only, and says so on stderr: the
-    others would only repeat its physics (see the module)."""
+    a Warp run on the ``"sharded"`` path left at 0 on several GPUs takes the first only,
+    and says so on stderr: the others would only repeat its physics (see the module)."""
     local = jax.local_devices()
     if cfg.run.max_devices:
         return local[: cfg.run.max_devices]
-    warp = cfg.env.description().sim.impl == "warp"
-    if warp and len(local) > 1 and all(d.platform == "gpu" for d in local):
+    if cfg.run.parallel == "sharded" and _warp_on_gpus(cfg, local):
         print(
-            f"note: training on 1 of {len(local)} GPUs: under MuJoCo Warp the device mesh "
-            "splits no physics, so more GPUs only repeat it (docs/benchmarks.md); "
-            "--run.max-devices N uses N",
+            f"note: training on 1 of {len(local)} GPUs: under MuJoCo Warp the sharded "
+            "path splits no physics, so more GPUs only repeat it (docs/benchmarks.md); "
+            "--run.parallel split (or auto) uses them all, --run.max-devices N takes N",
             file=sys.stderr,
         )
         return local[:1]
     return local
+
+
+def choose(cfg: TrainConfig, devices: Sequence[Any], processes: int) -> str:
+    """``run.parallel``, with ``"auto"`` resolved: ``"split"`` for a Warp run on several
+    GPUs of one process, ``"sharded"`` for any other run on several GPUs or processes,
+    else ``"pmap"``."""
+    if cfg.run.parallel != "auto":
+        return cfg.run.parallel
+    if processes == 1 and _warp_on_gpus(cfg, devices):
+        return "split"
+    several_gpus = len(devices) > 1 and all(d.platform == "gpu" for d in devices)
+    return "sharded" if several_gpus or processes > 1 else "pmap"
 
 
 def mesh_sharding(parallel: str, devices: Sequence[Any]) -> NamedSharding | None:
@@ -77,4 +95,4 @@ def spread(
     )
 
 
-__all__ = ["AXIS", "MESH_AXIS", "devices_for", "mesh_sharding", "spread"]
+__all__ = ["AXIS", "MESH_AXIS", "choose", "devices_for", "mesh_sharding", "spread"]

@@ -100,10 +100,7 @@ class Learner:
         )
         self._loss_and_grad = gradients.loss_and_pgrad(loss_fn, pmap_axis_name=AXIS, has_aux=True)
         self._compiled_epoch: Any = None
-        self.parallel = cfg.run.parallel
-        if self.parallel == "auto":
-            several_gpus = self.n_devices > 1 and all(d.platform == "gpu" for d in self.devices)
-            self.parallel = "sharded" if several_gpus or self.n_processes > 1 else "pmap"
+        self.parallel = parallel.choose(cfg, self.devices, self.n_processes)
         if self.parallel == "pmap":
             self._identity = jax.pmap(lambda *x: x, axis_name=AXIS, devices=self.devices)
         devices = self.devices if self.n_processes == 1 else jax.devices()

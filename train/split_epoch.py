@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -35,9 +35,6 @@ from jax.sharding import NamedSharding
 
 from train.parallel import AXIS
 from train.state import TrainingState, allow_rank_promotion, epoch_metrics
-
-if TYPE_CHECKING:
-    from train.ppo import Learner
 
 
 def slices(tree: Any, devices: Sequence[Any]) -> list[Any]:
@@ -71,7 +68,7 @@ class SplitEpoch:
     """The ``"split"`` epoch of ``learner`` (see the module): callable as
     ``(state, packed env state) -> (state, packed env state, metrics)``."""
 
-    def __init__(self, learner: Learner):
+    def __init__(self, learner: Any):  # a train.ppo.Learner (which builds this)
         if learner.n_processes > 1:
             raise ValueError(
                 "run.parallel = 'split': one process only (its devices are the mesh); "
