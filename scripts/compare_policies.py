@@ -2,6 +2,7 @@
 compared episode by episode.
 
     python scripts/compare_policies.py NEW_EVAL_DIR OLD_EVAL_DIR [--reference analytic]
+        [--who feedback]
 
 Each argument is a ``mecanum-eval`` output directory (or its ``parts.npz``): the same
 scenario file, seeds and episode counts, any machine. For every scenario in both, prints
@@ -34,10 +35,12 @@ METRICS = (
 MARK = {"better": " ✓", "worse": " ✗"}
 
 
-def table(a: paired.Parts, b: paired.Parts, reference: str, tolerance: float) -> list[str]:
+def table(
+    a: paired.Parts, b: paired.Parts, reference: str, tolerance: float, who: str = "policy"
+) -> list[str]:
     """Markdown lines: per scenario, each metric's values and the first's ratio to the
-    second with its paired interval."""
-    pairs = paired.pair(a, b, reference=reference, tolerance=tolerance)
+    second with its paired interval (of the controller ``who`` in both)."""
+    pairs = paired.pair(a, b, who, who, reference=reference, tolerance=tolerance)
     lines = ["| scenario | metric | first | second | first / second |", "|---|---|---|---|---|"]
     for scenario, row in pairs.items():
         name = scenario
@@ -45,7 +48,7 @@ def table(a: paired.Parts, b: paired.Parts, reference: str, tolerance: float) ->
             if key not in row:
                 continue
             c = row[key]
-            va, vb = a[scenario]["policy"][key].value(), b[scenario]["policy"][key].value()
+            va, vb = a[scenario][who][key].value(), b[scenario][who][key].value()
             mark = MARK.get(metrics.verdict(c), "")
             lines.append(
                 f"| {name} | {label} | {va:.4g} | {vb:.4g} | "
@@ -61,13 +64,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("second", type=Path, help="the same, of the policy compared against")
     ap.add_argument("--reference", default="analytic", help="the controller both played")
     ap.add_argument("--tolerance", type=float, default=0.01, help="its figures' relative match")
+    ap.add_argument(
+        "--who",
+        default="policy",
+        help="the controller compared: the policy, or a reference such as feedback (two "
+        "`mecanum-eval baseline --config C` outputs: a reference under two configs)",
+    )
     args = ap.parse_args(argv)
     if not 0 <= args.tolerance < 1:
         print(f"compare_policies: --tolerance {args.tolerance}: must be in [0, 1)", file=sys.stderr)
         return 2
     try:
         a, b = paired.load_parts(args.first), paired.load_parts(args.second)
-        lines = table(a, b, args.reference, args.tolerance)
+        lines = table(a, b, args.reference, args.tolerance, args.who)
     except (FileNotFoundError, paired.EpisodesDifferError) as e:
         print(f"compare_policies: {e}", file=sys.stderr)
         return 2

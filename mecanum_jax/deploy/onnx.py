@@ -168,6 +168,10 @@ def _feedback_base(g: _Graph, policy: NumpyPolicy, command: str, jt: str, m: str
     wz = g.op("Slice", command, g.const("two", [2], np.int64), "three", "last_axis")
     err = g.op("Sub", wz, gyro)  # (batch, 1)
     u = g.op("Add", g.op("Mul", err, g.const("kp", fb["kp"])), integral)
+    band = float(fb.get("deadband") or 0.0)
+    if band > 0:  # the correction shrunk towards 0 by the deadband
+        shrunk = g.op("Relu", g.op("Sub", g.op("Abs", u), g.const("deadband", band)))
+        u = g.op("Mul", g.op("Sign", u), shrunk)
     twist = g.op("Add", command, g.op("Mul", u, g.const("z_axis", [0.0, 0.0, 1.0])))
     # anti-windup: hold while the corrected twist is out of reach and e would push further
     reach = g.op("ReduceMax", g.op("Div", g.op("Abs", g.op("MatMul", twist, jt)), m),

@@ -137,6 +137,9 @@ class NumpyPolicy:
         integral = x[..., self.entry("feedback_integral")][..., 0] * scale[2]
         err = command[..., 2] - gyro
         u = np.float32(self.feedback["kp"]) * err + integral
+        band = np.float32(self.feedback.get("deadband") or 0.0)  # 0 in older exports
+        if band > 0:
+            u = np.sign(u) * np.maximum(np.abs(u) - band, np.float32(0.0))
         return command + np.asarray([0, 0, 1], np.float32) * u[..., None], err, integral
 
     @property

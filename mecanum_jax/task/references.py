@@ -57,10 +57,18 @@ class FeedbackConfig:
     hold_s: float = 0.0
     """The integrator holds for this long after each command change, s (>= 0, whole control
     periods; 0: it integrates through the transient)."""
+    deadband: float = 0.0
+    """The correction shrinks by this much towards 0, rad/s (>= 0; 0: none). The integrator
+    grows through it, so a steady bias is still corrected in full, but the gyro noise's
+    corrections of a few mrad/s vanish and a nominal robot's wheels get exactly
+    ``analytic``'s setpoints: any asymmetry in them, however small, changes how a robot
+    stopped from speed slides, and so how far the next command's start turns it
+    (docs/evaluation.md, six_modes drift)."""
 
     def validate(self, where: str = "env.feedback") -> None:
         """Check values; raise :class:`ConfigError` naming the field."""
-        require(self, where, ("kp", "ki", "i_max", "hold_s"), lambda v: v >= 0, "must be >= 0")
+        fields = ("kp", "ki", "i_max", "hold_s", "deadband")
+        require(self, where, fields, lambda v: v >= 0, "must be >= 0")
         require(self, where, ("omega_weight",), lambda v: v > 0, "must be > 0")
 
     def hold_steps(self, control_dt: float) -> int:
@@ -107,6 +115,9 @@ def feedback_twist(env: TaskEnv, info: dict[str, Any]) -> tuple[jax.Array, jax.A
     command = info["command"]
     err = command[2] - measured_yaw_rate(env, info)
     u = kp * err + info["feedback_integral"]
+    band = env.config.feedback.deadband
+    if band > 0:
+        u = jnp.sign(u) * jnp.maximum(jnp.abs(u) - band, 0.0)
     return command + jnp.asarray([0.0, 0.0, 1.0]) * u, err
 
 
