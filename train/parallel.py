@@ -37,9 +37,12 @@ MESH_AXIS = "d"
 """The device mesh's axis under ``run.parallel = "sharded"`` or ``"split"``."""
 
 
+def _several_gpus(devices: Sequence[Any]) -> bool:
+    return len(devices) > 1 and all(d.platform == "gpu" for d in devices)
+
+
 def _warp_on_gpus(cfg: TrainConfig, devices: Sequence[Any]) -> bool:
-    warp = cfg.env.description().sim.impl == "warp"
-    return warp and len(devices) > 1 and all(d.platform == "gpu" for d in devices)
+    return cfg.env.description().sim.impl == "warp" and _several_gpus(devices)
 
 
 def devices_for(cfg: TrainConfig) -> list[Any]:
@@ -68,8 +71,7 @@ def choose(cfg: TrainConfig, devices: Sequence[Any], processes: int) -> str:
         return cfg.run.parallel
     if processes == 1 and _warp_on_gpus(cfg, devices):
         return "split"
-    several_gpus = len(devices) > 1 and all(d.platform == "gpu" for d in devices)
-    return "sharded" if several_gpus or processes > 1 else "pmap"
+    return "sharded" if _several_gpus(devices) or processes > 1 else "pmap"
 
 
 def mesh_sharding(parallel: str, devices: Sequence[Any]) -> NamedSharding | None:

@@ -262,15 +262,29 @@ class Learner:
         self, carry: tuple[TrainingState, Any], _: None
     ) -> tuple[tuple[TrainingState, Any], dict[str, jax.Array]]:
         ts, env_state = carry
+        env_state, data, keys, env_metrics = self.iteration_rollouts(ts, env_state)
+        ts, metrics = self.iteration_update(ts, data, keys, env_metrics)
+        return (ts, env_state), metrics
+
+    def iteration_rollouts(self, ts: TrainingState, env_state: Any) -> tuple[Any, ...]:
+        """An iteration's first half, one seed: ``(env_state, data, keys, env metrics)``,
+        ``keys`` the next loop key and the update's, stacked."""
         key, k_unroll, k_sgd = jax.random.split(ts.key, 3)
         policy = self.make_policy((ts.normalizer_params, ts.params.policy, ts.params.value))
         env_state, data, env_metrics = self.collect(policy, env_state, k_unroll)
-        ts, loss_metrics = self.update(ts, data, k_sgd)
-        ts = TrainingState(ts.optimizer_state, ts.params, ts.normalizer_params, key)
-        metrics = {f"loss/{k}": jnp.mean(v) for k, v in loss_metrics.items()}
-        metrics |= {k: jnp.mean(v) for k, v in env_metrics.items()}
+        metrics = {k: jnp.mean(v) for k, v in env_metrics.items()}
         metrics["reward"] = jnp.mean(data.reward)
-        return (ts, env_state), metrics
+        return env_state, data, jnp.stack([key, k_sgd]), metrics
+
+    def iteration_update(
+        self, ts: TrainingState, data: Any, keys: jax.Array, env_metrics: dict[str, jax.Array]
+    ) -> tuple[TrainingState, dict[str, jax.Array]]:
+        """An iteration's second half, one seed: the update of :meth:`update` (averaged
+        across devices), the next loop key, and the iteration's metrics."""
+        ts, loss_metrics = self.update(ts, data, keys[1])
+        ts = TrainingState(ts.optimizer_state, ts.params, ts.normalizer_params, keys[0])
+        metrics = {f"loss/{k}": jnp.mean(v) for k, v in loss_metrics.items()}
+        return ts, metrics | env_metrics
 
     def collect(self, policy: Any, env_state: Any, key: jax.Array) -> tuple[Any, Any, Any]:
         """One iteration's rollouts: ``(env_state, data (unrolls·E, T, ...), metrics)``."""

@@ -107,26 +107,16 @@ class SplitEpoch:
 
     @allow_rank_promotion
     def _rollout_one(self, ts: TrainingState, packed: Any) -> tuple[Any, ...]:
-        """One seed's rollouts of one iteration on one device: what the iteration of the
-        one-program epoch does before its update (same keys)."""
+        """One seed's rollouts of one iteration on one device: the one-program epoch's
+        :meth:`~train.ppo.Learner.iteration_rollouts` (same keys)."""
         learner = self.learner
-        env_state = learner.unpack_env(packed)
-        key, k_unroll, k_sgd = jax.random.split(ts.key, 3)
-        policy = learner.make_policy((ts.normalizer_params, ts.params.policy, ts.params.value))
-        env_state, data, env_metrics = learner.collect(policy, env_state, k_unroll)
-        metrics = {k: jnp.mean(v) for k, v in env_metrics.items()}
-        metrics["reward"] = jnp.mean(data.reward)
-        return learner.pack_env(env_state), data, jnp.stack([key, k_sgd]), metrics
+        env_state, *rest = learner.iteration_rollouts(ts, learner.unpack_env(packed))
+        return learner.pack_env(env_state), *rest
 
     @allow_rank_promotion
-    def _update_one(
-        self, ts: TrainingState, data: Any, keys: jax.Array, env_metrics: dict[str, jax.Array]
-    ) -> tuple[TrainingState, dict[str, jax.Array]]:
+    def _update_one(self, *args: Any) -> tuple[TrainingState, dict[str, jax.Array]]:
         """One seed's update on one device, averaged across devices (``AXIS``)."""
-        ts, loss_metrics = self.learner.update(ts, data, keys[1])
-        ts = TrainingState(ts.optimizer_state, ts.params, ts.normalizer_params, keys[0])
-        metrics = {f"loss/{k}": jnp.mean(v) for k, v in loss_metrics.items()}
-        return ts, metrics | env_metrics
+        return self.learner.iteration_update(*args)
 
     def _finish_one(
         self, ts: TrainingState, per_iteration: tuple[dict[str, jax.Array], ...]
