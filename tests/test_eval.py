@@ -252,6 +252,12 @@ def test_summarize_on_a_known_trace():
     np.testing.assert_allclose(detail["rmse_wz"], [0.0, 0.3], atol=1e-6)
     np.testing.assert_allclose(detail["drift_m"], [0.05, 0.05], atol=1e-6)
     assert max(detail["rmse_wz"]) == pytest.approx(m["worst_rmse_wz"])
+    # the per-episode steady-state figures pool, weighted by steady steps, into the summary's
+    for key in ("ss_lin", "ss_wz"):
+        rms, count = np.asarray(detail[key], float), np.asarray(detail["steady_steps"])
+        assert count.sum() > 0
+        pooled = np.sqrt(np.sum(count * rms**2) / np.sum(count))
+        assert pooled == pytest.approx(m[key], rel=1e-6, abs=1e-9)
 
 
 @pytest.mark.full  # tens of seconds of XLA compilation on 2 cores

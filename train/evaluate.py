@@ -226,7 +226,9 @@ def evaluate(
                 for ref in refs
                 if first != ref
             },
-            "per_episode": {who: ev.per_episode(tr, dt, sc.scripted) for who, tr in per.items()},
+            "per_episode": {
+                who: ev.per_episode(tr, dt, sc.scripted, mcfg) for who, tr in per.items()
+            },
         }
     steps = sum(int(np.prod(b.commands.shape[:2])) for b, _ in jobs)
     timing = {

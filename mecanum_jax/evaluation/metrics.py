@@ -152,7 +152,7 @@ def episode_parts(
     """Every metric of one rollout, per episode (arrays as in ``evaluation.Trace``)."""
     cfg = cfg or MetricConfig()
     E = command.shape[0]
-    out = _tracking_parts(command, target, twist, dt, cfg)
+    out = tracking_parts(command, target, twist, dt, cfg)
     out.update(_settling_parts(command, target, twist, dt, cfg))
     out.update(_energy_parts(pose, start, energy_j, wheel_torque, wheel_rate, jacobian, dt))
     out["saturated"] = Part(np.mean(saturated, axis=1), np.ones(E), "mean")
@@ -165,7 +165,7 @@ def _steady(command: np.ndarray, dt: float, cfg: MetricConfig) -> np.ndarray:
     return ((since + 1) * dt >= cfg.settle_s - 1e-9).astype(float)
 
 
-def _tracking_parts(
+def tracking_parts(
     command: np.ndarray, target: np.ndarray, twist: np.ndarray, dt: float, cfg: MetricConfig
 ) -> dict[str, Part]:
     """Raw RMSE against the command and steady-state RMSE against the feasible target."""
@@ -342,5 +342,6 @@ __all__ = [
     "settling_times",
     "steps_since_change",
     "summary",
+    "tracking_parts",
     "verdict",
 ]

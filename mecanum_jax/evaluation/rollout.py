@@ -301,13 +301,29 @@ def drift_parts(trace: Trace, dt: float) -> dict[str, metrics.Part]:
     }
 
 
-def per_episode(trace: Trace, dt: float, scripted: bool) -> dict[str, list[float]]:
-    """Per-episode RMSE of v and ωz (and final drift of scripted scenarios), for scripts
-    that look for the episodes where a policy fails."""
+def per_episode(
+    trace: Trace, dt: float, scripted: bool, cfg: metrics.MetricConfig | None = None
+) -> dict[str, list[float | None]]:
+    """Per-episode RMSE of v and ωz, steady-state error of v and ωz (``None`` for an episode
+    without steady steps) and its count of steady steps (the summary's ``ss_*`` pool them,
+    weighted by that count), and the final drift of scripted scenarios: for scripts that
+    look for the episodes where a policy fails, or where two devices differ."""
     err = trace.twist - trace.command
-    out = {
+    parts = metrics.tracking_parts(
+        trace.command, trace.target, trace.twist, dt, cfg or metrics.MetricConfig()
+    )
+    count = parts["ss_lin"].den
+
+    def steady(name: str) -> list[float | None]:
+        num = parts[name].num
+        return [float(np.sqrt(n / c)) if c > 0 else None for n, c in zip(num, count, strict=True)]
+
+    out: dict[str, list[float | None]] = {
         "rmse_lin": np.sqrt(np.mean(err[..., 0] ** 2 + err[..., 1] ** 2, axis=1)).tolist(),
         "rmse_wz": np.sqrt(np.mean(err[..., 2] ** 2, axis=1)).tolist(),
+        "ss_lin": steady("ss_lin"),
+        "ss_wz": steady("ss_wz"),
+        "steady_steps": [float(c) for c in count],
     }
     if scripted:
         final = relative_poses(trace)[:, -1]
