@@ -49,6 +49,8 @@ FIGURES = (
     ("tuning_spins", "energy_j"),
     ("tuning_modes", "ss_wz"),
     ("tuning_modes", "drift_m"),
+    ("tuning_slippery", "ss_wz"),
+    ("tuning_slippery", "settle_wz_s"),
 )
 """(scenario, metric) pairs whose ratios to ``analytic`` the geometric mean takes."""
 
