@@ -11,6 +11,7 @@ from typing import Any
 
 from rich.table import Table
 
+from mecanum_jax.evaluation import plots
 from mecanum_jax.evaluation import rollout as ev
 from mecanum_jax.task import REFERENCES
 
@@ -137,17 +138,17 @@ def write_plots(
     results: dict[str, Any], traces: dict[str, dict[str, ev.Trace]], dt: float, out: Path
 ) -> list[Path]:
     paths = [
-        ev.plot_errors(
+        plots.plot_errors(
             {n: {w: r[w] for w in ("policy", *REFERENCES) if w in r} for n, r in results.items()},
             out / "errors.png",
         ),
-        ev.plot_trajectories(
+        plots.plot_trajectories(
             traces, dt, {n: r["scripted"] for n, r in results.items()}, out / "trajectories.png"
         ),
     ]
     for name, per in traces.items():
         paths.append(
-            ev.plot_twist(
+            plots.plot_twist(
                 per, dt, f"{name}: {results[name]['description']}", out / f"twist_{name}.png"
             )
         )

@@ -46,7 +46,7 @@ import tyro  # noqa: E402
 from rich.console import Console  # noqa: E402
 
 from mecanum_jax.config import ConfigError  # noqa: E402
-from mecanum_jax.evaluation import metrics, paired, scenarios  # noqa: E402
+from mecanum_jax.evaluation import metrics, paired, plots, scenarios  # noqa: E402
 from mecanum_jax.evaluation import rollout as ev  # noqa: E402
 from mecanum_jax.kinematics import model as kinematics  # noqa: E402
 from mecanum_jax.precision import set_matmul_precision  # noqa: E402
@@ -267,7 +267,7 @@ def write_videos(
             qpos = tr.qpos[args.video_episode, ::every]
             clips.append(render_frames(target.env.robot.mj_model, qpos, w, h))
             labels.append(who)
-        frames = ev.side_by_side(clips, labels)
+        frames = plots.side_by_side(clips, labels)
         paths.append(write_video(frames, out / f"video_{name}.{args.video_format}", fps))
     return paths
 

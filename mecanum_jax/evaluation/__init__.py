@@ -1,6 +1,6 @@
-"""Evaluating controllers: scenarios (:mod:`.scenarios`), batched rollouts and their
-plots (:mod:`.rollout`), tracking metrics and paired statistics (:mod:`.metrics`), and
-velocity spaces of the drives (:mod:`.velocity_space`).
+"""Evaluating controllers: scenarios (:mod:`.scenarios`), batched rollouts (:mod:`.rollout`)
+and their plots (:mod:`.plots`), tracking metrics and paired statistics (:mod:`.metrics`),
+and velocity spaces of the drives (:mod:`.velocity_space`).
 
 The metrics import eagerly (NumPy only); the names that need the environment import on
 first use.
