@@ -8,7 +8,8 @@ ss ωz) of each and their relative difference, and exits 1 when any differs by m
 GPU table is trusted only when one of its scenarios, rerun on the CPU, agrees.
 
 A few episodes are chaotic: a rounding difference grows until their trajectories part
-(it happens between two CPUs as well; docs/evaluation.md, "One number, every device").
+(also between two CPUs on different jax versions; docs/evaluation.md, "One number on every
+device: the agreement check").
 Where the reports carry per-episode figures, a pooled figure that differs is still called
 in agreement, and marked ``diverged``, only when
 
