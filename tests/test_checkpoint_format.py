@@ -7,6 +7,7 @@ bit for bit, with the code of the day.
 """
 
 import dataclasses
+import json
 import shutil
 import typing
 from pathlib import Path
@@ -232,3 +233,19 @@ def test_the_shipped_model_restores():
     leaf-index format, at the time of writing)."""
     restored = checkpoint.restore_policy(ROOT / "models" / "o_rectangle")
     assert restored.params["params"]
+
+
+def test_a_model_directory_evaluates_its_packaged_epoch(tmp_path):
+    """A newer checkpoint beside a model's (a model unpacked over another) is not what the
+    model is: without --epoch the packaged epoch restores; a provenance naming a missing
+    epoch is refused by name."""
+    model = tmp_path / "o_rectangle"
+    shutil.copytree(ROOT / "models" / "o_rectangle", model)
+    packaged = int(json.loads((model / checkpoint.PROVENANCE).read_text())["epoch"])
+    ckpts = model / checkpoint.CHECKPOINT_DIR
+    shutil.copytree(ckpts / str(packaged), ckpts / str(packaged + 5))
+    assert checkpoint.restore_policy(model).epoch == packaged
+    assert checkpoint.restore_policy(model, epoch=packaged + 5).epoch == packaged + 5
+    shutil.rmtree(ckpts / str(packaged))
+    with pytest.raises(checkpoint.CheckpointError, match=f"names epoch {packaged}"):
+        checkpoint.restore_policy(model)

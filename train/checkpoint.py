@@ -276,6 +276,16 @@ def restore_policy(
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise CheckpointError(f"run directory {str(run_dir)!r}: no such directory")
+    packaged = _provenance(run_dir)
+    if epoch is None and packaged.get("epoch") is not None:
+        # a model directory evaluates the epoch it was packaged from, not a newer
+        # checkpoint that landed beside it (e.g. a model unpacked over another)
+        epoch = int(packaged["epoch"])
+        if not _checkpoint_path(run_dir, epoch).is_dir():
+            raise CheckpointError(
+                f"model {str(run_dir)!r}: {PROVENANCE} names epoch {epoch}, which "
+                f"{CHECKPOINT_DIR}/ lacks"
+            )
     epoch, items = _read_checked(run_dir, epoch, ("train", "meta"))
     meta = dict(items["meta"])
     try:
@@ -286,8 +296,7 @@ def restore_policy(
         ) from err
     seeds = list(cfg.run.seeds)
     if seed is None:  # a model directory evaluates the seed it was packaged from
-        packaged = run_dir / PROVENANCE
-        seed = json.loads(packaged.read_text()).get("seed") if packaged.exists() else None
+        seed = packaged.get("seed")
     seed = seeds[0] if seed is None else int(seed)
     if seed not in seeds:
         raise CheckpointError(f"seed = {seed}: this run trained seeds {seeds}")
@@ -314,6 +323,17 @@ def restore_policy(
 
 
 PROVENANCE = "provenance.json"
+
+
+def _provenance(run_dir: Path) -> dict[str, Any]:
+    """A model directory's ``provenance.json`` (empty for a run directory)."""
+    path = run_dir / PROVENANCE
+    if not path.exists():
+        return {}
+    try:
+        return dict(json.loads(path.read_text()))
+    except (OSError, ValueError) as err:
+        raise CheckpointError(f"{str(path)!r}: unreadable: {err}") from err
 
 
 def package_model(restored: RestoredPolicy, out: Path, provenance: dict[str, Any]) -> Path:
