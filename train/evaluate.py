@@ -3,7 +3,7 @@
 Examples::
 
     mecanum-eval baseline                               # the reference controllers alone
-    mecanum-eval models/o_rectangle                     # the shipped policy (its packaged seed, epoch)
+    mecanum-eval models/o_rectangle                     # the shipped policy, its packaged epoch
     mecanum-eval runs/gpu-20261122-101500               # latest checkpoint, first seed
     mecanum-eval runs/gpu-.../checkpoints/40 --seed 1 --video
     mecanum-eval runs/gpu-... --only nominal slippery --episodes 8 --out runs/eval-a
