@@ -405,7 +405,7 @@ def load_policy(
     Args:
       run_dir: the run directory (holding ``checkpoints/``).
       seed: which of the run's seeds (default: the first).
-      epoch: which checkpoint (default: the latest).
+      epoch: which checkpoint (default: the latest; a model directory's packaged one).
 
     Returns:
       ``(policy, meta)``; ``meta["policy_params"]`` holds the host arrays
