@@ -40,13 +40,10 @@ def _differs(x: float, y: float, floor: float, tolerance: float) -> bool:
     return abs(x - y) > floor and abs(x - y) / max(abs(y), 1e-12) > tolerance
 
 
-def _pooled(rms: np.ndarray, count: np.ndarray, weights: np.ndarray | None = None) -> Any:
+def _pooled(rms: np.ndarray, count: np.ndarray) -> metrics.Part:
     """The report's pooled steady-state figure from per-episode ones (RMS weighted by the
-    steady steps); ``weights`` (B, E): one figure per bootstrap resample."""
-    num, den = count * rms**2, count
-    if weights is None:
-        return float(np.sqrt(num.sum() / den.sum()))
-    return np.sqrt((weights @ num) / (weights @ den))
+    steady steps), as the metric part that the report's own figure is."""
+    return metrics.Part(count * rms**2, count, "rms")
 
 
 def diverged(
@@ -68,11 +65,15 @@ def diverged(
     if apart.mean() > max_diverged or apart.all():
         return None
     same = ~apart
-    if _differs(_pooled(ra[same], count[same]), _pooled(rb[same], count[same]), floor, tolerance):
+    pa, pb = _pooled(ra[same], count[same]).value(), _pooled(rb[same], count[same]).value()
+    if pa is None or pb is None or _differs(pa, pb, floor, tolerance):
         return None
-    boot = _pooled(ra, count, metrics.bootstrap_weights(len(ra)))
-    lo, hi = np.quantile(boot[np.isfinite(boot)], [0.025, 0.975])
-    if abs(_pooled(ra, count) - _pooled(rb, count)) > (hi - lo) / 2:
+    whole_a, whole_b = _pooled(ra, count).value(), _pooled(rb, count).value()
+    interval = metrics.bootstrap_interval(_pooled(ra, count))
+    if whole_a is None or whole_b is None or interval is None:
+        return None
+    lo, hi = interval
+    if abs(whole_a - whole_b) > (hi - lo) / 2:
         return None
     return f"diverged: {int(apart.sum())} of {len(ra)} episodes, within ±{(hi - lo) / 2:.4f}"
 
