@@ -50,8 +50,9 @@ def _with(info, command, age):
     return {**info, "command": jnp.asarray(command, jnp.float32), "command_age": jnp.asarray(age)}
 
 
-def _mask(env, info, command, age, spins=False):
-    return [float(x) for x in exact_components(env, _with(info, command, age), spins)]
+def _mask(env, info, command, age, spins=False, translations=False):
+    mask = exact_components(env, _with(info, command, age), spins, translations)
+    return [float(x) for x in mask]
 
 
 def test_the_mask_marks_the_yaw_of_steady_no_yaw_commands_on_the_nominal_robot_only(robots):
@@ -79,6 +80,24 @@ def test_with_spins_the_mask_marks_every_component_of_steady_spins_within_reach_
     assert _mask(nominal, info, [0.4, 0.0, 0.5], 20, True) == [0.0, 0.0, 0.0]  # a turn
     randomized = _one(robots, False)
     assert _mask(nominal, randomized, [0.0, 0.0, 0.5 * reach], 40, True) == [0.0, 0.0, 0.0]
+
+
+def test_with_translations_the_mask_marks_every_component_of_steady_translations_within_reach(
+    robots,
+):
+    nominal, info = robots[0], _one(robots, True)
+    direction = jnp.array([0.6, 0.8, 0.0])
+    reach = float(limits.max_speed(nominal.geometry, direction, nominal.max_rates))
+    inside, beyond = (list(map(float, f * reach * direction)) for f in (0.7, 1.2))
+    assert _mask(nominal, info, inside, 20, translations=True) == [1.0, 1.0, 1.0]
+    assert _mask(nominal, info, beyond, 40, translations=True) == [0.0, 0.0, 1.0]  # beyond
+    assert _mask(nominal, info, inside, 19, translations=True) == [0.0, 0.0, 0.0]  # transient
+    assert _mask(nominal, info, [0.0, 0.0, 0.0], 20, translations=True) == [1.0, 1.0, 1.0]
+    assert _mask(nominal, info, [0.0, 0.0, 1.0], 20, translations=True) == [0.0, 0.0, 0.0]
+    assert _mask(nominal, info, [0.3, 0.0, 0.5], 20, translations=True) == [0.0, 0.0, 0.0]
+    assert _mask(nominal, info, [0.0, 0.0, 1.0], 20, True, True) == [1.0, 1.0, 1.0]  # both
+    randomized = _one(robots, False)
+    assert _mask(nominal, randomized, inside, 40, translations=True) == [0.0, 0.0, 0.0]
 
 
 def test_state_extras_carry_the_mask_only_when_the_anchor_is_on(robots):
@@ -154,6 +173,8 @@ def test_the_ppo_loss_adds_the_weighted_term():
 def test_bad_anchor_settings_name_the_field():
     with pytest.raises(ConfigError, match=r"ppo\.anchor\.weight = -1"):
         AnchorConfig(weight=-1.0).validate()
+    with pytest.raises(ConfigError, match=r"ppo\.anchor\.translations = 1: must be true or"):
+        AnchorConfig(translations=1).validate()  # type: ignore[arg-type]
     wheel = {"env": {"residual_space": "wheel"}, "ppo": {"anchor": {"weight": 1.0}}}
     with pytest.raises(ConfigError, match=r"ppo\.anchor\.weight = 1\.0.*twist"):
         parse_train_config(wheel, "test")

@@ -119,6 +119,7 @@ def test_numpy_nearest_feasible_matches_the_library(env):
         ({"hold_s": -0.1}, r"env\.feedback\.hold_s = -0\.1: must be >= 0"),
         ({"ki": -1.0}, r"env\.feedback\.ki = -1\.0: must be >= 0"),
         ({"deadband": -0.01}, r"env\.feedback\.deadband = -0\.01: must be >= 0"),
+        ({"reset": 1}, r"env\.feedback\.reset = 1: must be true or false"),
     ],
 )
 def test_bad_feedback_settings_name_the_field(kwargs, message):
@@ -127,45 +128,67 @@ def test_bad_feedback_settings_name_the_field(kwargs, message):
 
 
 def test_the_command_age_counts_steps_since_a_change_and_holds_the_integrator():
-    """``command_age`` on a stand-in environment (no physics): 0 at a reset and at a change,
-    one more per step, unchanged by an imposed equal command; the integrator holds while the
-    age is below ``hold_s`` in control periods, then integrates."""
+    """``track_command`` on a stand-in environment (no physics): the age is 0 at a reset and
+    at a change, one more per step, unchanged by an imposed equal command; the integrator
+    holds while the age is below ``hold_s`` in control periods, then integrates."""
     cfg = EnvConfig(feedback=FeedbackConfig(hold_s=0.06))  # 3 periods of 20 ms
     fake = types.SimpleNamespace(config=cfg)
     a, b = jnp.asarray([0.3, 0.0, 0.0]), jnp.asarray([0.3, 0.0, 0.5])
-    info = refs.command_age(fake, {"command": a})
+    info = refs.track_command(fake, {"command": a, "feedback_integral": jnp.asarray(0.2)})
     ages = [int(info["command_age"])]
     for command, advance in [(a, True), (a, False), (a, True), (b, True), (b, True), (b, False)]:
-        info = {**refs.command_age(fake, info, command, advance), "command": command}
+        info = {**refs.track_command(fake, info, command, advance), "command": command}
         ages.append(int(info["command_age"]))
     assert ages == [0, 1, 1, 2, 0, 1, 1]
+    assert float(info["feedback_integral"]) == pytest.approx(0.2)  # carried: no reset
     off = types.SimpleNamespace(config=EnvConfig())
-    assert refs.command_age(off, {"command": a}) == {"command": a}  # hold_s = 0: no state
+    assert refs.track_command(off, {"command": a}) == {"command": a}  # no rule: no state
 
 
-def _hold_env(hold_s: float, deadband: float = 0.0) -> MecanumEnv:
+def test_the_integrator_restarts_at_each_command_change_with_reset():
+    """``feedback.reset``: the integrator is 0 after a change (stepped or imposed), kept
+    while the command stays, with or without the hold."""
+    for hold_s in (0.0, 0.06):
+        cfg = EnvConfig(feedback=FeedbackConfig(hold_s=hold_s, reset=True))
+        fake = types.SimpleNamespace(config=cfg)
+        a, b = jnp.asarray([0.3, 0.0, 0.0]), jnp.asarray([0.3, 0.0, 0.5])
+        info = {"command": a, "feedback_integral": jnp.asarray(0.2), "command_age": 0}
+        values = []
+        for command, advance in [(a, True), (b, True), (b, True), (a, False)]:
+            info = {**refs.track_command(fake, info, command, advance), "command": command}
+            values.append(float(info["feedback_integral"]))
+            info["feedback_integral"] = jnp.asarray(0.1)  # as if it had integrated
+        assert values == pytest.approx([0.2, 0.0, 0.1, 0.0])
+
+
+def _hold_env(hold_s: float, deadband: float = 0.0, reset: bool = False) -> MecanumEnv:
     rand = RandomizationConfig(enabled=True, radius_scale=(0.95, 0.95), latency_steps=(0, 0))
     cfg = EnvConfig(
         residual_space="twist",
         residual_base="feedback",
         randomization=rand,
-        feedback=FeedbackConfig(hold_s=hold_s, deadband=deadband),
+        feedback=FeedbackConfig(hold_s=hold_s, deadband=deadband, reset=reset),
     )
     return MecanumEnv(dataclasses_replace_noise_off(cfg))
 
 
 @pytest.mark.full  # an environment of its own to compile: tens of seconds on 2 cores
-@pytest.mark.parametrize(("hold_s", "deadband"), [(0.0, 0.0), (0.1, 0.0), (0.1, 0.02)])
-def test_environment_numpy_and_onnx_agree_step_by_step(hold_s, deadband):
+@pytest.mark.parametrize(
+    ("hold_s", "deadband", "restart"),
+    [(0.0, 0.0, False), (0.1, 0.0, False), (0.1, 0.02, False), (0.1, 0.0, True)],
+)
+def test_environment_numpy_and_onnx_agree_step_by_step(hold_s, deadband, restart):
     """Setpoints, the integrator and the observation, step by step, through a command
     change and commands beyond the wheels' reach (the anti-windup and the projection), and
     with the integrator held for ``hold_s`` after each change (the caller holds the ONNX
     graph's integrator, which cannot know the command's age), and the correction's
-    ``deadband``."""
-    env = _hold_env(hold_s, deadband)
+    ``deadband``, and restarted at each change (``restart``, ``feedback.reset``: the
+    observation the NumPy policy reads it from restarts with it)."""
+    env = _hold_env(hold_s, deadband, restart)
     hold_steps = round(hold_s / env.config.control_dt)
     policy = network_free(env)
     assert policy.feedback_hold_steps == hold_steps
+    assert policy.feedback_reset == restart
     ort = pytest.importorskip("onnxruntime")
     from mecanum_jax.deploy.onnx import to_onnx
 
@@ -181,6 +204,10 @@ def test_environment_numpy_and_onnx_agree_step_by_step(hold_s, deadband):
     for k in range(30):
         if k % 15 == 0:
             state = env.set_command(state, jnp.asarray(commands[k // 15], jnp.float32))
+            if restart:  # restarted, in the state and in what the policy observes
+                assert float(state.info["feedback_integral"]) == 0.0
+                assert k == 0 or abs(integral) > 0.05
+                assert float(policy.feedback_twist(np.asarray(state.obs["state"]))[2]) == 0.0
         obs = np.asarray(state.obs["state"])
         action = rng.uniform(-0.3, 0.3, env.action_size).astype(np.float32)
         command = np.asarray(state.info["command"])
@@ -214,7 +241,8 @@ def test_environment_numpy_and_onnx_agree_step_by_step(hold_s, deadband):
         onnx_next = before if age < hold_steps else float(onnx_integral[0, 0])
         assert onnx_next == pytest.approx(integral, abs=1e-5)
         state = nxt
-    assert abs(integral) > 0.05 + deadband  # the correction got through any deadband
+    # the correction got through any deadband (with restart: grew again after the change)
+    assert abs(integral) > (0.02 if restart else 0.05 + deadband)
     assert seen_hold  # beyond reach, the anti-windup held the integrator at least once
 
 
@@ -225,25 +253,32 @@ def dataclasses_replace_noise_off(cfg: EnvConfig) -> EnvConfig:
 
 
 @pytest.mark.full  # an environment of its own to compile: tens of seconds on 2 cores
-def test_the_control_loop_holds_the_integrator_as_the_environment_does():
+@pytest.mark.parametrize("restart", [False, True])
+def test_the_control_loop_holds_the_integrator_as_the_environment_does(restart):
     """The robot-side loop (NumPy) drives the environment tick by tick through command
-    changes, with the integrator held for 0.1 s after each: its observation, integrator
-    included, is the environment's at every tick."""
-    env = _hold_env(0.1)
+    changes, with the integrator held for 0.1 s after each, and restarted at each with
+    ``restart`` (``feedback.reset``): its observation, integrator included, is the
+    environment's at every tick."""
+    env = _hold_env(0.1, reset=restart)
     ctrl = Controller(network_free(env))
     step = jax.jit(env.step)
     state = jax.jit(env.reset)(jax.random.PRNGKey(5))
     scale = np.asarray(env.command_scale)
     commands = [np.asarray(c) * scale for c in ([0.3, 0.0, 0.7], [0.0, 0.4, -0.5], [0.5, 0, 0])]
-    held = 0
+    held, carried = 0, []
     for k in range(36):
         if k % 12 == 0:
+            carried.append(float(state.info["feedback_integral"]))
             state = env.set_command(state, jnp.asarray(commands[k // 12], jnp.float32))
         sens = env.robot.sensors(state.pipeline_state)
         _, action = ctrl.step(state.info["command"], sens.wheel_rate, sens.gyro_z, sens.accel)
         np.testing.assert_allclose(ctrl.observation, state.obs["state"], rtol=1e-5, atol=1e-5)
+        if k % 12 == 0:  # what the new command starts from
+            start = float(state.info["feedback_integral"])
+            assert start == (0.0 if restart else pytest.approx(carried[-1]))
         nxt = step(state, jnp.asarray(action))
         held += float(nxt.info["feedback_integral"]) == float(state.info["feedback_integral"])
         state = nxt
     assert held >= 3 * 5  # five periods after each of the three changes
+    assert min(abs(c) for c in carried[1:]) > 0.01  # there was something to restart
     assert abs(float(state.info["feedback_integral"])) > 0.01

@@ -101,10 +101,15 @@ class AnchorConfig:
     spins: bool = False
     """Also every component on the nominal robot's steady pure spins (within reach) and
     stops, where the base holds v and ωz exactly; off: only ωz on steady no-yaw commands."""
+    translations: bool = False
+    """Also every component on the nominal robot's steady pure translations within reach,
+    where the base's setpoints are ``analytic``'s; off: only their ωz."""
 
     def validate(self, where: str = "ppo.anchor") -> None:
         """Check values; raise :class:`ConfigError` naming the field."""
         require(self, where, ("weight",), lambda v: v >= 0, "must be >= 0 (0: off)")
+        flags = ("spins", "translations")
+        require(self, where, flags, lambda v: isinstance(v, bool), "must be true or false")
 
     @property
     def enabled(self) -> bool:
@@ -127,7 +132,9 @@ def state_extras(
     :func:`~mecanum_jax.task.anchor.exact_components` on the states acted from (``info``)."""
     extras = {"truncation": next_info["truncation"]}
     if anchor.enabled:
-        exact = functools.partial(exact_components, env, spins=anchor.spins)
+        exact = functools.partial(
+            exact_components, env, spins=anchor.spins, translations=anchor.translations
+        )
         extras["anchor"] = jax.vmap(exact)(info)
     return extras
 

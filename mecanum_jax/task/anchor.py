@@ -8,14 +8,18 @@ controller's hold window (the transient is over):
 
 - a pure translation or a stop (commanded ωz = 0) with a yaw rate of at most 0.003 rad/s
   (experiments/straight_line_residual.py): the yaw component is exact;
+- with ``translations``, a pure translation within reach: every component. The base's
+  setpoints are ``analytic``'s there (its correction is of the yaw only, and a steady
+  one is 0 on this robot), and the policy's corrections of a nominal robot's straight
+  lines are what makes it slide after the next stop (six_modes' drift, docs/training.md);
 - a pure spin within reach, or a stop (commanded vx = vy = 0), with a linear speed of
   0.000 m/s and, for a spin, a yaw-rate error of 0.003–0.008 rad/s (`feedback` on 32
   nominal episodes of pure spins, 2026-11-26, docs/evaluation.md): every component is exact.
 
 Any steady correction there is a bias the policy learned from other robots, which costs
 tracking and energy on the robot it was not needed for. :func:`exact_components` marks,
-per component (vx, vy, ωz), where that holds; ``spins=False`` keeps to the yaw component
-of no-yaw commands only.
+per component (vx, vy, ωz), where that holds; ``spins=False`` and ``translations=False``
+keep to the yaw component of no-yaw commands only.
 """
 
 from __future__ import annotations
@@ -48,10 +52,13 @@ def _steady(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
     return info["command_age"] >= hold if hold > 0 else jnp.asarray(True)
 
 
-def exact_components(env: TaskEnv, info: dict[str, Any], spins: bool = False) -> jax.Array:
+def exact_components(
+    env: TaskEnv, info: dict[str, Any], spins: bool = False, translations: bool = False
+) -> jax.Array:
     """(3,) float mask of one robot's state: 1.0 for each twist component (vx, vy, ωz) the
     base holds exactly (see the module), else 0.0. ``spins`` adds steady pure spins within
-    reach and stops, on every component; without it only ωz of steady no-yaw commands."""
+    reach and stops, on every component; ``translations`` steady pure translations within
+    reach, on every component; without them only ωz of steady no-yaw commands."""
     command = info["command"]
     base = is_nominal(env, info) & _steady(env, info)
     no_yaw = command[YAW] == 0.0
@@ -63,6 +70,9 @@ def exact_components(env: TaskEnv, info: dict[str, Any], spins: bool = False) ->
         within = jnp.abs(command[YAW]) <= reach
         lin = base & no_v & within
         yaw = yaw | lin
+    if translations:
+        within = limits.saturation(env.geometry, command, env.max_rates) <= 1.0
+        lin = lin | (base & no_yaw & within)
     return jnp.stack([lin, lin, yaw]).astype(jnp.float32)
 
 

@@ -142,7 +142,7 @@ class MecanumEnv(Env):
             "feedback_gains": self.feedback_gains(),
             "truncation": jnp.asarray(0.0),
         }
-        info = refs.command_age(self, info)
+        info = refs.track_command(self, info)
         obs = obs_.observe(self, sens, info)
         metrics = {k: jnp.asarray(0.0) for k in self.metric_names}
         return State(sim, obs, jnp.asarray(0.0), jnp.asarray(0.0), metrics, info)
@@ -177,7 +177,7 @@ class MecanumEnv(Env):
         step = info["step"] + 1
         resample = step >= info["next_resample"]
         new_command = jnp.where(resample, self.sample_command(k_cmd), command)
-        info = refs.command_age(self, info, new_command)
+        info = refs.track_command(self, info, new_command)
         info["command"] = new_command
         info["next_resample"] = jnp.where(
             resample, cmds.resample_time(self, k_time, step), info["next_resample"]
@@ -193,11 +193,15 @@ class MecanumEnv(Env):
     def set_command(self, state: State, command: jax.Array) -> State:
         """Impose ``command`` from now on (scripted sequences): it replaces the current
         command, in the observations too, and the environment stops resampling."""
-        info = refs.command_age(self, dict(state.info), command, advance=False)
+        info = refs.track_command(self, dict(state.info), command, advance=False)
         info["command"] = command
         info["next_resample"] = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
         scaled = command / self.command_scale
         obs = {k: v.at[:3].set(scaled) for k, v in state.obs.items()}  # command comes first
+        if self.config.feedback.reset and self.feedback_base:  # the integrator, restarted
+            at = obs_.entry_start(self.layout, "feedback_integral")
+            value = info["feedback_integral"] / self.command_scale[2]
+            obs = {k: v.at[at].set(value) for k, v in obs.items()}
         return state.replace(obs=obs, info=info)
 
     def wheel_setpoints(

@@ -79,6 +79,15 @@ def policy_layout(
     return layout
 
 
+def entry_start(layout: Layout, name: str) -> int:
+    """Where entry ``name`` of ``layout`` starts in the observation vector (the privileged
+    layout begins with the policy's, so the same index holds in both)."""
+    names = [n for n, _ in layout]
+    if name not in names:
+        raise KeyError(f"observation entry {name!r} is not in the layout {names}")
+    return sum(size for _, size in layout[: names.index(name)])
+
+
 def sensor_size(n_wheels: int) -> int:
     """One sensor frame: encoder rates, gyro z, accelerometer (3), odometry twist (3)."""
     return n_wheels + 1 + 3 + 3
@@ -180,6 +189,7 @@ __all__ = [
     "NoiseConfig",
     "command_from_obs",
     "delayed",
+    "entry_start",
     "measured_yaw_rate",
     "observe",
     "past_sensors",

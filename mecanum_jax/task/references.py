@@ -39,8 +39,9 @@ class FeedbackConfig:
     of the wheels' reach and ``e`` would drive it further (conditional-integration
     anti-windup), and, with ``hold_s > 0``, for ``hold_s`` after each command change, while
     the servos' transient, not a steady bias, makes the error
-    (experiments/feedback_hold.py). The gains come from a sweep on training-distribution
-    episodes (experiments/tune_feedback.py; docs/evaluation.md): any proportional gain (even 0.02)
+    (experiments/feedback_hold.py). With ``reset`` it restarts at 0 at each command change.
+    The gains come from a sweep on training-distribution episodes
+    (experiments/tune_feedback.py; docs/evaluation.md): any proportional gain (even 0.02)
     raised the steady-state ωz error there, since the servos' own step response overshoots
     within one control step and the gyro arrives noisy and up to 2 steps late; integral
     gains above about 0.8/s oscillate.
@@ -57,6 +58,11 @@ class FeedbackConfig:
     hold_s: float = 0.0
     """The integrator holds for this long after each command change, s (>= 0, whole control
     periods; 0: it integrates through the transient)."""
+    reset: bool = False
+    """The integrator restarts at 0 at each command change: it estimates the bias of the
+    command it tracks, and a slippery floor's yaw deficit belongs to that command. Carried
+    into the next one, it pushes a new spin or a stop the wrong way for seconds, bleeding
+    off at ``ki`` (docs/evaluation.md, the settling of ωz on slippery floors)."""
     deadband: float = 0.0
     """The correction shrinks by this much towards 0, rad/s (>= 0; 0: none). The integrator
     grows through it, so a steady bias is still corrected in full, but the gyro noise's
@@ -70,6 +76,7 @@ class FeedbackConfig:
         fields = ("kp", "ki", "i_max", "hold_s", "deadband")
         require(self, where, fields, lambda v: v >= 0, "must be >= 0")
         require(self, where, ("omega_weight",), lambda v: v > 0, "must be > 0")
+        require(self, where, ("reset",), lambda v: isinstance(v, bool), "must be true or false")
 
     def hold_steps(self, control_dt: float) -> int:
         """``hold_s`` in whole control periods of ``control_dt`` s."""
@@ -137,21 +144,29 @@ def feedback_integral(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
     return jnp.where(hold, info["feedback_integral"], grown)
 
 
-def command_age(
+def track_command(
     env: TaskEnv, info: dict[str, Any], command: jax.Array | None = None, advance: bool = True
 ) -> dict[str, Any]:
-    """``info`` with ``command_age``, the control periods since the tracked command changed,
-    where the feedback controller holds its integrator after changes (``hold_s > 0``; else
-    ``info`` as it is). ``command=None``: a reset, age 0. Otherwise 0 where ``command``
-    differs from the one ``info`` tracked, else one more (``advance``: a step) or the same
-    (a command imposed between steps)."""
-    if env.config.feedback.hold_steps(env.config.control_dt) == 0:
+    """``info`` with what the feedback controller keeps of the tracked command: its age,
+    ``command_age`` in control periods since it changed (where the integrator holds after
+    changes, ``hold_s > 0``), and the integrator restarted at 0 where it changed (``reset``).
+    ``command=None``: a reset, age 0. Otherwise the age is 0 where ``command`` differs from
+    the one ``info`` tracked, else one more (``advance``: a step) or the same (a command
+    imposed between steps). ``info`` as it is when neither rule is on."""
+    fb = env.config.feedback
+    hold = fb.hold_steps(env.config.control_dt) > 0
+    if not (hold or fb.reset):
         return info
     if command is None:
-        return {**info, "command_age": jnp.asarray(0, jnp.int32)}
+        return {**info, "command_age": jnp.asarray(0, jnp.int32)} if hold else info
     changed = jnp.any(command != info["command"])
-    kept = info["command_age"] + 1 if advance else info["command_age"]
-    return {**info, "command_age": jnp.where(changed, 0, kept).astype(jnp.int32)}
+    out = dict(info)
+    if hold:
+        kept = info["command_age"] + 1 if advance else info["command_age"]
+        out["command_age"] = jnp.where(changed, 0, kept).astype(jnp.int32)
+    if fb.reset:
+        out["feedback_integral"] = jnp.where(changed, 0.0, info["feedback_integral"])
+    return out
 
 
 def feedback_rates(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
@@ -197,11 +212,11 @@ __all__ = [
     "Policy",
     "baseline_policy",
     "baseline_rates",
-    "command_age",
     "feasible_target",
     "feedback_integral",
     "feedback_rates",
     "feedback_twist",
     "nearest_rates",
     "reference_rates",
+    "track_command",
 ]
