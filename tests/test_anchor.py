@@ -50,8 +50,8 @@ def _with(info, command, age):
     return {**info, "command": jnp.asarray(command, jnp.float32), "command_age": jnp.asarray(age)}
 
 
-def _mask(env, info, command, age, spins=False, translations=False, everywhere=False):
-    mask = exact_components(env, _with(info, command, age), spins, translations, everywhere)
+def _mask(env, info, command, age, spins=False, translations=False):
+    mask = exact_components(env, _with(info, command, age), spins, translations)
     return [float(x) for x in mask]
 
 
@@ -98,21 +98,6 @@ def test_with_translations_the_mask_marks_every_component_of_steady_translations
     assert _mask(nominal, info, [0.0, 0.0, 1.0], 20, True, True) == [1.0, 1.0, 1.0]  # both
     randomized = _one(robots, False)
     assert _mask(nominal, randomized, inside, 40, translations=True) == [0.0, 0.0, 0.0]
-
-
-def test_everywhere_the_mask_marks_every_component_of_commands_within_reach_transients_too(
-    robots,
-):
-    nominal, info = robots[0], _one(robots, True)
-    direction = jnp.array([0.6, 0.0, 0.8])
-    reach = float(limits.max_speed(nominal.geometry, direction, nominal.max_rates))
-    inside, beyond = (list(map(float, f * reach * direction)) for f in (0.7, 1.2))
-    for age in (0, 5, 40):  # transient or steady
-        assert _mask(nominal, info, inside, age, everywhere=True) == [1.0, 1.0, 1.0]
-        assert _mask(nominal, info, beyond, age, everywhere=True) == [0.0, 0.0, 0.0]
-    assert _mask(nominal, info, [0.3, 0.0, 0.0], 0, everywhere=True) == [1.0, 1.0, 1.0]
-    randomized = _one(robots, False)
-    assert _mask(nominal, randomized, inside, 40, everywhere=True) == [0.0, 0.0, 0.0]
 
 
 def test_state_extras_carry_the_mask_only_when_the_anchor_is_on(robots):
@@ -205,3 +190,4 @@ def test_bad_anchor_settings_name_the_field():
     gpu = load_train_config("gpu")  # as shipped: a twist residual with nominal robots
     assert gpu.ppo.anchor.weight == 1000.0
     assert gpu.ppo.anchor.spins
+    assert gpu.ppo.anchor.translations

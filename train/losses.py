@@ -104,14 +104,11 @@ class AnchorConfig:
     translations: bool = False
     """Also every component on the nominal robot's steady pure translations within reach,
     where the base's setpoints are ``analytic``'s; off: only their ωz."""
-    everywhere: bool = False
-    """Also every component on every state of the nominal robot whose command is within
-    reach, transients included (mecanum_jax/task/anchor.py says why)."""
 
     def validate(self, where: str = "ppo.anchor") -> None:
         """Check values; raise :class:`ConfigError` naming the field."""
         require(self, where, ("weight",), lambda v: v >= 0, "must be >= 0 (0: off)")
-        flags = ("spins", "translations", "everywhere")
+        flags = ("spins", "translations")
         require(self, where, flags, lambda v: isinstance(v, bool), "must be true or false")
 
     @property
@@ -136,11 +133,7 @@ def state_extras(
     extras = {"truncation": next_info["truncation"]}
     if anchor.enabled:
         exact = functools.partial(
-            exact_components,
-            env,
-            spins=anchor.spins,
-            translations=anchor.translations,
-            everywhere=anchor.everywhere,
+            exact_components, env, spins=anchor.spins, translations=anchor.translations
         )
         extras["anchor"] = jax.vmap(exact)(info)
     return extras

@@ -12,18 +12,14 @@ controller's hold window (the transient is over):
   setpoints are ``analytic``'s there (its correction is of the yaw only, and a steady
   one is 0 on this robot), and the policy's corrections of a nominal robot's straight
   lines are what makes it slide after the next stop (six_modes' drift, docs/training.md);
-- with ``everywhere``, every state whose command is within reach, transients included:
-  there the policy's corrections bought the nominal robot no tracking over its base on the
-  tuning episodes (settling of ωz aside) and cost it energy and v (tuning_modes: energy
-  1.06–1.17×, ss v 1.11–1.15× the base's), so the base is what this robot should get;
 - a pure spin within reach, or a stop (commanded vx = vy = 0), with a linear speed of
   0.000 m/s and, for a spin, a yaw-rate error of 0.003–0.008 rad/s (`feedback` on 32
   nominal episodes of pure spins, 2026-11-26, docs/evaluation.md): every component is exact.
 
 Any steady correction there is a bias the policy learned from other robots, which costs
 tracking and energy on the robot it was not needed for. :func:`exact_components` marks,
-per component (vx, vy, ωz), where that holds; without ``spins``, ``translations`` or
-``everywhere`` only the yaw component of steady no-yaw commands.
+per component (vx, vy, ωz), where that holds; ``spins=False`` and ``translations=False``
+keep to the yaw component of no-yaw commands only.
 """
 
 from __future__ import annotations
@@ -57,17 +53,12 @@ def _steady(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
 
 
 def exact_components(
-    env: TaskEnv,
-    info: dict[str, Any],
-    spins: bool = False,
-    translations: bool = False,
-    everywhere: bool = False,
+    env: TaskEnv, info: dict[str, Any], spins: bool = False, translations: bool = False
 ) -> jax.Array:
     """(3,) float mask of one robot's state: 1.0 for each twist component (vx, vy, ωz) the
     base holds exactly (see the module), else 0.0. ``spins`` adds steady pure spins within
     reach and stops, on every component; ``translations`` steady pure translations within
-    reach, on every component; ``everywhere`` every command within reach, steady or not, on
-    every component; without them only ωz of steady no-yaw commands."""
+    reach, on every component; without them only ωz of steady no-yaw commands."""
     command = info["command"]
     base = is_nominal(env, info) & _steady(env, info)
     no_yaw = command[YAW] == 0.0
@@ -82,10 +73,6 @@ def exact_components(
     if translations:
         within = limits.saturation(env.geometry, command, env.max_rates) <= 1.0
         lin = lin | (base & no_yaw & within)
-    if everywhere:
-        within = limits.saturation(env.geometry, command, env.max_rates) <= 1.0
-        every = is_nominal(env, info) & within
-        lin, yaw = lin | every, yaw | every
     return jnp.stack([lin, lin, yaw]).astype(jnp.float32)
 
 

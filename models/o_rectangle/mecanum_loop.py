@@ -25,8 +25,9 @@ It then does what the environment does between two policy calls, in its order:
 
 1. advances the policy's own states with the command tracked *since the last tick* and
    the new readings (the leaky yaw-rate error integral, ``yaw_integral_step``; the
-   ``feedback`` controller's integrator, ``feedback_integral_step``; none on
-   the first tick after :meth:`Controller.reset`, where they start at 0) and, for a
+   ``feedback`` controller's integrator, ``feedback_integral_step``, restarted at 0 on a
+   new command where ``feedback.reset``; none on the first tick after
+   :meth:`Controller.reset`, where they start at 0) and, for a
    policy that observes earlier sensor frames, their history (``sensor_frame``; on the
    first tick, that tick's frame repeated);
 2. builds the observation (``NumpyPolicy.observation``) from the new command, the
@@ -169,6 +170,9 @@ class Controller:
         for entry, state in self.states.items():
             if self.tracked is not None or state.initial is None:
                 self.values[entry] = state.update(self, self.values[entry], self.tracked, reading)
+        changed = self.tracked is not None and bool(np.any(cmd != self.tracked))
+        if changed and "feedback_integral" in self.values and self.policy.feedback_reset:
+            self.values["feedback_integral"] = 0.0  # restarts with each new command
         keywords = {self.states[e].keyword: v for e, v in self.values.items()}
         obs = self.policy.observation(
             cmd, reading.wheel_rate, reading.gyro_z, reading.accel, self.last_action, **keywords
@@ -183,7 +187,7 @@ class Controller:
             )
         self.last_action = np.asarray(action, np.float32)
         if self.tracked is not None:
-            self.command_age = 0 if np.any(cmd != self.tracked) else self.command_age + 1
+            self.command_age = 0 if changed else self.command_age + 1
         self.tracked = cmd
         self.reading = reading
         self.observation = obs

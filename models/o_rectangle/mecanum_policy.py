@@ -11,7 +11,8 @@ This file depends only on NumPy and the standard library. Copy it next to the ex
 
 A policy whose residual corrects the ``feedback`` controller (``meta["residual_base"]``)
 observes that controller's integrator: keep it with ``integral =
-policy.feedback_integral_step(obs)`` after each step (0 at start) and pass it to the next
+policy.feedback_integral_step(obs)`` after each step (0 at start, and 0 again at each
+command change where ``policy.feedback_reset``) and pass it to the next
 ``observation(..., feedback_integral=integral)``. A policy that observes earlier sensor
 frames (``meta["obs_history"]`` > 0, a student) takes the last ones, each
 ``policy.sensor_frame(wheel_rate, gyro_z, accel)``, newest first, as
@@ -137,6 +138,9 @@ class NumpyPolicy:
         integral = x[..., self.entry("feedback_integral")][..., 0] * scale[2]
         err = command[..., 2] - gyro
         u = np.float32(self.feedback["kp"]) * err + integral
+        band = np.float32(self.feedback.get("deadband") or 0.0)  # 0 in older exports
+        if band > 0:
+            u = np.sign(u) * np.maximum(np.abs(u) - band, np.float32(0.0))
         return command + np.asarray([0, 0, 1], np.float32) * u[..., None], err, integral
 
     @property
@@ -145,6 +149,12 @@ class NumpyPolicy:
         export's ``feedback.hold_s``; 0 in exports made before it existed)."""
         hold_s = float(self.feedback.get("hold_s") or 0.0)
         return round(hold_s / float(self.meta["control_dt"]))
+
+    @property
+    def feedback_reset(self) -> bool:
+        """Whether the ``feedback`` integrator restarts at 0 at each command change (the
+        export's ``feedback.reset``; off in exports made before it existed)."""
+        return bool(self.feedback.get("reset") or False)
 
     def feedback_integral_step(self, obs: np.ndarray, command_age: Any = None) -> np.ndarray:
         """The ``feedback`` controller's integrator after this step (rad/s): ``I + ki·e·dt``
