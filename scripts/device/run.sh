@@ -30,6 +30,9 @@
 #                           then `agree MODEL`
 #   agree [MODEL]           nominal on the GPU and on the CPU of the same machine: do the
 #                           steady-state figures agree to 1%? (scripts/eval_agreement.py)
+#   fidelity [MODEL] [N]    MODEL (default models/o_rectangle) and the references on N (default
+#                           8) nominal and N randomized episodes in the reference roller model,
+#                           then in the fast one (JAX physics): $OUT/fidelity_{reference,fast}_*.json
 #   ab MIN 'name|flags'...  variants trained concurrently for MIN minutes on one GPU, each
 #                           packaged as /tmp/model_NAME/o_rectangle and $OUT/model_NAME.tgz
 #                           (compare them next with: tune /tmp/model_NAME/o_rectangle ...); a
@@ -237,6 +240,20 @@ agree() {  # MODEL: the nominal scenario on this GPU and on this machine's CPU (
   python3 scripts/eval_agreement.py /tmp/agree-gpu/report.json /tmp/agree-cpu/report.json
 }
 
+fidelity() {  # [MODEL] [EPISODES]: both physics models on the same nominal and randomized
+  # episodes (docs/evaluation.md, "The shipped policy in both models")
+  local model=${1:-models/o_rectangle} n=${2:-8} f
+  for f in reference fast; do
+    echo "== $model in the $f model, $n episodes"
+    evaluate "$model" default "/tmp/fid-$f-nominal" --only nominal --episodes "$n" \
+      --fidelity "$f" --physics-impl jax --no-plots 2>&1 | quiet | tail -16
+    evaluate "$model" randomized "/tmp/fid-$f-randomized" --episodes "$n" \
+      --fidelity "$f" --physics-impl jax --no-plots 2>&1 | quiet | tail -16
+    cp "/tmp/fid-$f-nominal/report.json" "$O/fidelity_${f}_nominal.json"
+    cp "/tmp/fid-$f-randomized/report.json" "$O/fidelity_${f}_randomized.json"
+  done
+}
+
 profile() {  # [--trace] [flags]: the epoch's parts (train/profile.py)
   local trace=()
   if [ "${1:-}" = --trace ]; then shift; rm -rf /tmp/profile-trace; trace=(--trace-dir /tmp/profile-trace); fi
@@ -290,6 +307,7 @@ case "$TASK" in
     cp /tmp/gpu/metrics.jsonl /tmp/gpu/summary.json "$O/" ;;
   ship) ship "$@" ;;
   seeds) seeds "$@" ;;
+  fidelity) fidelity "$@" ;;
   tune)  # TUNE_JOBS=N: N evaluations at once (they share the GPU; compiling is most of each)
     i=0; names=(); rm -rf /tmp/tune-reports; mkdir -p /tmp/tune-reports
     shipped=(models/o_rectangle); [ "${TUNE_SHIPPED:-1}" = 0 ] && shipped=()
