@@ -10,8 +10,7 @@ controller's hold window (the transient is over):
   (experiments/straight_line_residual.py): the yaw component is exact;
 - with ``translations``, a pure translation within reach: every component. The base's
   setpoints are ``analytic``'s there (its correction is of the yaw only, and a steady
-  one is 0 on this robot), and the policy's corrections of a nominal robot's straight
-  lines are what makes it slide after the next stop (six_modes' drift, docs/training.md);
+  one is 0 on this robot, behind the deadband);
 - a pure spin within reach, or a stop (commanded vx = vy = 0), with a linear speed of
   0.000 m/s and, for a spin, a yaw-rate error of 0.003–0.008 rad/s (`feedback` on 32
   nominal episodes of pure spins, 2026-11-26, docs/evaluation.md): every component is exact.
@@ -64,14 +63,11 @@ def exact_components(
     no_yaw = command[YAW] == 0.0
     yaw = base & no_yaw
     lin = jnp.asarray(False)
+    within = limits.saturation(env.geometry, command, env.max_rates) <= 1.0  # in reach
     if spins:
-        no_v = jnp.all(command[:YAW] == 0.0)
-        reach = limits.max_speed(env.geometry, jnp.array([0.0, 0.0, 1.0]), env.max_rates)
-        within = jnp.abs(command[YAW]) <= reach
-        lin = base & no_v & within
+        lin = base & jnp.all(command[:YAW] == 0.0) & within
         yaw = yaw | lin
     if translations:
-        within = limits.saturation(env.geometry, command, env.max_rates) <= 1.0
         lin = lin | (base & no_yaw & within)
     return jnp.stack([lin, lin, yaw]).astype(jnp.float32)
 
