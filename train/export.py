@@ -166,6 +166,7 @@ def task_meta(env: MecanumEnv) -> dict[str, Any]:
         "yaw_integral_tau": cfg.yaw_integral_tau,
         "obs_history": cfg.obs_history,
         "action_filter": cfg.action_filter,
+        "residual_at_stop": cfg.residual_at_stop,
         "max_rates": np.asarray(env.max_rates).tolist(),
         "command_scale": np.asarray(env.command_scale).tolist(),
         "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),

@@ -5,7 +5,9 @@ The graph holds everything between the observation vector and the servos:
 
 - the observation normalizer (``(obs − mean) / std``, as Brax's running statistics apply
   it) and the observation clip (``± clip_observations``);
-- the policy network, deterministic (``action = tanh(loc)``);
+- the policy network, deterministic (``action = tanh(loc)``), 0 at a stop command where
+  the policy was trained with ``residual_at_stop = false``, and low-passed where it was
+  trained with an action filter;
 - the control loop around it: the command read back from the observation's first three
   entries, the analytic baseline (nominal inverse model, desaturated uniformly), the
   residual correction per wheel or of the twist, and the clip to the wheel-rate limits.
@@ -90,6 +92,12 @@ def to_onnx(policy: NumpyPolicy) -> Any:
     start = g.const("zero", [0], np.int64)
     axis = g.const("last_axis", [-1], np.int64)
     loc = g.op("Slice", x, start, g.const("n_act", [n_act], np.int64), axis)
+    squashed = g.op("Tanh", loc)
+    if not policy.residual_at_stop:  # 0 while the observed command is a stop (NumpyPolicy)
+        cmd = g.op("Slice", "observation", start, g.const("cmd_end", [3], np.int64), axis)
+        zero = g.op("Cast", g.op("Equal", cmd, g.const("stop_zero", 0.0)), to=1)  # 1: FLOAT
+        stop = g.op("ReduceMin", zero, axes=[-1], keepdims=1)
+        squashed = g.op("Mul", squashed, g.op("Sub", g.const("stop_one", 1.0), stop))
     f = float(meta.get("action_filter") or 0.0)
     if f > 0:  # low-passed with the last action the observation carries
         where = policy.entry("last_action")
@@ -100,10 +108,10 @@ def to_onnx(policy: NumpyPolicy) -> Any:
             g.const("last_end", [where.stop], np.int64),
             axis,
         )
-        new = g.op("Mul", g.op("Tanh", loc), g.const("keep_new", 1.0 - f))
+        new = g.op("Mul", squashed, g.const("keep_new", 1.0 - f))
         action = g.op("Add", g.op("Mul", last, g.const("keep_last", f)), new, name="action")
     else:
-        action = g.op("Tanh", loc, name="action")
+        action = g.op("Identity", squashed, name="action")
 
     # the control loop: command from the observation, the desaturated baseline, the residual
     jt = g.const("jacobian_t", policy.jacobian.T)

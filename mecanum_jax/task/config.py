@@ -54,6 +54,14 @@ class EnvConfig:
     shake the chassis; a policy whose actions flicker by 0.03 makes the yaw rate swing by
     0.3 rad/s where a constant correction makes it swing by none.
 
+    ``residual_at_stop = false`` turns the learned correction off while the command is a
+    stop (every component exactly 0; a joystick's deadzone must send 0): the action is
+    taken as 0 before the filter, so the applied correction fades with the filter and the
+    base stops the robot as it would alone. On the nominal robot the base's stop returns
+    the robot to where the commands put it (its wheels lag the command as much on the way
+    down as on the way up); a correction that brakes harder leaves it short
+    (experiments/six_modes_drift.py, docs/evaluation.md).
+
     ``obs_history`` = H > 0 appends the H sensor frames before the observed one (encoders,
     gyro, accelerometer, odometry twist, as observed: noisy and as delayed as the current
     frame), newest first: the 0.5 to 1 s of history (25 to 50 frames at 20 ms) from which a
@@ -84,6 +92,8 @@ class EnvConfig:
     """What the residual corrects: "analytic" (the baseline) or "feedback" (the PI loop)."""
     yaw_integral_tau: float = 0.0
     """Time constant of the observed leaky yaw-rate error integral, s (>= 0; 0: off)."""
+    residual_at_stop: bool = True
+    """Whether the residual acts while the command is a stop (false: the base alone stops)."""
     action_filter: float = 0.0
     """Low-pass factor of the actions, f in [0, 1): applied = f·previous + (1 − f)·new (0: off)."""
     obs_history: int = 0
@@ -116,6 +126,10 @@ class EnvConfig:
         if self.residual_base not in RESIDUAL_BASES:
             raise invalid(
                 f"{where}.residual_base", self.residual_base, f"expected one of {RESIDUAL_BASES}"
+            )
+        if not self.residual_at_stop and not self.residual:
+            raise invalid(
+                f"{where}.residual_at_stop", self.residual_at_stop, "needs residual = true"
             )
         if self.residual_base == "feedback" and not self.residual:
             raise invalid(f"{where}.residual_base", self.residual_base, "needs residual = true")

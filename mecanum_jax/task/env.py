@@ -154,6 +154,8 @@ class MecanumEnv(Env):
         when ``reference`` is given."""
         info = dict(state.info)
         action = jnp.clip(action, -1.0, 1.0)
+        if not self.config.residual_at_stop:  # the base alone stops (EnvConfig)
+            action = jnp.where(jnp.all(info["command"] == 0.0), 0.0, action)
         if self.config.action_filter > 0:  # the applied action, low-passed (EnvConfig)
             f = self.config.action_filter
             action = f * info["last_action"] + (1.0 - f) * action
