@@ -6,7 +6,7 @@
 #
 # warp/bin/warp.so is recompressed with xz (about 78 MB), the rest of the wheel, less its
 # examples and tests, goes into a tar.xz (about 21 MB); both are cut into .warp/part-* of
-# at most 47 MiB (with the tree, under the 64 MiB a call carries). Each device call carries one part and copies it to /tmp/stash (which
+# at most 33 MiB (with the tree, about 28 MB, under the 64 MiB a call carries). Each device call carries one part and copies it to /tmp/stash (which
 # survives while the machine stays warm: start each call within about 30 s of the last).
 # The last call carries .whl too and runs scripts/device/run.sh --warp, which rebuilds
 # warp under /tmp/site before its task, e.g. `run.sh --warp bench physics --impls jax warp`.
@@ -26,7 +26,7 @@ rm "$work/wheel/warp/bin/warp.so"
 tar -C "$work/wheel" --exclude='warp/examples' --exclude='warp/tests' -cf - . |
   xz -9e -T0 >"$work/rest.tar.xz"
 rm -f .warp/part-*
-cat "$work/warp.so.xz" "$work/rest.tar.xz" | split -b 47M -d - .warp/part-
+cat "$work/warp.so.xz" "$work/rest.tar.xz" | split -b 33M -d - .warp/part-
 python3 - "$work" <<'EOF' >.warp/manifest.txt
 import os, sys
 work = sys.argv[1]
