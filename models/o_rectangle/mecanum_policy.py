@@ -88,6 +88,12 @@ class NumpyPolicy:
         ``f·last_action + (1 − f)·network``, with ``last_action`` read from ``obs``."""
         return float(self.meta.get("action_filter") or 0.0)
 
+    @property
+    def residual_at_stop(self) -> bool:
+        """False: :meth:`action` takes the network's action as 0 while the observed command
+        is a stop (every component exactly 0), before the filter (true in older exports)."""
+        return bool(self.meta.get("residual_at_stop", True))
+
     def entry(self, name: str) -> slice:
         """Where the observation entry ``name`` lies in the observation vector."""
         start = 0
@@ -99,8 +105,9 @@ class NumpyPolicy:
 
     def action(self, obs: np.ndarray) -> np.ndarray:
         """Actions (..., action_size) in [-1, 1] for policy observations: a correction per
-        wheel, or of the body twist (``meta["residual_space"]``), low-passed with the last
-        action when the policy was trained so (:attr:`action_filter`)."""
+        wheel, or of the body twist (``meta["residual_space"]``), 0 at a stop command where
+        :attr:`residual_at_stop` is false, low-passed with the last action when the policy
+        was trained so (:attr:`action_filter`)."""
         x = np.asarray(obs, np.float32)
         if x.shape[-1:] != (self.observation_size,):
             raise ValueError(
@@ -117,6 +124,9 @@ class NumpyPolicy:
             if i < len(self.layers) - 1:
                 x = self.activation(x)
         action = np.tanh(x[..., : self.action_size])
+        if not self.residual_at_stop:  # the base alone stops: no correction at a zero command
+            stop = np.all(raw[..., :3] == 0.0, axis=-1, keepdims=True)
+            action = np.where(stop, np.float32(0.0), action)
         f = np.float32(self.action_filter)
         if f > 0:
             action = f * raw[..., self.entry("last_action")] + (np.float32(1.0) - f) * action
