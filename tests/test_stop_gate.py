@@ -100,15 +100,20 @@ def test_the_environment_applies_what_the_numpy_policy_computes(env):
         np.zeros(3),
         np.asarray([0.0, 0.3, 0.5]) * scale,
     ]
+    # the network's output, before the rule and the filter (what PPO samples around)
+    network = jnp.asarray(np.tanh(BIAS))
     faded = []
     for k in range(30):
         if k % 10 == 0:
             state = env.set_command(state, jnp.asarray(commands[k // 10], jnp.float32))
         obs = np.asarray(state.obs["state"])
         action = policy.action(obs)
-        # the network's output, before the rule and the filter (what PPO samples around)
-        network = np.tanh(BIAS)
-        nxt = step(state, jnp.asarray(network))
+        command = np.asarray(state.info["command"])
+        expected = env.wheel_setpoints(jnp.asarray(command), jnp.asarray(action), state.info)
+        np.testing.assert_allclose(
+            policy.wheel_setpoints(command, action, obs), np.asarray(expected), atol=2e-3
+        )
+        nxt = step(state, network)
         np.testing.assert_allclose(np.asarray(nxt.info["last_action"]), action, atol=1e-6)
         if 10 <= k < 20:
             faded.append(float(np.max(np.abs(action))))

@@ -92,12 +92,14 @@ def to_onnx(policy: NumpyPolicy) -> Any:
     start = g.const("zero", [0], np.int64)
     axis = g.const("last_axis", [-1], np.int64)
     loc = g.op("Slice", x, start, g.const("n_act", [n_act], np.int64), axis)
+    # the command, scaled as observed: the observation's first three entries
+    scaled = g.op("Slice", "observation", start, g.const("three", [3], np.int64), axis)
+    g.const("one", 1.0)
     squashed = g.op("Tanh", loc)
     if not policy.residual_at_stop:  # 0 while the observed command is a stop (NumpyPolicy)
-        cmd = g.op("Slice", "observation", start, g.const("cmd_end", [3], np.int64), axis)
-        zero = g.op("Cast", g.op("Equal", cmd, g.const("stop_zero", 0.0)), to=1)  # 1: FLOAT
+        zero = g.op("Cast", g.op("Equal", scaled, g.const("stop_zero", 0.0)), to=1)  # FLOAT
         stop = g.op("ReduceMin", zero, axes=[-1], keepdims=1)
-        squashed = g.op("Mul", squashed, g.op("Sub", g.const("stop_one", 1.0), stop))
+        squashed = g.op("Mul", squashed, g.op("Sub", "one", stop))
     f = float(meta.get("action_filter") or 0.0)
     if f > 0:  # low-passed with the last action the observation carries
         where = policy.entry("last_action")
@@ -115,10 +117,8 @@ def to_onnx(policy: NumpyPolicy) -> Any:
 
     # the control loop: command from the observation, the desaturated baseline, the residual
     jt = g.const("jacobian_t", policy.jacobian.T)
-    scaled = g.op("Slice", "observation", start, g.const("three", [3], np.int64), axis)
     command = g.op("Mul", scaled, g.const("command_scale", policy.command_scale))
     m = g.const("max_rates", max_rates)
-    g.const("one", 1.0)
     outputs = []
     if policy.feedback_base:
         base = _feedback_base(g, policy, command, jt, m)
