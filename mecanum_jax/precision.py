@@ -15,6 +15,9 @@ CPU. Two guards keep figures device-independent:
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 import jax
 
 from mecanum_jax.config import ConfigError
@@ -37,10 +40,30 @@ def set_matmul_precision(name: str, where: str = "run.matmul_precision") -> None
     jax.config.update("jax_default_matmul_precision", None if name == "default" else name)
 
 
+@contextlib.contextmanager
+def matmul_precision_scope(name: str, where: str = "precision") -> Iterator[None]:
+    """Trace the block's matrix products at precision ``name`` (one of :data:`PRECISIONS`),
+    whatever the global setting. JAX writes the precision into each product when it is
+    traced; ``default`` is written as ``Precision.DEFAULT``, not left unset, because a
+    transformation that re-traces the block later (``vmap`` of a ``scan`` body) would
+    resolve an unset one against the global setting. The kinematics pass :data:`HIGHEST`
+    themselves and are not affected."""
+    if name not in PRECISIONS:
+        raise ConfigError(f"{where} = {name!r}: expected one of {list(PRECISIONS)}")
+    with jax.default_matmul_precision(name):
+        yield
+
+
 def matmul_precision() -> str:
     """The precision now in force (``default`` when JAX's own)."""
     value = getattr(jax.config, "jax_default_matmul_precision", None)
     return "default" if value is None else str(value)
 
 
-__all__ = ["HIGHEST", "PRECISIONS", "matmul_precision", "set_matmul_precision"]
+__all__ = [
+    "HIGHEST",
+    "PRECISIONS",
+    "matmul_precision",
+    "matmul_precision_scope",
+    "set_matmul_precision",
+]

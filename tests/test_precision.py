@@ -38,6 +38,7 @@ def all_highest(fn: Any, *args: Any) -> list[Any]:
     return [p for p in precisions if p != (HIGHEST, HIGHEST)]
 
 
+DEFAULT = jax.lax.Precision.DEFAULT
 GEOM = geometry.o_rectangle(0.05, 0.1, 0.125)
 RATES = jnp.full((4,), 30.0)
 
@@ -104,3 +105,87 @@ def test_mecanum_eval_sets_the_configs_precision_before_tracing(monkeypatch, tmp
         assert seen["env"] == "default"
     finally:
         set_matmul_precision(before)
+
+
+def _grad_products(name: str) -> list[Any]:
+    from train.losses import at_precision
+
+    def loss(w: jax.Array, x: jax.Array) -> jax.Array:
+        return jnp.sum(jnp.tanh(x @ w) @ w)
+
+    fn = at_precision(jax.grad(loss), name)
+    before = matmul_precision()
+    set_matmul_precision("highest")
+    try:
+        return dot_precisions(jax.make_jaxpr(fn)(jnp.ones((3, 3)), jnp.ones((5, 3))).jaxpr)
+    finally:
+        set_matmul_precision(before)
+
+
+def test_the_update_precision_applies_to_a_gradient_inside_and_only_there():
+    """``ppo.update_precision``: the wrapped loss-and-gradient's products (forward and
+    backward) follow it; ``run`` leaves them at the run's precision."""
+    run, tf32 = _grad_products("run"), _grad_products("default")
+    assert len(run) == len(tf32) >= 4
+    assert all(p == (HIGHEST, HIGHEST) for p in run)
+    assert all(p == (DEFAULT, DEFAULT) for p in tf32)
+    with pytest.raises(ConfigError, match=r"ppo.update_precision = 'tf32'"):
+        _grad_products("tf32")
+
+
+def test_a_bad_update_precision_in_a_config_names_the_field():
+    import dataclasses
+
+    from train.config import load_train_config
+
+    cfg = load_train_config("tiny")
+    bad = dataclasses.replace(cfg, ppo=dataclasses.replace(cfg.ppo, update_precision="fast"))
+    with pytest.raises(ConfigError, match=r"ppo.update_precision = 'fast'"):
+        bad.validate()
+
+
+@pytest.mark.full  # traces a learner's rollouts and update (MJX physics)
+def test_the_learner_updates_at_its_update_precision_and_rolls_out_at_the_runs(tiny):
+    """With ``update_precision = "default"`` the update's network products drop to the
+    device's default while the rollouts (policy inference, physics) stay at ``highest``.
+    The learner vmaps its update's scans over seeds, which re-traces their bodies after
+    the scope has closed: the products must carry their precision explicitly."""
+    import dataclasses
+
+    import numpy as np
+
+    from train.parallel import AXIS
+    from train.ppo import Learner
+
+    def products(cfg: Any) -> tuple[list[Any], list[Any]]:
+        learner = Learner(cfg)
+        state, env_keys = learner.init_training()
+        ts = jax.tree.map(lambda x: jnp.asarray(x[0, 0]), state)
+        keys = jnp.asarray(np.asarray(env_keys)[0, 0])
+        env = jax.eval_shape(learner.train_env.reset, keys)
+        one = lambda x: jax.ShapeDtypeStruct((1, *x.shape), x.dtype)  # noqa: E731
+        ts, env = jax.tree.map(one, (ts, env))
+        rollouts_fn = jax.vmap(learner.iteration_rollouts, axis_name=AXIS)
+        update_fn = jax.vmap(learner.update, axis_name=AXIS)  # one device's share
+        with jax.numpy_rank_promotion("allow"):  # as the learner's epoch runs them
+            rollouts = jax.make_jaxpr(rollouts_fn)(ts, env)
+            _, data, _, _ = jax.eval_shape(rollouts_fn, ts, env)
+            update = jax.make_jaxpr(update_fn)(ts, data, ts.key)
+        return dot_precisions(rollouts.jaxpr), dot_precisions(update.jaxpr)
+
+    before = matmul_precision()
+    set_matmul_precision("highest")
+    try:
+        roll_run, update_run = products(tiny)
+        cfg = dataclasses.replace(
+            tiny, ppo=dataclasses.replace(tiny.ppo, update_precision="default")
+        )
+        roll_tf32, update_tf32 = products(cfg)
+    finally:
+        set_matmul_precision(before)
+    assert update_run
+    assert all(p == (HIGHEST, HIGHEST) for p in roll_run + update_run)
+    assert all(p == (HIGHEST, HIGHEST) for p in roll_tf32)
+    assert len(update_tf32) == len(update_run)
+    lowered = [p for p in update_tf32 if p == (DEFAULT, DEFAULT)]
+    assert len(lowered) >= len(update_tf32) // 2, update_tf32

@@ -23,6 +23,7 @@ from mecanum_jax.config import (
     load_toml,
     require,
 )
+from mecanum_jax.precision import PRECISIONS
 from mecanum_jax.task import EnvConfig
 from mecanum_jax.task.fidelity import check_task
 from train.loggers import check_wandb
@@ -96,6 +97,10 @@ class PPOConfig:
     """Clip the policy's and the value function's gradients separately, not together."""
     policy_warmup_steps: int = 0
     """Ramp the policy's updates from zero over this many env steps (>= 0; 0: off)."""
+    update_precision: Literal["run", "default", "high", "highest"] = "run"
+    """Matmul precision of the update's forward and backward passes (train/losses.py
+    ``at_precision``): ``run`` keeps ``run.matmul_precision``; ``default`` lets an
+    NVIDIA GPU use TF32 there. Rollouts and evaluations keep the run's precision."""
     smoothness: SmoothnessConfig = SmoothnessConfig()
     """CAPS-style smoothness terms in the policy loss (train/losses.py; off by default)."""
     distill: DistillConfig = DistillConfig()
@@ -204,6 +209,12 @@ class TrainConfig:
         require(p, "ppo", ("entropy_cost",), lambda v: v >= 0, "must be >= 0")
         require(p, "ppo", ("clip_observations",), lambda v: v >= 0, "must be >= 0 (0: off)")
         require(p, "ppo", ("policy_warmup_steps",), lambda v: v >= 0, "must be >= 0 (0: off)")
+        if p.update_precision not in ("run", *PRECISIONS):
+            raise invalid(
+                "ppo.update_precision",
+                p.update_precision,
+                f"expected one of {['run', *PRECISIONS]}",
+            )
         p.smoothness.validate("ppo.smoothness")
         p.distill.validate("ppo.distill")
         p.anchor.validate("ppo.anchor")

@@ -42,6 +42,7 @@ import jax.numpy as jnp
 from brax.training.agents.ppo import losses as ppo_losses
 
 from mecanum_jax.config import require
+from mecanum_jax.precision import matmul_precision_scope
 from mecanum_jax.task.anchor import exact_components
 
 if TYPE_CHECKING:
@@ -230,3 +231,19 @@ __all__ = [
     "smoothness_loss",
     "state_extras",
 ]
+
+
+def at_precision(fn: Callable[..., Any], name: str) -> Callable[..., Any]:
+    """``fn`` (the loss and its gradient) traced with matrix products at precision ``name``
+    (``ppo.update_precision``; ``"run"``: ``fn`` itself, at the run's precision). Only the
+    update's forward and backward passes change: the rollouts, the evaluation and the
+    kinematics keep the run's precision."""
+    if name == "run":
+        return fn
+
+    @functools.wraps(fn)
+    def traced_at(*args: Any, **kwargs: Any) -> Any:
+        with matmul_precision_scope(name, "ppo.update_precision"):
+            return fn(*args, **kwargs)
+
+    return traced_at

@@ -98,7 +98,8 @@ class Learner:
             clipping_epsilon=p.clipping_epsilon,
             normalize_advantage=True,
         )
-        self._loss_and_grad = gradients.loss_and_pgrad(loss_fn, pmap_axis_name=AXIS, has_aux=True)
+        grad = gradients.loss_and_pgrad(loss_fn, pmap_axis_name=AXIS, has_aux=True)
+        self._loss_and_grad = losses.at_precision(grad, p.update_precision)
         self._compiled_epoch: Any = None
         self.parallel = parallel.choose(cfg, self.devices, self.n_processes)
         if self.parallel == "pmap":
