@@ -129,6 +129,45 @@ def plot_learning_curve(run_dir: Path, out: Path) -> Path:
     return out
 
 
+def plot_runs_against_time(runs: dict[str, Path], out: Path) -> Path:
+    """Several runs' learning curves against wall time (PNG), a colour per run and a line
+    per seed: the training reward, and the randomized evaluation's steady-state error of
+    v and ωz as ratios to ``analytic``'s on the same episodes. For variants that run at
+    different speeds: learning is compared at equal wall time (docs/benchmarks.md).
+    ``runs`` maps a label to a run directory or its ``metrics.jsonl``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+    for colour, (label, path) in enumerate(runs.items()):
+        path = Path(path)
+        path = path / "metrics.jsonl" if path.is_dir() else path
+        rows = [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
+        if not any("eval" in r for r in rows):
+            raise ValueError(f"{path}: no evaluation logged")
+        for i, seed in enumerate(dict.fromkeys(r.get("seed") for r in rows)):
+            mine = [r for r in rows if r.get("seed") == seed]
+            first = label if i == 0 else None
+            t = [r["walltime"] for r in mine]
+            axes[0].plot(t, [_float(r["train"]["reward"]) for r in mine], f"C{colour}", label=first)
+            ev = [r for r in mine if "eval" in r]
+            for ax, key in ((axes[1], "ss_lin"), (axes[2], "ss_wz")):
+                y = [_float(r["compare"][SCENARIO][key]["ratio"]) for r in ev]
+                ax.plot([r["walltime"] for r in ev], y, f"C{colour}o-", label=first)
+    axes[0].set(title="training reward per step", xlabel="wall time (s)")
+    for ax, key in ((axes[1], "ss v"), (axes[2], "ss ωz")):
+        ax.axhline(1.0, color="C3", ls=":", label="analytic")
+        ax.set(title=f"{SCENARIO} {key} / analytic", xlabel="wall time (s)")
+    axes[0].legend(fontsize=7)
+    axes[2].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
 def write_plot(run_dir: Path) -> Path | None:
     """``<run>/learning_curve.png``, when the run logged an evaluation and matplotlib is
     installed; else ``None``."""
@@ -137,4 +176,11 @@ def write_plot(run_dir: Path) -> Path | None:
     return plot_learning_curve(run_dir, Path(run_dir) / PLOT_NAME)
 
 
-__all__ = ["PLOT_NAME", "evaluations", "learned_table", "plot_learning_curve", "write_plot"]
+__all__ = [
+    "PLOT_NAME",
+    "evaluations",
+    "learned_table",
+    "plot_learning_curve",
+    "plot_runs_against_time",
+    "write_plot",
+]
