@@ -189,3 +189,13 @@ def test_the_learner_updates_at_its_update_precision_and_rolls_out_at_the_runs(t
     assert len(update_tf32) == len(update_run)
     lowered = [p for p in update_tf32 if p == (DEFAULT, DEFAULT)]
     assert len(lowered) >= len(update_tf32) // 2, update_tf32
+
+
+def test_the_throughput_table_names_the_updates_precision_where_it_differs():
+    from train.bench import _precision
+
+    assert _precision({"matmul_precision": "highest", "update_precision": "run"}) == "highest"
+    assert _precision({"matmul_precision": "highest", "update_precision": "highest"}) == "highest"
+    assert _precision({"matmul_precision": "highest"}) == "highest"  # results before the field
+    row = {"matmul_precision": "highest", "update_precision": "default"}
+    assert _precision(row) == "highest/default"

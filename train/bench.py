@@ -61,6 +61,7 @@ def measure(cfg: TrainConfig, epochs: int) -> dict[str, Any]:
         "num_minibatches": cfg.ppo.num_minibatches,
         "substeps": learner.env.substeps,
         "matmul_precision": cfg.run.matmul_precision,
+        "update_precision": cfg.ppo.update_precision,
         "devices": learner.n_devices * learner.n_processes,
         "first_epoch_s": first,
         "epoch_s": times,
@@ -71,6 +72,13 @@ def measure(cfg: TrainConfig, epochs: int) -> dict[str, Any]:
         "processes": jax.process_count(),
         "finite": bool(np.all(to_host(metrics["finite"]) > 0)),
     }
+
+
+def _precision(r: dict[str, Any]) -> str:
+    """The run's matmul precision, and the update's where it differs (``highest/default``)."""
+    update = r.get("update_precision", "run")
+    run = r["matmul_precision"]
+    return run if update in ("run", run) else f"{run}/{update}"
 
 
 def _table(results: list[dict[str, Any]]) -> Table:
@@ -92,7 +100,7 @@ def _table(results: list[dict[str, Any]]) -> Table:
             str(r["num_envs"]),
             str(r["devices"]),
             str(r["seeds"]),
-            r["matmul_precision"],
+            _precision(r),
             f"{r['first_epoch_s']:.1f}",
             f"{r['steps_per_s_median']:,.0f}",
             f"{r['physics_steps_per_s_median']:,.0f}",
