@@ -28,8 +28,11 @@
 #   eval [MODEL]            the evaluation table: MODEL (default models/o_rectangle) against the
 #                           references on the default scenarios and 1024 randomized episodes,
 #                           then `agree MODEL`
-#   agree [MODEL]           nominal on the GPU and on the CPU of the same machine: do the
-#                           steady-state figures agree to 1%? (scripts/eval_agreement.py)
+#   agree [MODEL [SET SCENARIO [N]]]  SCENARIO of configs/eval/SET.toml (default: default
+#                           nominal, its own episodes; N: that many) on the GPU and on the CPU
+#                           of the same machine: do the steady-state figures agree to 1%?
+#                           (scripts/eval_agreement.py; e.g. tuning tuning_nominal 64 checks a
+#                           tuning table without playing held-out episodes)
 #   fidelity [MODEL] [N]    MODEL (default models/o_rectangle) and the references on N (default
 #                           8) nominal and N randomized episodes in the reference roller model,
 #                           then in the fast one (JAX physics): $OUT/fidelity_{reference,fast}_*.json
@@ -231,11 +234,14 @@ multi_gpu() {  # EPOCHS [VARIANT...] [-- FLAGS...]: one process per variant, so 
   done
 }
 
-agree() {  # MODEL: the nominal scenario on this GPU and on this machine's CPU (JAX physics)
-  echo "== GPU/CPU agreement of the steady-state figures: $1, nominal, JAX physics"
-  evaluate "$1" default /tmp/agree-gpu --only nominal --physics-impl jax --no-plots 2>&1 | quiet | tail -3
-  JAX_PLATFORMS=cpu evaluate "$1" default /tmp/agree-cpu --only nominal --physics-impl jax \
+agree() {  # MODEL [SET SCENARIO [N]]: a scenario on this GPU and on this machine's CPU (JAX physics)
+  local set=${2:-default} only=${3:-nominal} n=()
+  [ -z "${4:-}" ] || n=(--episodes "$4")
+  echo "== GPU/CPU agreement of the steady-state figures: $1, $set $only, JAX physics"
+  evaluate "$1" "$set" /tmp/agree-gpu --only "$only" ${n[@]+"${n[@]}"} --physics-impl jax \
     --no-plots 2>&1 | quiet | tail -3
+  JAX_PLATFORMS=cpu evaluate "$1" "$set" /tmp/agree-cpu --only "$only" ${n[@]+"${n[@]}"} \
+    --physics-impl jax --no-plots 2>&1 | quiet | tail -3
   cp /tmp/agree-gpu/report.json "$O/agree_gpu.json"; cp /tmp/agree-cpu/report.json "$O/agree_cpu.json"
   python3 scripts/eval_agreement.py /tmp/agree-gpu/report.json /tmp/agree-cpu/report.json
 }
@@ -333,7 +339,7 @@ case "$TASK" in
     done
     (cd /tmp && tar czf "$O/plots.tgz" eval-default/*.png eval-randomized/*.png)
     [ "${AGREE:-1}" = 1 ] && agree "${1:-models/o_rectangle}" ;;  # AGREE=0: skip the check
-  agree) agree "${1:-models/o_rectangle}" ;;
+  agree) agree "${1:-models/o_rectangle}" "${@:2}" ;;
   ab) ab "$@" ;;
   student) student "$@" ;;
   multi-gpu) multi_gpu "$@" ;;
