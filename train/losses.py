@@ -221,18 +221,6 @@ def ppo_loss_with_terms(
     return loss + extra, {**metrics, **terms, "total_loss": loss + extra}
 
 
-__all__ = [
-    "AnchorConfig",
-    "DistillConfig",
-    "SmoothnessConfig",
-    "anchor_loss",
-    "imitation_loss",
-    "ppo_loss_with_terms",
-    "smoothness_loss",
-    "state_extras",
-]
-
-
 def at_precision(fn: Callable[..., Any], name: str) -> Callable[..., Any]:
     """``fn`` (the loss and its gradient) traced with matrix products at precision ``name``
     (``ppo.update_precision``; ``"run"``: ``fn`` itself, at the run's precision). Only the
@@ -247,3 +235,16 @@ def at_precision(fn: Callable[..., Any], name: str) -> Callable[..., Any]:
             return fn(*args, **kwargs)
 
     return traced_at
+
+
+__all__ = [
+    "AnchorConfig",
+    "DistillConfig",
+    "SmoothnessConfig",
+    "anchor_loss",
+    "at_precision",
+    "imitation_loss",
+    "ppo_loss_with_terms",
+    "smoothness_loss",
+    "state_extras",
+]
