@@ -22,7 +22,6 @@ import numpy as np
 from mecanum_jax.evaluation import metrics
 from mecanum_jax.evaluation.rollout import _wrap, intended_poses, relative_poses
 from train import evaluate as train_eval
-from train.eval_args import EvalArgs
 
 WHO = ("policy", "analytic", "feedback")
 
@@ -42,9 +41,8 @@ def main() -> None:
     )
     argv = [args.model, "--scenarios", str(scenario), "--no-plots", "--physics-impl", "jax"]
     argv += ["--references", "analytic", "feedback", "--out", str(tmp / "out")]
-    eargs = train_eval._parse(argv, "six_modes_drift", EvalArgs)
-    target, sset, _ = train_eval._prepare(eargs)
-    traces = train_eval.evaluate(target, sset, eargs)[1]["six"]
+    target, _, played = train_eval.play_traces(argv, "six_modes_drift")
+    traces = played["six"]
     dt = target.env.config.control_dt
     command = np.asarray(traces["analytic"].command)
     seg = metrics.segment_ids(command[:1])[0]

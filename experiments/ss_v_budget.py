@@ -25,7 +25,6 @@ import numpy as np
 
 from mecanum_jax.evaluation import metrics, scenarios
 from train import evaluate as train_eval
-from train.eval_args import EvalArgs
 
 WHO = ("policy", "analytic", "feedback")
 
@@ -41,9 +40,8 @@ def main() -> None:
     argv = [args.model, "--scenarios", "configs/eval/tuning.toml", "--only", "tuning_randomized"]
     argv += ["--episodes", str(args.episodes), "--no-plots", "--physics-impl", "jax"]
     argv += ["--references", "analytic", "feedback", "--out", str(out / "report")]
-    eargs = train_eval._parse(argv, "ss_v_budget", EvalArgs)
-    target, sset, _ = train_eval._prepare(eargs)
-    traces = train_eval.evaluate(target, sset, eargs)[1]["tuning_randomized"]
+    target, sset, played = train_eval.play_traces(argv, "ss_v_budget")
+    traces = played["tuning_randomized"]
     batch = scenarios.prepare(target.env, sset.scenarios[0])
     friction = np.min(np.asarray(batch.params.friction), axis=-1)  # (E,)
     torque = np.asarray(batch.params.torque_limit)[:, 0] / float(

@@ -27,7 +27,6 @@ import numpy as np
 
 from mecanum_jax.evaluation import metrics
 from train import evaluate as train_eval
-from train.eval_args import EvalArgs
 
 GPU = Path(__file__).resolve().parents[1] / "configs" / "train" / "gpu.toml"
 DIAGONAL = 4  # the segment index of the diagonal
@@ -71,9 +70,7 @@ def config(path: Path, **feedback: float) -> Path:
 def play(cfg: Path, scenario_file: Path, references: list[str], out: Path) -> dict:
     argv = ["baseline", "--config", str(cfg), "--scenarios", str(scenario_file), "--no-plots"]
     argv += ["--physics-impl", "jax", "--references", *references, "--out", str(out)]
-    eargs = train_eval._parse(argv, "stop_slide", EvalArgs)
-    target, sset, _ = train_eval._prepare(eargs)
-    return train_eval.evaluate(target, sset, eargs)[1]
+    return train_eval.play_traces(argv, "stop_slide")[2]
 
 
 def report(label: str, trace) -> None:

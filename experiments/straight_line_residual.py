@@ -28,7 +28,6 @@ import numpy as np
 from mecanum_jax.evaluation import metrics
 from mecanum_jax.evaluation.rollout import Trace
 from train import evaluate as train_eval
-from train.eval_args import EvalArgs
 
 SETTLE_STEPS = 25  # 0.5 s at the 20 ms control period: the steady-state window's start
 
@@ -43,9 +42,7 @@ def play(model: str, only: list[str], episodes: int, references: list[str]) -> d
     """Traces of ``only`` (scenario names) under MJX's JAX physics, by scenario and player."""
     argv = [model, "--only", *only, "--episodes", str(episodes), "--no-plots"]
     argv += ["--physics-impl", "jax", "--references", *references]
-    eargs = train_eval._parse(argv, "straight_line_residual", EvalArgs)
-    target, sset, _ = train_eval._prepare(eargs)
-    return train_eval.evaluate(target, sset, eargs)[1]
+    return train_eval.play_traces(argv, "straight_line_residual")[2]
 
 
 def steady_segments(command: np.ndarray) -> list[np.ndarray]:
