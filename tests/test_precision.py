@@ -134,14 +134,11 @@ def test_the_update_precision_applies_to_a_gradient_inside_and_only_there():
 
 
 def test_a_bad_update_precision_in_a_config_names_the_field():
-    import dataclasses
+    """A TOML file or a run's config.json is read through this parser."""
+    from train.config import parse_train_config
 
-    from train.config import load_train_config
-
-    cfg = load_train_config("tiny")
-    bad = dataclasses.replace(cfg, ppo=dataclasses.replace(cfg.ppo, update_precision="fast"))
     with pytest.raises(ConfigError, match=r"ppo.update_precision = 'fast'"):
-        bad.validate()
+        parse_train_config({"ppo": {"update_precision": "fast"}}, "bad.toml")
 
 
 @pytest.mark.full  # traces a learner's rollouts and update (MJX physics)

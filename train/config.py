@@ -23,7 +23,6 @@ from mecanum_jax.config import (
     load_toml,
     require,
 )
-from mecanum_jax.precision import PRECISIONS
 from mecanum_jax.task import EnvConfig
 from mecanum_jax.task.fidelity import check_task
 from train.loggers import check_wandb
@@ -209,12 +208,6 @@ class TrainConfig:
         require(p, "ppo", ("entropy_cost",), lambda v: v >= 0, "must be >= 0")
         require(p, "ppo", ("clip_observations",), lambda v: v >= 0, "must be >= 0 (0: off)")
         require(p, "ppo", ("policy_warmup_steps",), lambda v: v >= 0, "must be >= 0 (0: off)")
-        if p.update_precision not in ("run", *PRECISIONS):
-            raise invalid(
-                "ppo.update_precision",
-                p.update_precision,
-                f"expected one of {['run', *PRECISIONS]}",
-            )
         p.smoothness.validate("ppo.smoothness")
         p.distill.validate("ppo.distill")
         p.anchor.validate("ppo.anchor")
