@@ -30,13 +30,17 @@ PRECISIONS = ("default", "high", "highest")
 ``highest``: full float32."""
 
 
+def _check(name: str, where: str) -> None:
+    if name not in PRECISIONS:
+        raise ConfigError(f"{where} = {name!r}: expected one of {list(PRECISIONS)}")
+
+
 def set_matmul_precision(name: str, where: str = "run.matmul_precision") -> None:
     """Set JAX's default matmul precision for everything traced afterwards.
 
     ``default`` restores JAX's own default (which is TF32 on A100/H100 GPUs).
     """
-    if name not in PRECISIONS:
-        raise ConfigError(f"{where} = {name!r}: expected one of {list(PRECISIONS)}")
+    _check(name, where)
     jax.config.update("jax_default_matmul_precision", None if name == "default" else name)
 
 
@@ -48,8 +52,7 @@ def matmul_precision_scope(name: str, where: str = "precision") -> Iterator[None
     transformation that re-traces the block later (``vmap`` of a ``scan`` body) would
     resolve an unset one against the global setting. The kinematics pass :data:`HIGHEST`
     themselves and are not affected."""
-    if name not in PRECISIONS:
-        raise ConfigError(f"{where} = {name!r}: expected one of {list(PRECISIONS)}")
+    _check(name, where)
     with jax.default_matmul_precision(name):
         yield
 
