@@ -64,7 +64,7 @@ def main() -> None:
     parts = {
         "floor: lowest wheel friction < 0.3": per_step(friction < 0.3),
         "floor: 0.3-0.6": per_step((friction >= 0.3) & (friction < 0.6)),
-        "floor: >= 0.6": per_step(friction >= 0.6),
+        "floor: >= 0.6": high,
         "torque limit < 0.75 of the largest": per_step(torque < 0.75),
         "torque limit >= 0.75": per_step(torque >= 0.75),
         "0.5-1 s after a change": since < 1.0,
