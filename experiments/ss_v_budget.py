@@ -10,7 +10,7 @@ by whether the command is beyond the wheels' reach (its target, the nearest feas
 twist of the true robot, differs from it), and by whether a wheel of `analytic`'s robot
 sat at its torque limit. Per part: its share
 of `analytic`'s Σ error², and each controller's Σ error² over `analytic`'s on the same
-steps (a ratio of 1: no gain there).
+steps (a ratio of 1: no gain there) with its paired 95% bootstrap interval over episodes.
 
     .venv/bin/python experiments/ss_v_budget.py [MODEL] [--episodes 128]
 """
@@ -77,6 +77,17 @@ def main() -> None:
         "analytic's robot: a wheel at its torque limit": saturated,
         "no wheel at its torque limit": ~saturated,
     }
+    weights = metrics.bootstrap_weights(E)  # one paired draw of episodes for every part
+
+    def versus(who: str, mask: np.ndarray) -> str:
+        """``who``'s Σ error² over `analytic`'s on the part's steps, with its paired 95%
+        bootstrap interval over episodes (the evaluation's intervals)."""
+        count = np.sum(steady & mask, axis=1).astype(float)
+        mine = metrics.Part(np.sum(err2[who] * mask, axis=1), count, "mean")
+        base = metrics.Part(np.sum(err2["analytic"] * mask, axis=1), count, "mean")
+        c = metrics.paired_ratio(mine, base, weights=weights)
+        return "-" if c is None else f"{c.ratio:.3f} [{c.lo:.3f}, {c.hi:.3f}]"
+
     total = float(np.sum(err2["analytic"]))
     print(f"{E} episodes, {int(np.sum(steady))} steady steps; ss v: " + ", ".join(
         f"{w} {np.sqrt(np.sum(err2[w]) / np.sum(steady)):.4f} m/s" for w in WHO))  # fmt: skip
@@ -85,8 +96,8 @@ def main() -> None:
     for name, mask in parts.items():
         a = float(np.sum(err2["analytic"] * mask))
         share_steps = float(np.sum(steady & mask)) / max(float(np.sum(steady)), 1.0)
-        ratios = [float(np.sum(err2[w] * mask)) / a if a > 0 else float("nan") for w in WHO[::2]]
-        print(f"{name} | {share_steps:.2f} | {a / total:.2f} | {ratios[0]:.3f} | {ratios[1]:.3f}")
+        ratios = " | ".join(versus(w, mask) for w in WHO[::2])
+        print(f"{name} | {share_steps:.2f} | {a / total:.2f} | {ratios}")
 
 
 if __name__ == "__main__":
