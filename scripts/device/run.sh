@@ -36,6 +36,17 @@
 #   fidelity [MODEL] [N]    MODEL (default models/o_rectangle) and the references on N (default
 #                           8) nominal and N randomized episodes in the reference roller model,
 #                           then in the fast one (JAX physics): $OUT/fidelity_{reference,fast}_*.json
+#   reference-table MODEL...  every default scenario (their own episodes) and FID_RANDOMIZED
+#                           (default 256) randomized episodes in the reference roller model,
+#                           JAX physics, FID_JOBS models at a time (default 2): the first
+#                           MODEL against every reference, the others against analytic only
+#                           (e.g. a teacher's rows: scripts/eval_tables.py --also); then
+#                           FID_AGREE (default nominal) 8 episodes of the first MODEL on the
+#                           GPU ($OUT/reference_agree_gpu.json; the CPU side of the agreement
+#                           check, about 10 minutes on 2 cores, is best run off the device:
+#                           mecanum-eval MODEL --only nominal --episodes 8 --fidelity
+#                           reference --physics-impl jax, then scripts/eval_agreement.py):
+#                           $OUT/reference_NAME_{default,randomized}.json
 #   ab MIN 'name|flags'...  variants trained concurrently for MIN minutes on one GPU, each
 #                           packaged as /tmp/model_NAME/o_rectangle and $OUT/model_NAME.tgz
 #                           (compare them next with: tune /tmp/model_NAME/o_rectangle ...); a
@@ -260,6 +271,33 @@ fidelity() {  # [MODEL] [EPISODES]: both physics models on the same nominal and 
   done
 }
 
+reference_table() {  # MODEL...: the evaluation table in the reference roller model
+  local model name i=0 refs set n names=()
+  for model in "$@"; do
+    i=$((i + 1)); name=$(basename "$(dirname "$model")"); names+=("$name")
+    refs=(--references analytic); [ $i = 1 ] && refs=()
+    for set in default randomized; do
+      n=(); [ $set = randomized ] && n=(--episodes "${FID_RANDOMIZED:-256}")
+      evaluate "$model" $set "/tmp/ref-$name-$set" ${n[@]+"${n[@]}"} ${refs[@]+"${refs[@]}"} \
+        --fidelity reference --physics-impl jax --no-plots > "/tmp/ref-$name-$set.log" 2>&1 &
+      while [ "$(jobs -rp | wc -l)" -ge "${FID_JOBS:-2}" ]; do wait -n; done
+    done
+  done
+  wait
+  for name in "${names[@]}"; do
+    for set in default randomized; do
+      echo "== $name, $set, reference model"; quiet < "/tmp/ref-$name-$set.log" | tail -30
+      cp "/tmp/ref-$name-$set/report.json" "$O/reference_${name}_$set.json" \
+        || echo "reference-table: $name $set has no report: its evaluation failed (log above)"
+    done
+  done
+  local only=${FID_AGREE:-nominal}
+  echo "== the GPU side of the agreement check in the reference model: $1, default $only, 8 episodes"
+  evaluate "$1" default /tmp/ref-agree-gpu --only "$only" --episodes 8 \
+    --fidelity reference --physics-impl jax --no-plots 2>&1 | quiet | tail -3
+  cp /tmp/ref-agree-gpu/report.json "$O/reference_agree_gpu.json"
+}
+
 profile() {  # [--trace] [flags]: the epoch's parts (train/profile.py)
   local trace=()
   if [ "${1:-}" = --trace ]; then shift; rm -rf /tmp/profile-trace; trace=(--trace-dir /tmp/profile-trace); fi
@@ -314,6 +352,7 @@ case "$TASK" in
   ship) ship "$@" ;;
   seeds) seeds "$@" ;;
   fidelity) fidelity "$@" ;;
+  reference-table) reference_table "$@" ;;
   tune)  # TUNE_JOBS=N: N evaluations at once (they share the GPU; compiling is most of each)
     i=0; names=(); rm -rf /tmp/tune-reports; mkdir -p /tmp/tune-reports
     shipped=(models/o_rectangle); [ "${TUNE_SHIPPED:-1}" = 0 ] && shipped=()
