@@ -7,7 +7,8 @@ Prints the figures of every controller per scenario, then the policy's ratio to 
 reference with its 95% paired interval (✓ better, ✗ worse, otherwise a tie). ``--also
 NAME=REPORT`` adds the policy of another report on the same episodes (same scenarios,
 episodes, length, seed and physics model) as rows named NAME, with its ratio to
-``analytic`` (e.g. a privileged teacher beside the shipped policy).
+``analytic`` (e.g. a privileged teacher beside the shipped policy); one NAME may take several
+reports of different scenarios.
 """
 
 from __future__ import annotations
@@ -96,6 +97,8 @@ def add_also(scenarios: dict[str, Any], fidelity: str, name: str, report: dict) 
         if scenario not in scenarios:
             continue
         sc = scenarios[scenario]
+        if name in sc:
+            return f"scenario {scenario!r} has {name!r} already (from an earlier --also)"
         for key in SAME_EPISODES:
             if other.get(key) != sc.get(key):
                 mine, theirs = other.get(key), sc.get(key)
@@ -139,8 +142,8 @@ def main(argv: list[str] | None = None) -> int:
         name, sep, path_text = spec.partition("=")
         if not sep or not name or not path_text:
             return _error(f"--also: {spec!r} is not NAME=REPORT")
-        if name in ("policy", *REFERENCES) or name in names:
-            return _error(f"--also: the name {name!r} is taken (policy, the references, or twice)")
+        if name in ("policy", *REFERENCES):
+            return _error(f"--also: the name {name!r} is taken by a controller of the tables")
         try:
             report = _load(Path(path_text))
         except (OSError, ValueError, KeyError) as err:
@@ -148,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
         problem = add_also(scenarios, fidelity, name, report)
         if problem is not None:
             return _error(f"--also: {path_text!r} is not on the same episodes: {problem}")
-        names.append(name)
+        names += [name] if name not in names else []
     print("\n".join(figures_table(scenarios, tuple(names))))
     print()
     print("\n".join(ratio_table(scenarios, tuple(names))))
