@@ -36,13 +36,13 @@ SCENARIOS = ("tuning_randomized", "tuning_nominal")
 FIGURES = ("ss_lin", "rmse_lin", "ss_wz", "rmse_wz", "energy_j")
 
 
-def uniform_rates(env, twist):  # type: ignore[no-untyped-def]
+def uniform_rates(env, twist):
     """`analytic`'s desaturation (uniform scaling) in place of the nearest feasible twist."""
     scaled, _ = limits.desaturate(env.geometry, twist, env.max_rates)
     return kinematics.apply_rows(env.jacobian, scaled)
 
 
-def play(model: str, episodes: int, out: Path, name: str):  # type: ignore[no-untyped-def]
+def play(model: str, episodes: int, out: Path, name: str):
     argv = [model, "--scenarios", "configs/eval/tuning.toml", "--only", *SCENARIOS]
     argv += ["--episodes", str(episodes), "--no-plots", "--physics-impl", "jax"]
     argv += ["--references", "analytic", "analytic_nearest", "feedback", "--out", str(out / name)]
