@@ -46,7 +46,8 @@
 #                           check, about 10 minutes on 2 cores, is best run off the device:
 #                           mecanum-eval MODEL --only nominal --episodes 8 --fidelity
 #                           reference --physics-impl jax, then scripts/eval_agreement.py):
-#                           $OUT/reference_NAME_{default,randomized}.json
+#                           $OUT/reference_NAME_{default,randomized}.json (NAME: the
+#                           model's folder's folder, "shipped" for models/o_rectangle)
 #   ab MIN 'name|flags'...  variants trained concurrently for MIN minutes on one GPU, each
 #                           packaged as /tmp/model_NAME/o_rectangle and $OUT/model_NAME.tgz
 #                           (compare them next with: tune /tmp/model_NAME/o_rectangle ...); a
@@ -274,7 +275,9 @@ fidelity() {  # [MODEL] [EPISODES]: both physics models on the same nominal and 
 reference_table() {  # MODEL...: the evaluation table in the reference roller model
   local model name i=0 refs set n names=()
   for model in "$@"; do
-    i=$((i + 1)); name=$(basename "$(dirname "$model")"); names+=("$name")
+    i=$((i + 1)); name=$(basename "$(dirname "$model")")
+    [ "$model" = models/o_rectangle ] && name=shipped
+    names+=("$name")
     refs=(--references analytic); [ $i = 1 ] && refs=()
     for set in default randomized; do
       n=(); [ $set = randomized ] && n=(--episodes "${FID_RANDOMIZED:-256}")
