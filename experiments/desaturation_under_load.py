@@ -48,8 +48,7 @@ def main() -> None:
     traces = played[args.only]
     dt = env.config.control_dt
     command = np.asarray(traces["analytic"].command)
-    since = (metrics.steps_since_change(command) + 1) * dt
-    steady = since >= metrics.MetricConfig().settle_s - 1e-9
+    steady = metrics.steady_mask(command, dt, metrics.MetricConfig()) > 0
     beyond = np.linalg.norm(np.asarray(traces["analytic"].target) - command, axis=-1) > 1e-4
     mask = steady & beyond
     max_rates = np.asarray(env.max_rates)

@@ -50,7 +50,7 @@ def main() -> None:
     dt = target.env.config.control_dt
     command = np.asarray(traces["analytic"].command)
     since = (metrics.steps_since_change(command) + 1) * dt  # as the ss metrics count it
-    steady = since >= metrics.MetricConfig().settle_s - 1e-9
+    steady = metrics.steady_mask(command, dt, metrics.MetricConfig()) > 0
     err2 = {}
     for who in WHO:
         t = traces[who]

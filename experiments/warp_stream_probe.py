@@ -70,7 +70,7 @@ def trace_stream_deletions() -> bool:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    ours, _, rest = _split(argv)
+    ours, rest = _split(argv)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--gc", choices=("on", "off", "trace"), default="trace")
     args = ap.parse_args(ours)
@@ -84,11 +84,12 @@ def main(argv: list[str] | None = None) -> int:
     return coldstart.main(rest)
 
 
-def _split(argv: list[str]) -> tuple[list[str], str, list[str]]:
+def _split(argv: list[str]) -> tuple[list[str], list[str]]:
+    """The probe's own arguments, and ``train.coldstart``'s after ``--``."""
     if "--" in argv:
         i = argv.index("--")
-        return argv[:i], "--", argv[i + 1 :]
-    return argv, "", []
+        return argv[:i], argv[i + 1 :]
+    return argv, []
 
 
 if __name__ == "__main__":

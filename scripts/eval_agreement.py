@@ -31,9 +31,10 @@ from typing import Any
 import numpy as np
 
 from mecanum_jax.evaluation import metrics
+from mecanum_jax.task.references import REFERENCES
 
 FIGURES = (("ss v", "ss_lin", 0.001), ("ss ωz", "ss_wz", 0.001))
-PLAYERS = ("policy", "analytic", "analytic_nearest", "feedback")
+PLAYERS = ("policy", *REFERENCES)
 
 
 def _differs(x: float, y: float, floor: float, tolerance: float) -> bool:

@@ -19,6 +19,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from mecanum_jax.task.references import REFERENCES
+
 FIGURES = (
     ("ss v", "ss_lin", "{:.3f}"),
     ("ss ωz", "ss_wz", "{:.3f}"),
@@ -42,7 +44,6 @@ RATIOS = (
     ("energy", "energy_j"),
 )
 MARK = {"better": " ✓", "worse": " ✗"}
-REFERENCES = ("analytic", "analytic_nearest", "feedback")
 SAME_EPISODES = ("episodes", "seconds", "seed")
 
 
@@ -100,8 +101,8 @@ def add_also(scenarios: dict[str, Any], fidelity: str, name: str, report: dict) 
         if name in sc:
             return f"scenario {scenario!r} has {name!r} already (from an earlier --also)"
         for key in SAME_EPISODES:
-            if other.get(key) != sc.get(key):
-                mine, theirs = other.get(key), sc.get(key)
+            mine, theirs = other.get(key), sc.get(key)
+            if mine != theirs:
                 return f"scenario {scenario!r}: {key} = {mine!r}, the tables' {theirs!r}"
         sc[name] = other["policy"]
         compare = other.get("compare", {}).get("policy/analytic")
@@ -151,7 +152,8 @@ def main(argv: list[str] | None = None) -> int:
         problem = add_also(scenarios, fidelity, name, report)
         if problem is not None:
             return _error(f"--also: {path_text!r} is not on the same episodes: {problem}")
-        names += [name] if name not in names else []
+        if name not in names:
+            names.append(name)
     print("\n".join(figures_table(scenarios, tuple(names))))
     print()
     print("\n".join(ratio_table(scenarios, tuple(names))))

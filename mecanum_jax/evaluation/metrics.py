@@ -159,8 +159,9 @@ def episode_parts(
     return out
 
 
-def _steady(command: np.ndarray, dt: float, cfg: MetricConfig) -> np.ndarray:
-    """1 on the control steps at least ``settle_s`` after a command change, else 0."""
+def steady_mask(command: np.ndarray, dt: float, cfg: MetricConfig) -> np.ndarray:
+    """1 on the control steps at least ``settle_s`` after a command change, else 0: the
+    steps the steady-state metrics count."""
     since = steps_since_change(command)
     return ((since + 1) * dt >= cfg.settle_s - 1e-9).astype(float)
 
@@ -176,7 +177,7 @@ def tracking_parts(
     for i, axis in enumerate(("vx", "vy", "wz")):
         out[f"rmse_{axis}"] = Part(np.sum(err[..., i] ** 2, axis=1), full, "rms")
     out["rmse_lin"] = Part(np.sum(err[..., 0] ** 2 + err[..., 1] ** 2, axis=1), full, "rms")
-    steady = _steady(command, dt, cfg)
+    steady = steady_mask(command, dt, cfg)
     ss = twist - target
     count = np.sum(steady, axis=1)
     for i, axis in enumerate(("vx", "vy", "wz")):
@@ -340,6 +341,7 @@ __all__ = [
     "paired_ratio",
     "segment_ids",
     "settling_times",
+    "steady_mask",
     "steps_since_change",
     "summary",
     "tracking_parts",

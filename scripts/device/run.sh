@@ -114,6 +114,10 @@ train() {  # RUN_DIR MINUTES [flags]: the gpu config, one checkpoint kept
     --run.max-checkpoints 1 --run.checkpoint-every 1000 "$@"
 }
 
+throttle() {  # N: wait until fewer than N background jobs run
+  while [ "$(jobs -rp | wc -l)" -ge "$1" ]; do wait -n; done
+}
+
 evaluate() {  # MODEL SCENARIOS OUT_DIR [flags]
   local model=$1 set=$2 dir=$3; shift 3
   rm -rf "$dir"  # scratch of an earlier call on this warm machine
@@ -283,7 +287,7 @@ reference_table() {  # MODEL...: the evaluation table in the reference roller mo
       n=(); [ $set = randomized ] && n=(--episodes "${FID_RANDOMIZED:-256}")
       evaluate "$model" $set "/tmp/ref-$name-$set" ${n[@]+"${n[@]}"} ${refs[@]+"${refs[@]}"} \
         --fidelity reference --physics-impl jax --no-plots > "/tmp/ref-$name-$set.log" 2>&1 &
-      while [ "$(jobs -rp | wc -l)" -ge "${FID_JOBS:-2}" ]; do wait -n; done
+      throttle "${FID_JOBS:-2}"
     done
   done
   wait
@@ -364,7 +368,7 @@ case "$TASK" in
       [ "$model" = models/o_rectangle ] && name=shipped
       names+=("$name")
       evaluate "$model" tuning "/tmp/tune-$name" --no-plots > "/tmp/tune-$name.log" 2>&1 &
-      while [ "$(jobs -rp | wc -l)" -ge "${TUNE_JOBS:-1}" ]; do wait -n; done
+      throttle "${TUNE_JOBS:-1}"
     done
     wait
     for name in "${names[@]}"; do
