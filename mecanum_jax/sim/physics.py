@@ -44,6 +44,7 @@ from mecanum_jax.precision import HIGHEST
 from mecanum_jax.sim import mjcf
 from mecanum_jax.sim.description import RobotDescription, require_impl
 from mecanum_jax.sim.warp_cache import leave_the_persistent_cache
+from mecanum_jax.sim.warp_streams import pin_external_streams
 
 ServoModel = Literal["chord", "mjx"]
 """How a saturated servo is integrated: ``"chord"`` (default, see
@@ -172,6 +173,7 @@ class Robot:
         require_impl(self.impl)
         if self.impl == "warp":
             leave_the_persistent_cache()
+            pin_external_streams()  # Warp's "unknown stream" (warp_streams.py)
         self._chord_on_warp = servo == "chord" and self.impl == "warp"
         self.robots = robots
         self.mj_model, self.index = mjcf.build_model(desc, fidelity)

@@ -94,7 +94,10 @@ quiet() { grep -v -E '^(Warp |Module |   )' ; }  # Warp's kernel-cache chatter
 warp_install() {
   python3 - <<'PY'
 import glob, io, lzma, os, tarfile
-so_size, rest_size = map(int, open(".warp/manifest.txt").read().split())
+manifest = open(".warp/manifest.txt").read()
+so_size, rest_size = map(int, manifest.split())
+if os.path.exists("/tmp/site/warp/.manifest") and open("/tmp/site/warp/.manifest").read() == manifest:
+    raise SystemExit(print("warp already under /tmp/site (an earlier call on this machine)"))
 blob = b"".join(open(p, "rb").read() for p in sorted(glob.glob("/tmp/stash/part-*")))
 if len(blob) != so_size + rest_size:
     raise SystemExit(f"/tmp/stash holds {len(blob)} bytes of parts, expected "
@@ -104,6 +107,8 @@ with tarfile.open(fileobj=io.BytesIO(lzma.decompress(blob[so_size:]))) as tar:
 os.makedirs("/tmp/site/warp/bin", exist_ok=True)
 with open("/tmp/site/warp/bin/warp.so", "wb") as f:
     f.write(lzma.decompress(blob[:so_size]))
+with open("/tmp/site/warp/.manifest", "w") as f:
+    f.write(manifest)
 print("warp rebuilt under /tmp/site")
 PY
 }
