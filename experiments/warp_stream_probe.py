@@ -18,9 +18,6 @@ This runs ``train.coldstart`` (its arguments after ``--``) once, with
 - ``--gc on``: nothing changed;
 - ``--pin off``: without the product's cure (``mecanum_jax.sim.warp_streams``, which
   keeps external streams registered for the process; ``on``, the default, keeps it);
-- ``--cache keep``: JAX's persistent compilation cache left on under Warp (the product
-  turns it off, ``mecanum_jax.sim.warp_cache``), to see whether the cure lets Warp's
-  programs use it.
 
 If the hypothesis holds, a failing process under ``--gc trace --pin off`` logs a
 ``__del__`` during a collection just before the error, and ``--pin on`` does not fail.
@@ -99,22 +96,6 @@ def trace_stream_deletions() -> bool:
     return True
 
 
-def _allow_ahead_under_warp() -> None:
-    """``train.aot.compile_epoch_ahead`` without its refusal of Warp physics."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    from train import aot
-
-    def ahead(learner: Any) -> Any:
-        state, env_state = aot.abstract_state(learner)
-        pool = ThreadPoolExecutor(1, thread_name_prefix="epoch-compile")
-        job = pool.submit(learner.compile_epoch, state, env_state)
-        pool.shutdown(wait=False)
-        return job
-
-    aot.compile_epoch_ahead = ahead
-
-
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     ours, rest = _split(argv)
@@ -126,37 +107,22 @@ def main(argv: list[str] | None = None) -> int:
         default="on",
         help="on: the product's cure (mecanum_jax.sim.warp_streams); off: Warp as shipped",
     )
-    ap.add_argument(
-        "--cache",
-        choices=("guard", "keep"),
-        default="guard",
-        help="keep: JAX's persistent compilation cache stays on under Warp (the product's "
-        "guard, mecanum_jax.sim.warp_cache, skipped)",
-    )
     ap.add_argument("--trace-file", help="where --gc trace writes its lines (default stderr)")
-    ap.add_argument(
-        "--allow-ahead",
-        action="store_true",
-        help="let train.coldstart --ahead compile the epoch on a worker thread under Warp",
-    )
     args = ap.parse_args(ours)
     global _trace_file
     if args.trace_file:
         _trace_file = open(args.trace_file, "w")  # noqa: SIM115 (open for the process)
-    if args.allow_ahead:
-        _allow_ahead_under_warp()
+
     from mecanum_jax.sim import physics
 
     if args.pin == "off":
         physics.pin_external_streams = lambda: False
-    if args.cache == "keep":
-        physics.leave_the_persistent_cache = lambda: False
     if args.gc == "off":
         gc.disable()
     elif args.gc == "trace" and not trace_stream_deletions():
         print("warp_stream_probe: warp is not installed; nothing to trace", file=sys.stderr)
     print(
-        f"[warp_stream_probe] gc={args.gc} pin={args.pin} cache={args.cache}",
+        f"[warp_stream_probe] gc={args.gc} pin={args.pin}",
         file=sys.stderr,
         flush=True,
     )

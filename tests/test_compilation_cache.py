@@ -109,8 +109,9 @@ def test_mecanum_train_passes_the_other_flags_on(tmp_path, capsys, restore_jax_c
 
 
 def test_warp_physics_leaves_the_persistent_cache(tmp_path, restore_jax_cache_options, capsys):
-    """MuJoCo Warp's programs fail when read back from the cache (mecanum_jax/sim/
-    warp_cache.py): once a process builds Warp physics, nothing more is written or read."""
+    """XLA:CPU crashed writing MuJoCo Warp's programs to the cache (mecanum_jax/sim/
+    warp_cache.py): once a process builds Warp physics on the CPU, nothing more is written
+    or read; on a GPU the cache stays on."""
     from jax.experimental.compilation_cache import compilation_cache as jax_cache
 
     from mecanum_jax.sim.warp_cache import leave_the_persistent_cache
@@ -123,6 +124,8 @@ def test_warp_physics_leaves_the_persistent_cache(tmp_path, restore_jax_cache_op
         jax.jit(lambda x: x * 3.0 + 1.0)(jax.numpy.ones(7)).block_until_ready()
         written = set(tmp_path.rglob("*"))
         assert written, "the cache wrote nothing before: the check below would prove nothing"
+        assert leave_the_persistent_cache("gpu") is False
+        assert jax.config.jax_enable_compilation_cache
         assert leave_the_persistent_cache() is True
         assert "persistent compilation cache is off" in capsys.readouterr().err
         jax.jit(lambda x: x * 5.0 - 2.0)(jax.numpy.ones(9)).block_until_ready()

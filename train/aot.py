@@ -48,15 +48,10 @@ def compile_epoch_ahead(learner: Learner) -> Future[None]:
     worker thread; the future's ``result()`` returns once :meth:`Learner.epoch` runs the
     compiled program (and raises what the compilation raised).
 
-    Refused under MJX's Warp implementation: on an H100 (2026-11-25) an epoch compiled on
-    the worker thread ran, but the evaluation rollout that followed on the main thread
-    failed in Warp's graph capture (``Warp error: unknown stream``)."""
-    if learner.env.robot.impl == "warp":
-        raise ValueError(
-            "env.physics_impl = 'warp': the epoch cannot be compiled ahead on a worker "
-            "thread under MJX's Warp implementation (Warp error: unknown stream on the "
-            "next program); drop --ahead or use --env.physics-impl jax"
-        )
+    Under MJX's Warp implementation this needs :mod:`mecanum_jax.sim.warp_streams`,
+    applied where the robot is built: without it the program after a worker-thread
+    compilation failed in Warp's graph capture (``Warp error: unknown stream``; H100,
+    2026-11-25); with it, it ran (H200, 2026-11-27)."""
     state, env_state = abstract_state(learner)  # traced here: cheap, and errors surface now
     pool = ThreadPoolExecutor(1, thread_name_prefix="epoch-compile")
     job = pool.submit(learner.compile_epoch, state, env_state)
