@@ -6,12 +6,11 @@ needs only the *shapes* of the states it will be given, and those follow from th
 config, so its compilation can start before the reset has run:
 :func:`compile_epoch_ahead` lowers and compiles it on a worker thread (XLA compiles with
 Python's lock released) while the caller resets the robots, and the caller waits on the
-returned future before the first epoch. ``mecanum-train`` does so where
-``run.compile_ahead`` says (:func:`compiles_ahead`: by default on GPUs): on an H200 under
-Warp it saved 6 s of a cold start and 5–8 s of a warm one, while on the 2-core CPU a run
-that also started the baseline's evaluation before the reset (three compilations on two
-cores) took 8% longer (docs/benchmarks.md). ``python -m train.coldstart --ahead`` measures
-it. The states :meth:`~train.ppo.Learner.place` lays out (and a
+returned future before the first epoch. ``python -m train.coldstart --ahead`` measures
+it; ``mecanum-train`` does not use it yet: on the 2-core CPU it saved a few seconds of a
+tiny cold start, and a run that also started the baseline's evaluation before the reset
+(three compilations on two cores) took 8% longer (docs/benchmarks.md); a GPU host's many
+cores have not been measured. The states :meth:`~train.ppo.Learner.place` lays out (and a
 restored checkpoint's, which it places the same way) carry exactly those shapes, dtypes
 and shardings, so the compiled program takes them without recompiling."""
 
@@ -23,7 +22,6 @@ from typing import Any
 import jax
 import numpy as np
 
-from mecanum_jax.config import ConfigError
 from train.ppo import Learner
 
 
@@ -45,24 +43,6 @@ def abstract_state(learner: Learner) -> tuple[Any, Any]:
     return jax.tree.map(spec, state), jax.tree.map(spec, env_state)
 
 
-def compiles_ahead(learner: Learner, choice: str) -> bool:
-    """Whether ``run.compile_ahead = choice`` compiles ``learner``'s epoch ahead: "auto" where
-    every device is a GPU, in one process, off the "split" path (each GPU's rollout
-    compiles on first use there); "on" also on CPUs. Raises :class:`ConfigError` for "on"
-    where it cannot."""
-    if choice == "off":
-        return False
-    possible = learner.parallel != "split" and jax.process_count() == 1
-    if choice == "on":
-        if not possible:
-            raise ConfigError(
-                f"run.compile_ahead = 'on': run.parallel = {learner.parallel!r} in "
-                f"{jax.process_count()} processes compiles its epoch otherwise; use 'auto'"
-            )
-        return True
-    return possible and all(d.platform == "gpu" for d in learner.devices)
-
-
 def compile_epoch_ahead(learner: Learner) -> Future[None]:
     """Start compiling ``learner``'s epoch for the states of :func:`abstract_state` on a
     worker thread; the future's ``result()`` returns once :meth:`Learner.epoch` runs the
@@ -79,4 +59,4 @@ def compile_epoch_ahead(learner: Learner) -> Future[None]:
     return job
 
 
-__all__ = ["abstract_state", "compile_epoch_ahead", "compiles_ahead"]
+__all__ = ["abstract_state", "compile_epoch_ahead"]

@@ -153,10 +153,6 @@ class RunConfig:
     """jax's default matmul precision for the run."""
     parallel: Literal["auto", "pmap", "sharded", "split"] = "auto"
     """How the program spreads over devices: "pmap", "sharded", "split", or "auto"."""
-    compile_ahead: Literal["auto", "on", "off"] = "auto"
-    """Compile the epoch on a worker thread from shapes while the robots reset (train/aot.py):
-    "on", "off", or "auto" (on where every device is a GPU, in one process, off the "split"
-    path; on a 2-core CPU the compilations only contend)."""
     wandb_project: str = ""
     """Also log to this Weights & Biases project (needs ``pip install wandb``; empty: off)."""
     progress_every_s: float = 30.0
@@ -267,12 +263,6 @@ class TrainConfig:
         require(r, "run", ("max_devices",), lambda v: v >= 0, "must be >= 0 (0: all local devices)")
         require(r, "run", ("progress_every_s",), _positive_finite, "must be > 0 seconds")
         check_task(self.env, r.eval_fidelity, "run.eval_fidelity")
-        if r.compile_ahead == "on" and r.parallel == "split":
-            raise invalid(
-                "run.compile_ahead",
-                "on",
-                'run.parallel = "split" compiles its programs on first use',
-            )
         return self
 
     def check_devices(self, device_count: int) -> None:

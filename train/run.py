@@ -34,7 +34,6 @@ from mecanum_jax.precision import set_matmul_precision
 from mecanum_jax.sim.description import fingerprint
 from train import checkpoint
 from train import run_records as records
-from train.aot import compile_epoch_ahead, compiles_ahead
 from train.config import TrainConfig, config_diff, load_train_config
 from train.distributed import barrier, restore_process, save_process
 from train.loggers import MetricLogger, TensorBoardLogger, WandbLogger
@@ -50,10 +49,9 @@ RESUMABLE_CHANGES = {
     "run.max_checkpoints",
     "run.wandb_project",
     "run.progress_every_s",
-    "run.compile_ahead",
 }
 # Fields the compiled learner never reads: a learner built without them serves the run.
-LOGGING_ONLY = {"run.wandb_project", "run.progress_every_s", "run.compile_ahead"}
+LOGGING_ONLY = {"run.wandb_project", "run.progress_every_s"}
 
 
 class TrainingDiverged(RuntimeError):  # noqa: N818 (reads as the event it reports)
@@ -79,7 +77,6 @@ class _Loop:
     saved_epoch: int = 0
     mgr: Any = None
     baseline_job: Any = None
-    ahead: Any = None  # the epoch's compilation on a worker thread (train/aot.py), until done
     baseline: Result | None = None
     setup_s: float = 0.0
     results: list[Result] = dataclasses.field(default_factory=list)
@@ -299,9 +296,8 @@ class Run:
         learner = self.learner = learner or Learner(cfg)
         if learner.teacher is not None:
             self.console.log(f"imitating {learner.teacher.describe()} (ppo.distill)")
-        ahead = compiles_ahead(learner, cfg.run.compile_ahead) and compile_epoch_ahead(learner)
         state, env_state = learner.init()
-        loop = _Loop(self, learner, t_start, state, env_state, ahead=ahead or None)
+        loop = _Loop(self, learner, t_start, state, env_state)
         if checkpoint.latest_epoch(self.dir) is not None:
             self._restore(loop)
         loop.saved_epoch = loop.epoch
@@ -349,9 +345,6 @@ class Run:
         """One compiled epoch: ``(env steps/s, per-seed metrics)``. Ctrl-C saves the last
         completed epoch; a non-finite loss or parameter saves it and stops the run."""
         t_epoch = time.time()
-        if loop.ahead is not None:  # the epoch compiling since before the reset
-            loop.ahead.result()
-            loop.ahead = None
         try:
             new_state, new_env, metrics = loop.learner.epoch(loop.state, loop.env_state)
             metrics = {k: v[0] for k, v in to_host(metrics).items()}  # (S,)
