@@ -9,10 +9,12 @@ Python's lock released) while the caller resets the robots, and the caller waits
 returned future before the first epoch. ``python -m train.coldstart --ahead`` measures
 it; ``mecanum-train`` does not use it yet: on the 2-core CPU it saved a few seconds of a
 tiny cold start, and a run that also started the baseline's evaluation before the reset
-(three compilations on two cores) took 8% longer (docs/benchmarks.md); a GPU host's many
-cores have not been measured. The states :meth:`~train.ppo.Learner.place` lays out (and a
-restored checkpoint's, which it places the same way) carry exactly those shapes, dtypes
-and shardings, so the compiled program takes them without recompiling."""
+(three compilations on two cores) took 8% longer (docs/benchmarks.md); on an H200 under
+Warp it saved about 5 s of a cold start but broke a warm one (:func:`compile_epoch_ahead`),
+and under MJX's JAX physics on a GPU it has not been measured. The states
+:meth:`~train.ppo.Learner.place` lays out (and a restored checkpoint's, which it places the
+same way) carry exactly those shapes, dtypes and shardings, so the compiled program takes
+them without recompiling."""
 
 from __future__ import annotations
 
@@ -48,10 +50,18 @@ def compile_epoch_ahead(learner: Learner) -> Future[None]:
     worker thread; the future's ``result()`` returns once :meth:`Learner.epoch` runs the
     compiled program (and raises what the compilation raised).
 
-    Under MJX's Warp implementation this needs :mod:`mecanum_jax.sim.warp_streams`,
-    applied where the robot is built: without it the program after a worker-thread
-    compilation failed in Warp's graph capture (``Warp error: unknown stream``; H100,
-    2026-11-25); with it, it ran (H200, 2026-11-27)."""
+    Refused under MJX's Warp implementation. With Warp's stream table pinned
+    (:mod:`mecanum_jax.sim.warp_streams`) two cold starts of ``train.coldstart --ahead``
+    ran, but ``mecanum-train`` compiling ahead from a warm compilation cache failed in the
+    robots' reset with ``Warp CUDA error 904: capturing stream has unjoined work`` (H200,
+    2026-11-27): the worker's tracing of Warp's calls overlapped a graph capture on the
+    main thread."""
+    if learner.env.robot.impl == "warp":
+        raise ValueError(
+            "env.physics_impl = 'warp': the epoch cannot be compiled ahead on a worker "
+            "thread under MJX's Warp implementation (Warp CUDA error 904 in the reset's "
+            "graph capture); drop --ahead or use --env.physics-impl jax"
+        )
     state, env_state = abstract_state(learner)  # traced here: cheap, and errors surface now
     pool = ThreadPoolExecutor(1, thread_name_prefix="epoch-compile")
     job = pool.submit(learner.compile_epoch, state, env_state)

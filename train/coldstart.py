@@ -202,7 +202,11 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
     from train.aot import compile_epoch_ahead
 
     with clock.phase("robots' reset" + (" (the epoch compiling)" if args.ahead else "")):
-        ahead = compile_epoch_ahead(learner) if args.ahead else None
+        try:
+            ahead = compile_epoch_ahead(learner) if args.ahead else None
+        except ValueError as err:
+            print(f"error: {err}", file=sys.stderr)
+            raise SystemExit(2) from None
         ts, env = jax.block_until_ready(learner.init())
     for name in ("first epoch", "second epoch"):
         with clock.phase(name) as extra:
