@@ -615,3 +615,27 @@ def test_the_epoch_a_time_limit_stops_at_is_evaluated_and_logged(
         for k, v in figures.items():
             if isinstance(v, float):
                 assert logged["eval"][scenario][k] == pytest.approx(v, rel=1e-6), (scenario, k)
+
+
+@pytest.mark.parametrize(
+    ("parallel", "impl", "alone"),
+    [
+        ("pmap", "jax", False),
+        ("sharded", "jax", False),
+        ("split", "warp", True),
+        ("sharded", "warp", True),
+        ("pmap", "warp", True),
+    ],
+)
+def test_first_runs_alone_under_warp(parallel, impl, alone):
+    """Under MuJoCo Warp (and on the split path) the baseline's first evaluation finishes
+    before the first epoch starts: a program's first run captures Warp's CUDA graphs, and
+    another thread's GPU work meanwhile breaks the capture (train/run.py)."""
+    from types import SimpleNamespace
+
+    from train.run import first_runs_alone
+
+    learner = SimpleNamespace(
+        parallel=parallel, env=SimpleNamespace(robot=SimpleNamespace(impl=impl))
+    )
+    assert first_runs_alone(learner) is alone  # type: ignore[arg-type]

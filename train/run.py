@@ -54,6 +54,16 @@ RESUMABLE_CHANGES = {
 LOGGING_ONLY = {"run.wandb_project", "run.progress_every_s"}
 
 
+def first_runs_alone(learner: Learner) -> bool:
+    """Whether the baseline's first evaluation must finish before the first epoch starts.
+    Under MuJoCo Warp a GPU program's first run loads it and Warp captures its CUDA graphs,
+    and GPU work from another thread meanwhile breaks the capture: on the ``split`` path
+    (CUDA_ERROR_STREAM_CAPTURE_UNSUPPORTED, train/split_epoch.py) and with the epoch loaded
+    on another thread during the reset (Warp CUDA error 904, docs/benchmarks.md). With the
+    persistent cache, programs load in a second, so the two first runs would overlap."""
+    return learner.parallel == "split" or learner.env.robot.impl == "warp"
+
+
 class TrainingDiverged(RuntimeError):  # noqa: N818 (reads as the event it reports)
     """Loss or parameters went non-finite; the last good checkpoint was kept."""
 
@@ -285,7 +295,7 @@ class Run:
     def _set_up(self, learner: Learner | None) -> _Loop:
         """The learner, fresh or restored state, the checkpoint manager, logs, and the
         baseline's evaluation started in a thread (it compiles the evaluation programs while
-        the first epoch compiles)."""
+        the first epoch compiles; finished first where :func:`first_runs_alone`)."""
         cfg = self.cfg
         set_matmul_precision(cfg.run.matmul_precision)  # before anything is traced
         t_start = time.time()
@@ -312,7 +322,7 @@ class Run:
         pool = ThreadPoolExecutor(1, thread_name_prefix="baseline-eval")
         loop.baseline_job = pool.submit(learner.evaluate_baseline, first_device(loop.state))
         pool.shutdown(wait=False)
-        if learner.parallel == "split":  # no GPU program may load beside it (split_epoch.py)
+        if first_runs_alone(learner):
             loop.baseline_job.result()
         loop.setup_s = time.time() - t_start
         return loop
@@ -355,10 +365,9 @@ class Run:
             raise
         if loop.baseline is None:
             loop.baseline = loop.baseline_job.result()
-            self.console.log(
-                f"set-up {loop.setup_s:.0f} s; first epoch, with the baseline's "
-                f"evaluation alongside: {time.time() - t_epoch:.0f} s"
-            )
+            beside = "" if first_runs_alone(loop.learner) else ", with the baseline's evaluation"
+            epoch_s = time.time() - t_epoch
+            self.console.log(f"set-up {loop.setup_s:.0f} s; first epoch{beside}: {epoch_s:.0f} s")
         if not np.all(metrics["finite"] > 0):
             seeds = self.cfg.run.seeds
             bad = [s for s, f in zip(seeds, metrics["finite"], strict=True) if not f]
