@@ -52,29 +52,18 @@ def pin_stream_class(stream_class: Any) -> bool:
             if not handle:  # Warp's own stream, or CUDA's default stream: Warp's rule
                 original_init(self, device, priority, **kwargs)
                 return
-            resolved = _resolve(device)
-            if _key(resolved, handle) in _PINNED:
+            resolved = _resolve(stream_class, device)
+            key = _key(resolved, handle)
+            if key in _PINNED:
                 _adopt(self, resolved, handle)
             else:
                 original_init(self, device, priority, **kwargs)
-                _PINNED.add(_key(self.device, handle))
+                _PINNED.add(key)
 
         def delete(self: Any) -> None:
             if not getattr(self, "owner", False) and getattr(self, "cuda_stream", None):
                 return  # an external stream: its entry stays (module docstring)
             original_del(self)
-
-        def _resolve(device: Any) -> Any:
-            runtime = getattr(_warp_context(stream_class), "runtime", None)
-            return runtime.get_device(device) if runtime is not None else device
-
-        def _adopt(self: Any, device: Any, handle: Any) -> None:
-            """Warp's ``__init__`` for an external handle, less the registration that
-            the first wrapper of that handle made."""
-            self._cached_event = None
-            self.device = device
-            self.cuda_stream = handle
-            self._is_blocking = None
 
         stream_class.__init__ = init
         stream_class.__del__ = delete
@@ -82,9 +71,20 @@ def pin_stream_class(stream_class: Any) -> bool:
         return True
 
 
-def _warp_context(stream_class: Any) -> Any:
-    """The module that defines ``stream_class`` (Warp's ``context``, holding ``runtime``)."""
-    return sys.modules.get(stream_class.__module__)
+def _resolve(stream_class: Any, device: Any) -> Any:
+    """``device`` as Warp's ``__init__`` resolves it, through the ``runtime`` of the module
+    that defines ``stream_class`` (Warp's ``context``)."""
+    runtime = getattr(sys.modules.get(stream_class.__module__), "runtime", None)
+    return runtime.get_device(device) if runtime is not None else device
+
+
+def _adopt(stream: Any, device: Any, handle: Any) -> None:
+    """Warp's ``__init__`` for an external handle, less the registration that the first
+    wrapper of that handle made."""
+    stream._cached_event = None
+    stream.device = device
+    stream.cuda_stream = handle
+    stream._is_blocking = None
 
 
 def pin_external_streams() -> bool:
@@ -97,9 +97,4 @@ def pin_external_streams() -> bool:
     return pin_stream_class(warp.Stream)
 
 
-def pinned_streams() -> int:
-    """How many external streams are pinned in this process (for logs and tests)."""
-    return len(_PINNED)
-
-
-__all__ = ["pin_external_streams", "pin_stream_class", "pinned_streams"]
+__all__ = ["pin_external_streams", "pin_stream_class"]

@@ -97,7 +97,8 @@ import glob, io, lzma, os, tarfile
 manifest = open(".warp/manifest.txt").read()
 so_size, rest_size = map(int, manifest.split())
 if os.path.exists("/tmp/site/warp/.manifest") and open("/tmp/site/warp/.manifest").read() == manifest:
-    raise SystemExit(print("warp already under /tmp/site (an earlier call on this machine)"))
+    print("warp already under /tmp/site (an earlier call on this machine)")
+    raise SystemExit(0)
 blob = b"".join(open(p, "rb").read() for p in sorted(glob.glob("/tmp/stash/part-*")))
 if len(blob) != so_size + rest_size:
     raise SystemExit(f"/tmp/stash holds {len(blob)} bytes of parts, expected "
