@@ -67,6 +67,22 @@ def test_apply_sets_jax_options(tmp_path, restore_jax_cache_options):
     assert not jax.config.jax_enable_compilation_cache
 
 
+def test_a_small_eager_program_is_written(tmp_path, restore_jax_cache_options):
+    """A start's many small programs (an eager op compiles one each) go to the cache too:
+    on a GPU they took 0.05-0.2 s each to compile and read back in milliseconds."""
+    from jax.experimental.compilation_cache import compilation_cache as jax_cache
+
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)  # JAX's default
+    configure([FLAG, str(tmp_path)], {})
+    jax_cache.reset_cache()
+    try:
+        x = jax.numpy.arange(13.0) * 0.37  # an eager multiply of a shape nothing else uses
+        x.block_until_ready()
+        assert any(p.is_file() for p in tmp_path.rglob("*")), "nothing was written"
+    finally:
+        jax_cache.reset_cache()
+
+
 def test_a_set_threshold_and_the_environment_variable_are_left_to_jax(
     tmp_path, restore_jax_cache_options
 ):
@@ -74,8 +90,13 @@ def test_a_set_threshold_and_the_environment_variable_are_left_to_jax(
     apply(choose(str(tmp_path), {}), {"JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "7"})
     assert jax.config.jax_persistent_cache_min_compile_time_secs == 7.0
     jax.config.update("jax_compilation_cache_dir", "/jax/own")
-    configure([], {ENV_VAR: "/somewhere/else"})
+    configure([], {ENV_VAR: "/somewhere/else", "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "7"})
     assert jax.config.jax_compilation_cache_dir == "/jax/own"  # JAX read the variable itself
+    assert jax.config.jax_persistent_cache_min_compile_time_secs == 7.0
+    # a directory from the variable (./dev, run.sh) still writes every program
+    configure([], {ENV_VAR: "/somewhere/else"})
+    assert jax.config.jax_compilation_cache_dir == "/jax/own"
+    assert jax.config.jax_persistent_cache_min_compile_time_secs == MIN_COMPILE_TIME_S
 
 
 def test_an_unusable_directory(tmp_path, restore_jax_cache_options, capsys):

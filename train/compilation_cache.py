@@ -12,10 +12,12 @@ trainer's benchmarks, and picks the cache directory:
 3. else the user's cache directory: ``$XDG_CACHE_HOME/mecanum-jax/jax``, by default
    ``~/.cache/mecanum-jax/jax``.
 
-Only programs that took at least :data:`MIN_COMPILE_TIME_S` to compile are written (unless
-``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS`` says otherwise): the small ones compile
-about as fast as they read back. JAX keeps the cache unbounded (its
-size limit needs the ``filelock`` package); delete the directory to reclaim the space.
+Every program is written, however fast it compiled (:data:`MIN_COMPILE_TIME_S` is 0, unless
+``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS`` says otherwise): a start builds some 150
+small eager programs (the model's constants, the robots' reset), which took 0.05–0.2 s
+each to compile on a GPU and read back in milliseconds (docs/benchmarks.md). JAX keeps the
+cache unbounded (its size limit needs the ``filelock`` package); delete the directory to
+reclaim the space.
 """
 
 from __future__ import annotations
@@ -33,8 +35,8 @@ from mecanum_jax.config import ConfigError
 FLAG = "--compilation-cache"
 OFF = "off"
 ENV_VAR = "JAX_COMPILATION_CACHE_DIR"
-MIN_COMPILE_TIME_S = 0.5
-"""Programs compiled faster than this are not written (JAX's default is 1 s)."""
+MIN_COMPILE_TIME_S = 0.0
+"""Programs compiled faster than this are not written (JAX's default is 1 s): none."""
 MIN_TIME_VAR = "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"
 
 
@@ -73,6 +75,7 @@ def apply(choice: CacheChoice, environ: Mapping[str, str] = os.environ) -> Cache
         jax.config.update("jax_enable_compilation_cache", False)
         return choice
     if choice.source == ENV_VAR:  # JAX has read it, with any other JAX_* cache options
+        _write_every_program(environ)
         return choice
     try:
         choice.directory.mkdir(parents=True, exist_ok=True)
@@ -85,9 +88,13 @@ def apply(choice: CacheChoice, environ: Mapping[str, str] = os.environ) -> Cache
         return CacheChoice(None, f"{choice.source} (unusable)")
     jax.config.update("jax_enable_compilation_cache", True)
     jax.config.update("jax_compilation_cache_dir", str(choice.directory))
+    _write_every_program(environ)
+    return choice
+
+
+def _write_every_program(environ: Mapping[str, str]) -> None:
     if not environ.get(MIN_TIME_VAR):  # the user's own threshold stands
         jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_S)
-    return choice
 
 
 def split_flag(argv: list[str]) -> tuple[str | None, list[str]]:
