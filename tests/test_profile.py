@@ -88,6 +88,14 @@ def test_coldstart_lists_phases_and_compiled_programs(tmp_path, capsys):
         "first evaluation: policy",
     ):
         assert phase in phases
+    # mecanum-train's order under JAX physics: the baseline beside the first epoch (timed
+    # after it here), the policy evaluated after the session's first epoch
+    assert phases[-4:] == [
+        "first epoch",
+        "first evaluation: baseline",
+        "first evaluation: policy",
+        "second epoch",
+    ]
     assert all(p["s"] >= 0 for p in report["phases"])
     assert report["programs"], "no compiled program listed"
     assert any(p["phase"] == "first epoch" for p in report["programs"])  # the epoch's

@@ -639,3 +639,25 @@ def test_first_runs_alone_under_warp(parallel, impl, alone):
         parallel=parallel, env=SimpleNamespace(robot=SimpleNamespace(impl=impl))
     )
     assert first_runs_alone(learner) is alone  # type: ignore[arg-type]
+
+
+def test_each_session_evaluates_its_first_epoch():
+    """A first figure soon after the start: the session's first epoch is evaluated, then
+    every ``run.eval_every`` epochs and the last one (a resumed session's first too)."""
+    from types import SimpleNamespace
+
+    from train.run import _Loop
+
+    run = SimpleNamespace(cfg=SimpleNamespace(run=SimpleNamespace(eval_every=8)))
+    loop = _Loop(run, None, 0.0, None, None)  # type: ignore[arg-type]
+
+    def evaluated(epochs: range) -> list[int]:
+        out = []
+        for loop.epoch in epochs:
+            if loop.eval_due(final=loop.epoch == epochs[-1]):
+                out.append(loop.epoch)
+        return out
+
+    assert evaluated(range(1, 18)) == [1, 8, 16, 17]
+    loop.first_epoch = 11  # resumed after epoch 10
+    assert evaluated(range(11, 20)) == [11, 16, 19]

@@ -43,3 +43,37 @@ def test_warp_training_stops_and_resumes(tmp_path):
     assert all(x["train"]["finite"] == 1.0 for x in lines), lines
     summary = json.loads((run / "summary.json").read_text())
     assert summary["epochs"] == 3
+
+
+SHARED_CHECK = """
+import jax, numpy as np
+from train.config import apply_flags, load_train_config
+from train.ppo import Learner
+flags = ["--env.physics-impl", "warp", "--ppo.num-envs", "16", "--ppo.batch-size", "16"]
+learner = Learner(apply_flags(load_train_config("tiny"), flags, "check"))
+# what the learner took before: a reset of one robot of its own, compiled apart
+one = jax.tree.leaves(jax.jit(learner.env.reset)(jax.numpy.zeros((2,), jax.numpy.uint32)))
+before = {i: np.asarray(one[i]) if one[i].size <= 64 else np.zeros_like(one[i])
+          for i in learner._shared_at}
+ts, env = learner.init()
+assert len(before) > 0 and sorted(before) == sorted(learner._shared), learner._shared_at
+for i, x in before.items():
+    y = learner._shared[i]
+    assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y), i
+ts, env, metrics = learner.epoch(ts, env)
+assert np.all(np.asarray(metrics["finite"]) > 0)
+print("ok", len(before))
+"""
+
+
+def test_batch_wide_leaves_come_from_the_first_reset():
+    """MuJoCo Warp's batch-wide buffers, taken from the robots' first reset, are those a
+    reset of one robot made, and an epoch runs on them."""
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env["JAX_ENABLE_COMPILATION_CACHE"] = "false"
+    done = subprocess.run(
+        [sys.executable, "-c", SHARED_CHECK], capture_output=True, text=True, env=env,
+        timeout=900,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "ok " in done.stdout

@@ -1,13 +1,14 @@
 """Cold start of training: from process start to the first evaluation, phase by phase.
 
-Runs what ``mecanum-train`` runs before its first evaluation, in order: imports, the
+Runs what ``mecanum-train`` runs before its first evaluation, in its order: imports, the
 config, the model and environment build (:class:`train.ppo.Learner`), the robots' reset
 (``--ahead``: with the epoch compiling alongside from shapes, ``train.aot``, a candidate
-for machines with many cores; docs/benchmarks.md), the first epoch, a
-second epoch (compiled already: the first one's compilation shows as the difference),
-then the evaluation of the analytic baseline and of the policy. ``mecanum-train`` also
-overlaps the baseline's evaluation with the first epoch and evaluates the policy after
-``run.eval_every`` epochs; here those phases are timed alone.
+for machines with many cores; docs/benchmarks.md), the evaluation of the analytic baseline
+(first where ``train.run.first_runs_alone``, as under Warp; elsewhere ``mecanum-train``
+overlaps it with the first epoch, and here it is timed after that epoch, alone), the first
+epoch, the policy's evaluation (``mecanum-train`` evaluates each session's first epoch),
+and then a second epoch (compiled already: the first one's compilation shows as the
+difference).
 
 Every program JAX compiles is listed from ``jax.monitoring``'s events: its tracing,
 lowering and XLA compilation times, whether the persistent compilation cache served it
@@ -208,18 +209,30 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             print(f"error: {err}", file=sys.stderr)
             raise SystemExit(2) from None
         ts, env = jax.block_until_ready(learner.init())
-    for name in ("first epoch", "second epoch"):
+    from train.run import first_runs_alone
+
+    def epoch(name: str) -> None:
+        nonlocal ts, env, ahead
         with clock.phase(name) as extra:
             if ahead is not None:
                 ahead.result()
                 ahead = None
             ts, env, metrics = learner.epoch(ts, env)
             extra["finite"] = bool(np.all(np.asarray(jax.device_get(metrics["finite"])) > 0))
-    host_ts = first_device(ts)
-    with clock.phase("first evaluation: baseline"):
-        learner.evaluate_baseline(host_ts)
+
+    def baseline() -> None:
+        with clock.phase("first evaluation: baseline"):
+            learner.evaluate_baseline(first_device(ts))
+
+    baseline_first = first_runs_alone(learner)  # as mecanum-train orders them
+    if baseline_first:
+        baseline()
+    epoch("first epoch")
+    if not baseline_first:
+        baseline()
     with clock.phase("first evaluation: policy"):
-        learner.evaluate(host_ts)
+        learner.evaluate(first_device(ts))
+    epoch("second epoch")
     from train.run_records import machine_record
 
     return {

@@ -20,7 +20,9 @@ cannot tell two reordered leaves of one shape apart.
 
 :func:`prune` and :func:`graft` take the zero-size leaves (and any others) out of a tree
 and put them back inside a compiled program: the learner's environment state crosses its
-programs, and is checkpointed, pruned.
+programs, and is checkpointed, pruned. :func:`batch_wide` names the leaves of the
+environment state that belong to the whole batch rather than to a robot, which the learner
+prunes too and grafts back fresh (:func:`fresh_batch_wide`).
 """
 
 from __future__ import annotations
@@ -201,9 +203,34 @@ def graft(template: Any, pruned: Mapping[str, Any], fill: Mapping[int, Any]) -> 
     return jax.tree.unflatten(treedef, out)
 
 
+def batch_wide(template: Any, robots: int) -> frozenset[int]:
+    """The ``jax.tree.leaves`` positions of ``template``'s non-empty leaves without the
+    robot axis (``robots`` first): MuJoCo Warp's contact buffers and their sizes, none under
+    MJX's JAX. Scratch space each physics step refills, kept out of the learner's
+    ``(D, S, E)`` layout; every program starts from fresh ones."""
+    flat = jax.tree.leaves(template)
+    return frozenset(
+        i for i, x in enumerate(flat) if x.shape[:1] != (robots,) and math.prod(x.shape)
+    )
+
+
+def fresh_batch_wide(env_state: Any, at: Collection[int]) -> dict[int, np.ndarray]:
+    """The leaves at ``at`` of a freshly reset batch (MuJoCo Warp's types keep them
+    unbatched under ``vmap``): the small ones (counts, capacities) as the reset made them,
+    the buffers as zeros. Taken from the robots' first reset, where a reset of one robot
+    of their own cost the learner a program of 5 s to compile at a cold start on a GPU."""
+    flat = jax.tree.leaves(env_state)
+    return {
+        i: np.asarray(flat[i]) if flat[i].size <= 64 else np.zeros(flat[i].shape, flat[i].dtype)
+        for i in sorted(at)
+    }
+
+
 __all__ = [
     "CHECKSUMS",
     "CheckpointError",
+    "batch_wide",
+    "fresh_batch_wide",
     "graft",
     "is_index_format",
     "named_leaves",

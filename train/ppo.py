@@ -22,7 +22,6 @@ environment state ``(D, S, E/D, ...)``, where S is the number of seeds and E ``n
 from __future__ import annotations
 
 import functools
-import math
 from collections.abc import Callable
 from typing import Any
 
@@ -115,7 +114,10 @@ class Learner:
         self._env_template = jax.eval_shape(
             self.train_env.reset, jax.ShapeDtypeStruct((self.envs_per_device, 2), jnp.uint32)
         )
-        self._shared = self._shared_buffers()
+        # the environment state's batch-wide leaves (MuJoCo Warp's contact buffers; none
+        # under MJX's JAX): out of the (D, S, E) layout, fresh from the first reset
+        self._shared_at = leaves.batch_wide(self._env_template, self.envs_per_device)
+        self._shared: dict[int, np.ndarray] | None = None if self._shared_at else {}
         on_gpu = all(d.platform == "gpu" for d in self.devices)
         self.evaluation = PeriodicEvaluation(cfg, self.env, self.networks, on_gpu)
 
@@ -124,7 +126,10 @@ class Learner:
     def init(self) -> tuple[TrainingState, Any]:
         """Fresh training and environment state, laid out ``(D, S, ...)``."""
         state, env_keys = self.init_training()
-        return self.place(state, self.pack_env(self._reset(env_keys)))
+        env_state = self._reset(env_keys)
+        if self._shared is None:
+            self._shared = leaves.fresh_batch_wide(env_state, self._shared_at)
+        return self.place(state, self.pack_env(env_state))
 
     def init_training(self) -> tuple[TrainingState, np.ndarray]:
         """Fresh host training state ``(D, S, ...)`` and environment keys ``(D, S, E/D, 2)``."""
@@ -184,33 +189,16 @@ class Learner:
         """The device mesh's sharding of the ``sharded`` path (``None``: ``pmap``)."""
         return self._sharding
 
-    def _shared_buffers(self) -> dict[int, np.ndarray]:
-        """The environment state's leaves that belong to the whole batch rather than to a
-        robot (MuJoCo Warp's contact buffer and its sizes; none under MJX's JAX), by
-        position in ``jax.tree.leaves``: leaves without the robot axis. They are scratch
-        space each physics step refills, so they stay out of the ``(D, S, E)`` layout and
-        every program starts from fresh ones: the small ones (counts, capacities) as the
-        reset made them, the buffers as zeros."""
-        E = self.envs_per_device
-        template = jax.tree.leaves(self._env_template)
-        shared = [i for i, x in enumerate(template) if x.shape[:1] != (E,) and math.prod(x.shape)]
-        if not shared:
-            return {}
-        # one robot's reset holds the same batch-wide leaves, and compiles faster
-        fresh = jax.tree.leaves(jax.jit(self.env.reset)(jnp.zeros((2,), jnp.uint32)))
-        return {
-            i: np.asarray(fresh[i]) if fresh[i].size <= 64 else np.zeros_like(fresh[i])
-            for i in shared
-        }
-
     def pack_env(self, env_state: Any) -> Any:
         """The environment state as it crosses device programs and is checkpointed: its
-        zero-size leaves (MJX has several) and batch-wide buffers (:meth:`_shared_buffers`)
+        zero-size leaves (MJX has several) and batch-wide buffers (``leaves.batch_wide``)
         left out of a flat dict (:func:`train.leaves.prune`)."""
-        return leaves.prune(env_state, self._shared)
+        return leaves.prune(env_state, self._shared_at)
 
     def unpack_env(self, packed: Any) -> Any:
         """Inverse of :meth:`pack_env` for one seed's per-device batch (inside the program)."""
+        if self._shared is None:
+            raise RuntimeError("the robots' first reset (Learner.init) comes before any epoch")
         fresh = {i: jnp.asarray(v) for i, v in self._shared.items()}
         return leaves.graft(self._env_template, packed, fresh)
 

@@ -85,6 +85,7 @@ class _Loop:
     walltime_before: float = 0.0
     beat_at: dict[str, Any] = dataclasses.field(default_factory=dict)
     saved_epoch: int = 0
+    first_epoch: int = 1  # this session's
     mgr: Any = None
     baseline_job: Any = None
     baseline: Result | None = None
@@ -107,8 +108,10 @@ class _Loop:
         return self.walltime_before + self.session_s()
 
     def eval_due(self, final: bool) -> bool:
-        """Evaluate this epoch: on the period, and on the epoch a run ends or stops at."""
-        return self.epoch % self.run.cfg.run.eval_every == 0 or final
+        """Evaluate this epoch: on the period, on this session's first (a first figure soon
+        after the start), and on the epoch a run ends or stops at."""
+        due = self.epoch % self.run.cfg.run.eval_every == 0
+        return due or self.epoch == self.first_epoch or final
 
     def checkpoint_due(self, final: bool) -> bool:
         """Checkpoint this epoch: on the period, and on the epoch a run ends or stops at."""
@@ -310,7 +313,7 @@ class Run:
         loop = _Loop(self, learner, t_start, state, env_state)
         if checkpoint.latest_epoch(self.dir) is not None:
             self._restore(loop)
-        loop.saved_epoch = loop.epoch
+        loop.saved_epoch, loop.first_epoch = loop.epoch, loop.epoch + 1
         # opened after the restore, which may move a corrupt newest checkpoint aside
         loop.mgr = checkpoint.manager(self.dir, cfg.run.max_checkpoints) if self.is_writer else None
         if jax.process_count() > 1:
