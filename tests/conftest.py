@@ -32,6 +32,9 @@ os.environ.setdefault(
     "JAX_COMPILATION_CACHE_DIR",
     os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), ".cache", "jax"),
 )
+# only the programs that took a second to compile (the command lines write every one,
+# train/compilation_cache.py; the suite's thousands of small ones would crowd the cache)
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1.0")
 from mecanum_jax.sim.render import ensure_gl_backend  # imports no MuJoCo
 
 ensure_gl_backend()  # must precede the first mujoco import
