@@ -14,7 +14,7 @@ trainer's benchmarks, and picks the cache directory:
 
 Every program is written, however fast it compiled (:data:`MIN_COMPILE_TIME_S` is 0, unless
 ``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS`` says otherwise): a start builds some 150
-small eager programs (the model's constants, the robots' reset), which took 0.05–0.2 s
+small eager programs (the model's constants, the robots' reset), which took 0.05–0.25 s
 each to compile on a GPU and read back in milliseconds (docs/benchmarks.md). JAX keeps the
 cache unbounded (its size limit needs the ``filelock`` package); delete the directory to
 reclaim the space.
