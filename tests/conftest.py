@@ -167,6 +167,7 @@ def learner(tiny):
 TINY_RUN_FILES = frozenset(
     {
         "test_aot.py",
+        "test_baseline_cache.py",
         "test_compat.py",
         "test_distributed.py",
         "test_eval.py",

@@ -4,11 +4,12 @@ Runs what ``mecanum-train`` runs before its first evaluation, in its order: impo
 config, the model and environment build (:class:`train.ppo.Learner`), the robots' reset
 (``--ahead``: with the epoch compiling alongside from shapes, ``train.aot``, a candidate
 for machines with many cores; docs/benchmarks.md), the evaluation of the analytic baseline
-(first where ``train.run.first_runs_alone``, as under Warp; elsewhere ``mecanum-train``
-overlaps it with the first epoch, and here it is timed after that epoch, alone), the first
-epoch, the policy's evaluation (``mecanum-train`` evaluates each session's first epoch),
-and then a second epoch (compiled already: the first one's compilation shows as the
-difference).
+(read back where an earlier start stored it, ``train.baseline_cache``, unless
+``--baseline-cache off``; first where ``train.run.first_runs_alone``, as under Warp;
+elsewhere ``mecanum-train`` overlaps it with the first epoch, and here it is timed after
+that epoch, alone), the first epoch, the policy's evaluation (``mecanum-train`` evaluates
+each session's first epoch), and then a second epoch (compiled already: the first one's
+compilation shows as the difference).
 
 Every program JAX compiles is listed from ``jax.monitoring``'s events: its tracing,
 lowering and XLA compilation times, whether the persistent compilation cache served it
@@ -189,6 +190,12 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         parser.add_argument(
             "--ahead", action="store_true", help="compile the epoch while the robots reset"
         )
+        parser.add_argument(
+            "--baseline-cache",
+            choices=("on", "off"),
+            default="on",
+            help="read the baseline's evaluation from its cache (train.baseline_cache)",
+        )
         args, flags = parser.parse_known_args(argv)
         try:
             if args.json_out and not Path(args.json_out).absolute().parent.is_dir():
@@ -220,9 +227,16 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             ts, env, metrics = learner.epoch(ts, env)
             extra["finite"] = bool(np.all(np.asarray(jax.device_get(metrics["finite"])) > 0))
 
+    from train import baseline_cache
+
+    use_cache = args.baseline_cache == "on" and cfg.run.baseline_cache
+    origin = ""
+
     def baseline() -> None:
-        with clock.phase("first evaluation: baseline"):
-            learner.evaluate_baseline(first_device(ts))
+        nonlocal origin
+        with clock.phase("first evaluation: baseline") as extra:
+            _, origin = baseline_cache.baseline(learner, first_device(ts), use_cache)
+            extra["baseline"] = origin
 
     baseline_first = first_runs_alone(learner)  # as mecanum-train orders them
     if baseline_first:
@@ -241,6 +255,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         "seeds": len(cfg.run.seeds),
         "devices": learner.n_devices,
         "cache": {"on": cache_on, "dir": cache_dir if cache_on else None},
+        "baseline": origin,  # "cache", "computed" (and stored) or "off"
         "from_process_start": AGE_AT_MODULE is not None,
         "json_out": args.json_out,
         "epoch_compiled_ahead": args.ahead,
@@ -280,7 +295,7 @@ def _tables(report: dict[str, Any], top: int) -> list[Any]:
     phases = Table(
         title=f"Cold start of {report['config']} on {report['device']} "
         f"({report['physics_impl']} physics, {report['robots']} robots, "
-        f"cache {report['cache']['dir'] or 'off'})"
+        f"cache {report['cache']['dir'] or 'off'}, baseline {report['baseline']})"
     )
     for col in ("phase", "s", "at s (from process start)"):
         phases.add_column(col, justify="left" if col == "phase" else "right")

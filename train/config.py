@@ -158,6 +158,10 @@ class RunConfig:
     progress_every_s: float = 30.0
     """Where the log stream is not a terminal (``> log 2>&1``, nohup, SLURM): a plain
     progress line every this many seconds, and one at each evaluation (> 0)."""
+    baseline_cache: bool = True
+    """Keep the analytic baseline's evaluation on disk, and read it back at a start with the
+    same task, evaluation settings, code, packages and device (train/baseline_cache.py; in
+    the compilation cache's directory, so off with ``--compilation-cache off`` too)."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -21,7 +21,6 @@ import dataclasses
 import json
 import math
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +31,7 @@ from rich.console import Console
 from mecanum_jax.config import ConfigError
 from mecanum_jax.precision import set_matmul_precision
 from mecanum_jax.sim.description import fingerprint
-from train import checkpoint
+from train import baseline_cache, checkpoint
 from train import run_records as records
 from train.config import TrainConfig, config_diff, load_train_config
 from train.distributed import barrier, restore_process, save_process
@@ -41,7 +40,7 @@ from train.periodic import Result, beats, compare
 from train.ppo import Learner, first_device, to_host
 from train.run_records import stacked, write_json
 
-# Fields a resumed run may change: its length and its logging/evaluation cadence.
+# Fields a resumed run may change: its length, logging/evaluation cadence, baseline cache.
 RESUMABLE_CHANGES = {
     "ppo.num_timesteps",
     "run.eval_every",
@@ -49,9 +48,10 @@ RESUMABLE_CHANGES = {
     "run.max_checkpoints",
     "run.wandb_project",
     "run.progress_every_s",
+    "run.baseline_cache",
 }
 # Fields the compiled learner never reads: a learner built without them serves the run.
-LOGGING_ONLY = {"run.wandb_project", "run.progress_every_s"}
+LOGGING_ONLY = {"run.wandb_project", "run.progress_every_s", "run.baseline_cache"}
 
 
 def first_runs_alone(learner: Learner) -> bool:
@@ -88,6 +88,7 @@ class _Loop:
     first_epoch: int = 1  # this session's
     mgr: Any = None
     baseline_job: Any = None
+    baseline_from: str = ""  # "cache", "computed" or "off" (train.baseline_cache)
     baseline: Result | None = None
     setup_s: float = 0.0
     results: list[Result] = dataclasses.field(default_factory=list)
@@ -297,8 +298,8 @@ class Run:
 
     def _set_up(self, learner: Learner | None) -> _Loop:
         """The learner, fresh or restored state, the checkpoint manager, logs, and the
-        baseline's evaluation started in a thread (it compiles the evaluation programs while
-        the first epoch compiles; finished first where :func:`first_runs_alone`)."""
+        baseline's evaluation: read back (train.baseline_cache) or begun in a thread, beside
+        the first epoch's compilation (finished first where :func:`first_runs_alone`)."""
         cfg = self.cfg
         set_matmul_precision(cfg.run.matmul_precision)  # before anything is traced
         t_start = time.time()
@@ -322,9 +323,9 @@ class Run:
             barrier("epoch-compiled")
         self._open_logs()
         self._status("running", epoch=loop.epoch)
-        pool = ThreadPoolExecutor(1, thread_name_prefix="baseline-eval")
-        loop.baseline_job = pool.submit(learner.evaluate_baseline, first_device(loop.state))
-        pool.shutdown(wait=False)
+        loop.baseline_job, loop.baseline_from = baseline_cache.start(
+            learner, first_device(loop.state), cfg.run.baseline_cache, self.console.log
+        )
         if first_runs_alone(learner):
             loop.baseline_job.result()
         loop.setup_s = time.time() - t_start
@@ -368,7 +369,8 @@ class Run:
             raise
         if loop.baseline is None:
             loop.baseline = loop.baseline_job.result()
-            beside = "" if first_runs_alone(loop.learner) else ", with the baseline's evaluation"
+            alone = first_runs_alone(loop.learner) or loop.baseline_from == "cache"
+            beside = "" if alone else ", with the baseline's evaluation"
             epoch_s = time.time() - t_epoch
             self.console.log(f"set-up {loop.setup_s:.0f} s; first epoch{beside}: {epoch_s:.0f} s")
         if not np.all(metrics["finite"] > 0):

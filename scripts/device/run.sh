@@ -69,7 +69,8 @@
 #                           config + ARGS): $OUT/profile.json; --trace also sends a
 #                           jax.profiler trace of one epoch as $OUT/profile_trace.tgz.partNN
 #   coldstart ARGS...       start to first evaluation (python -m train.coldstart, gpu config +
-#                           ARGS), twice: empty compilation cache, then warm;
+#                           ARGS), twice: empty compilation cache (the baseline's cache
+#                           inside it too), then warm;
 #                           $OUT/coldstart_cold.json and coldstart_warm.json
 #   scaling [N...] [FLAGS...]      PPO env steps/s of the gpu config at N robots (default 1024
 #                           4096 16384 32768 65536; batch N/8: 2 unrolls per iteration as at
