@@ -249,3 +249,16 @@ def test_a_model_directory_evaluates_its_packaged_epoch(tmp_path):
     shutil.rmtree(ckpts / str(packaged))
     with pytest.raises(checkpoint.CheckpointError, match=f"names epoch {packaged}"):
         checkpoint.restore_policy(model)
+
+
+def test_a_start_does_not_wait_for_orbax():
+    """orbax is imported at a run's first checkpoint or restore, not by the command lines'
+    imports (about 0.6 s of a start on a GPU machine; docs/benchmarks.md)."""
+    import subprocess
+    import sys
+
+    code = "import sys, train.cli, train.coldstart; print('orbax.checkpoint' in sys.modules)"
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True
+    )
+    assert out.stdout.strip().splitlines()[-1] == "False"

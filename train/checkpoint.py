@@ -25,13 +25,15 @@ import sys
 import warnings
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
-import orbax.checkpoint as ocp
 
 from mecanum_jax.config import ConfigError
 from train.leaves import CheckpointError, corruption, pack, unpack
+
+if TYPE_CHECKING:
+    import orbax.checkpoint as ocp
 
 CHECKPOINT_DIR = "checkpoints"
 
@@ -54,7 +56,16 @@ def quiet_closed_loop_noise() -> None:
     sys.unraisablehook = hook
 
 
+def _orbax() -> Any:
+    """orbax.checkpoint, imported on first use: about 0.6 s that a run's start need not
+    wait for (its first checkpoint comes epochs later; docs/benchmarks.md)."""
+    import orbax.checkpoint
+
+    return orbax.checkpoint
+
+
 def manager(run_dir: Path, max_to_keep: int = 3, create: bool = True) -> ocp.CheckpointManager:
+    ocp = _orbax()
     root = (run_dir / CHECKPOINT_DIR).absolute()
     extra: dict[str, Any] = {}
     if jax.process_count() > 1:
@@ -76,6 +87,7 @@ def save(
     mgr: ocp.CheckpointManager, epoch: int, train: Any, env: Any, meta: dict[str, Any]
 ) -> None:
     """Save host (numpy) trees; blocks until written so a crash cannot leave it half done."""
+    ocp = _orbax()
     mgr.save(
         epoch,
         args=ocp.args.Composite(
@@ -105,6 +117,7 @@ def _checkpoint_path(run_dir: Path, epoch: int) -> Path:
 def _read_items(mgr: ocp.CheckpointManager, epoch: int, items: tuple[str, ...]) -> dict[str, Any]:
     """The named items of checkpoint ``epoch`` as they were saved (no template: a file that
     does not decode is corruption, not a shape mismatch); ``meta`` is JSON, others arrays."""
+    ocp = _orbax()
     args = {k: ocp.args.JsonRestore() if k == "meta" else ocp.args.StandardRestore() for k in items}
     out = dict(mgr.restore(epoch, args=ocp.args.Composite(**args)))
     for k in items:

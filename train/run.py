@@ -138,7 +138,10 @@ class _Loop:
         """Checkpoint the current epoch, unless it is saved already."""
         if self.epoch != self.saved_epoch:
             ts, es = self.state, self.env_state
-            if self.mgr is not None:
+            if self.run.is_writer:  # the manager opened at the first save (after a restore)
+                self.mgr = self.mgr or checkpoint.manager(
+                    self.run.dir, self.run.cfg.run.max_checkpoints
+                )
                 checkpoint.save(self.mgr, self.epoch, to_host(ts), to_host(es), self.meta())
             elif jax.process_count() > 1:  # only its keys and robots are its own
                 keep = self.run.cfg.run.max_checkpoints
@@ -315,8 +318,6 @@ class Run:
         if checkpoint.latest_epoch(self.dir) is not None:
             self._restore(loop)
         loop.saved_epoch, loop.first_epoch = loop.epoch, loop.epoch + 1
-        # opened after the restore, which may move a corrupt newest checkpoint aside
-        loop.mgr = checkpoint.manager(self.dir, cfg.run.max_checkpoints) if self.is_writer else None
         if jax.process_count() > 1:
             # compile before any process runs the epoch's collectives (see barrier)
             learner.compile_epoch(loop.state, loop.env_state)
