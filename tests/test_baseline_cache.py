@@ -195,3 +195,41 @@ def test_turning_it_off_is_a_run_option(tiny):
     assert tiny.run.baseline_cache
     off = apply_flags(tiny, ["--run.baseline-cache", "False"])
     assert off == dataclasses.replace(tiny, run=dataclasses.replace(tiny.run, baseline_cache=False))
+
+
+def test_a_hit_that_runs_first_still_traces_the_evaluation_in_place(learner, tmp_path, monkeypatch):
+    """Where the baseline runs before the first epoch (under MuJoCo Warp), a start that
+    reads it back traces its evaluation program at that point all the same, and the policy's
+    evaluation then reuses that trace: the process traces its programs in the order a
+    start that computed the baseline did (Warp numbers its FFI calls in trace order, and the
+    compilation cache's keys hold the numbers)."""
+    from train.coldstart import CompileLog
+
+    monkeypatch.setattr(baseline_cache, "directory", lambda: tmp_path / SUBDIR)
+    ts = first_device(learner.init_training()[0])
+    computed, _ = baseline_cache.baseline(learner, ts)  # stored
+    evaluator = learner.evaluation.evaluator
+
+    def fresh_rollout(*args):  # a program this process has not traced yet
+        return type(evaluator)._rollout(evaluator, *args)
+
+    monkeypatch.setattr(evaluator, "_run", jax.jit(fresh_rollout))
+    monkeypatch.setattr(learner, "evaluate_baseline", lambda ts: pytest.fail("evaluated"))
+    with CompileLog() as log:
+        _, origin = baseline_cache.baseline(learner, ts, first=False)
+    assert origin == "cache"
+    assert [e for e in log.events if "fresh_rollout" in e["name"]] == []  # nothing traced
+    with CompileLog() as log:
+        read, origin = baseline_cache.baseline(learner, ts, first=True)
+        traced = [e["event"] for e in log.events if "fresh_rollout" in e["name"]]
+        assert (origin, traced) == ("cache", ["trace_s", "lower_s"])  # traced, not compiled
+        replay = learner.evaluation.play("analytic", jax.tree.map(lambda x: x[0], _params(ts)))
+    events = [e["event"] for e in log.events if "fresh_rollout" in e["name"]]
+    assert events.count("trace_s") == 1  # the play reused the trace
+    assert events.count("compile_s") == 1
+    _assert_same(replay, computed)
+    _assert_same(read, computed)
+
+
+def _params(ts):
+    return (ts.normalizer_params, ts.params.policy)

@@ -204,24 +204,49 @@ def compute(learner: Learner, ts_first_device: Any, entry: Entry) -> Result:
     return result
 
 
-def baseline(learner: Learner, ts_first_device: Any, enabled: bool = True) -> tuple[Result, str]:
-    """The baseline's result, read back or computed (and stored), and its ``origin``."""
+def trace_in_place(learner: Learner, ts_first_device: Any) -> None:
+    """Trace the evaluation program the baseline would have run, running nothing. Where
+    the baseline runs first (``train.run.first_runs_alone``: under MuJoCo Warp), a start
+    that reads it back must still trace that program at the same point: Warp numbers its
+    FFI calls in trace order and the compilation cache's keys hold those numbers, so a
+    start that traced the epoch first missed the cache for the epoch and the evaluation
+    that an earlier start had compiled (an H200, 2026-11-27; docs/benchmarks.md)."""
+    params = (ts_first_device.normalizer_params, ts_first_device.params.policy)
+    learner.evaluation.trace("analytic", jax.tree.map(lambda x: x[0], params))
+
+
+def baseline(
+    learner: Learner, ts_first_device: Any, enabled: bool = True, first: bool = False
+) -> tuple[Result, str]:
+    """The baseline's result, read back or computed (and stored), and its ``origin``;
+    ``first``: it runs before the first epoch (read back, it is traced then all the same:
+    :func:`trace_in_place`)."""
     entry = lookup(learner, enabled)
-    result = entry.result if entry.result is not None else compute(learner, ts_first_device, entry)
-    return result, entry.origin
+    if entry.result is None:
+        return compute(learner, ts_first_device, entry), entry.origin
+    if first:
+        trace_in_place(learner, ts_first_device)
+    return entry.result, entry.origin
 
 
 def start(
-    learner: Learner, ts_first_device: Any, enabled: bool, log: Callable[[str], None]
+    learner: Learner,
+    ts_first_device: Any,
+    enabled: bool,
+    log: Callable[[str], None],
+    first: bool = False,
 ) -> tuple[Future[Result], str]:
     """``mecanum-train``'s baseline and its ``origin``: read back (a finished future;
-    ``log`` says from where), or evaluated and stored in a thread of its own."""
+    ``log`` says from where; ``first``: traced all the same, :func:`trace_in_place`), or
+    evaluated and stored in a thread of its own."""
     entry = lookup(learner, enabled)
     if entry.result is None:
         pool = ThreadPoolExecutor(1, thread_name_prefix="baseline-eval")
         job = pool.submit(compute, learner, ts_first_device, entry)
         pool.shutdown(wait=False)
         return job, entry.origin
+    if first:
+        trace_in_place(learner, ts_first_device)
     done: Future[Result] = Future()
     done.set_result(entry.result)
     home, path = str(Path.home()), str(entry.path)
@@ -231,4 +256,4 @@ def start(
 
 
 __all__ = ["Entry", "baseline", "compute", "directory", "key", "key_inputs", "load", "lookup"]
-__all__ += ["source_hash", "source_roots", "start", "store"]
+__all__ += ["source_hash", "source_roots", "start", "store", "trace_in_place"]

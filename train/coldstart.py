@@ -235,7 +235,9 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
     def baseline() -> None:
         nonlocal origin
         with clock.phase("first evaluation: baseline") as extra:
-            _, origin = baseline_cache.baseline(learner, first_device(ts), use_cache)
+            _, origin = baseline_cache.baseline(
+                learner, first_device(ts), use_cache, baseline_first
+            )
             extra["baseline"] = origin
 
     baseline_first = first_runs_alone(learner)  # as mecanum-train orders them

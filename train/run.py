@@ -324,10 +324,11 @@ class Run:
             barrier("epoch-compiled")
         self._open_logs()
         self._status("running", epoch=loop.epoch)
+        alone = first_runs_alone(learner)
         loop.baseline_job, loop.baseline_from = baseline_cache.start(
-            learner, first_device(loop.state), cfg.run.baseline_cache, self.console.log
+            learner, first_device(loop.state), cfg.run.baseline_cache, self.console.log, alone
         )
-        if first_runs_alone(learner):
+        if alone:
             loop.baseline_job.result()
         loop.setup_s = time.time() - t_start
         return loop

@@ -175,12 +175,48 @@ class Evaluator:
         ``feedback_gains``: ``(kp, ki, i_max)`` of the ``feedback`` controller (default: the
         environment's config); traced, so a gain sweep compiles once.
         """
+        gains = self._gains(feedback_gains)
+        chunks = self._chunks(jobs)
+        results: list[Trace | None] = [None] * len(jobs)
+        outputs: dict[tuple[int, ...], list[Trace]] = {}
+        for n, (idx, part, flags, keep) in enumerate(chunks):
+            out = self._run(params, jnp.asarray(flags), part, gains)
+            outputs.setdefault(idx, []).append(Trace(*(np.asarray(x)[:keep] for x in out)))
+            if progress is not None:
+                progress(n + 1, len(chunks))
+        for idx_t, parts in outputs.items():
+            whole = Trace(*(np.concatenate(xs) for xs in zip(*parts, strict=True)))
+            lo = 0
+            for i in idx_t:
+                e = len(jobs[i][0].keys)
+                results[i] = Trace(*(x[lo : lo + e] for x in whole))
+                lo += e
+        return [r for r in results if r is not None]
+
+    def trace_many(self, jobs: Sequence[tuple[EpisodeBatch, str]], params: Any = None) -> None:
+        """Trace and lower the programs :meth:`run_many` would run for ``jobs``, running
+        nothing; a later :meth:`run_many` of the same shapes reuses the trace. MuJoCo Warp
+        numbers its FFI calls in the order a process traces them, and the persistent
+        compilation cache's keys hold those numbers, so a start that skips a program
+        another start ran first must still trace it at that point to find the others'
+        compiled programs (train/baseline_cache.py)."""
+        gains = self._gains(None)
+        for _, part, flags, _ in self._chunks(jobs):
+            self._run.lower(params, jnp.asarray(flags), part, gains)
+
+    def _gains(self, feedback_gains: Any) -> jax.Array:
         gains = self.env.feedback_gains() if feedback_gains is None else feedback_gains
-        gains = jnp.asarray(gains, jnp.float32)
+        return jnp.asarray(gains, jnp.float32)
+
+    def _chunks(
+        self, jobs: Sequence[tuple[EpisodeBatch, str]]
+    ) -> list[tuple[tuple[int, ...], EpisodeBatch, np.ndarray, int]]:
+        """The compiled calls of :meth:`run_many`: ``(job indices, episodes, controller
+        codes, episodes kept)``, each of ``max_batch`` episodes at most; batches of equal
+        length concatenated, the last chunk padded by wrapping round."""
         codes = [who_code(who) for _, who in jobs]
         if self.apply is None and LEARNED in codes:
             raise ValueError("this Evaluator has no learned policy: evaluate a reference")
-        results: list[Trace | None] = [None] * len(jobs)
         by_length: dict[int, list[int]] = {}
         for i, (batch, _) in enumerate(jobs):
             by_length.setdefault(int(batch.commands.shape[1]), []).append(i)
@@ -194,24 +230,14 @@ class Evaluator:
             total = len(flags)
             size = min(self.max_batch, total)
             for lo in range(0, total, size):
-                chunks.append((idx, merged, flags, total, lo, size))
-        outputs: dict[tuple[int, ...], list[Trace]] = {}
-        for n, (idx, merged, flags, total, lo, size) in enumerate(chunks):
-            take = (np.arange(lo, lo + size) % total) if lo + size > total else slice(lo, lo + size)
-            part = jax.tree.map(lambda x, t=take: x[t], merged)
-            out = self._run(params, jnp.asarray(flags[take]), part, gains)
-            keep = min(size, total - lo)
-            outputs.setdefault(tuple(idx), []).append(Trace(*(np.asarray(x)[:keep] for x in out)))
-            if progress is not None:
-                progress(n + 1, len(chunks))
-        for idx_t, parts in outputs.items():
-            whole = Trace(*(np.concatenate(xs) for xs in zip(*parts, strict=True)))
-            lo = 0
-            for i in idx_t:
-                e = len(jobs[i][0].keys)
-                results[i] = Trace(*(x[lo : lo + e] for x in whole))
-                lo += e
-        return [r for r in results if r is not None]
+                take = (
+                    (np.arange(lo, lo + size) % total)
+                    if lo + size > total
+                    else slice(lo, lo + size)
+                )
+                part = jax.tree.map(lambda x, t=take: x[t], merged)
+                chunks.append((tuple(idx), part, flags[take], min(size, total - lo)))
+        return chunks
 
 
 def relative_poses(trace: Trace) -> np.ndarray:
