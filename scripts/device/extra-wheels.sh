@@ -11,3 +11,6 @@ done
 python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 \
   --implementation cp --platform manylinux_2_28_x86_64 -d .whl "${want[@]}" 2>&1 | grep -v '^WARNING: Location' || true
 ls .whl | grep -E "tyro|docstring|typeguard"
+# PyOpenGL (3.2 MB) is for on-screen rendering, which no task of run.sh does; left out, the
+# last Warp call's carry (the tree, about 32 MB, and .whl) stays under 64 MiB
+rm -f .whl/pyopengl-*.whl
