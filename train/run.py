@@ -300,9 +300,10 @@ class Run:
     # --- the steps of train ------------------------------------------------------------------
 
     def _set_up(self, learner: Learner | None) -> _Loop:
-        """The learner, fresh or restored state, the checkpoint manager, logs, and the
-        baseline's evaluation: read back (train.baseline_cache) or begun in a thread, beside
-        the first epoch's compilation (finished first where :func:`first_runs_alone`)."""
+        """The learner, fresh or restored state, logs, and the baseline's evaluation: read
+        back (train.baseline_cache) or begun in a thread, beside the first epoch's
+        compilation (finished first where :func:`first_runs_alone`). The checkpoint manager
+        opens at the first save."""
         cfg = self.cfg
         set_matmul_precision(cfg.run.matmul_precision)  # before anything is traced
         t_start = time.time()
