@@ -100,7 +100,9 @@ def test_coldstart_lists_phases_and_compiled_programs(tmp_path, capsys):
     assert report["programs"], "no compiled program listed"
     assert any(p["phase"] == "first epoch" for p in report["programs"])  # the epoch's
     assert report["epoch_compiled_ahead"] is False
-    assert report["baseline"] in ("computed", "cache")  # the suite's cache is on
+    # the baseline's cache follows the compilation cache, which building MuJoCo Warp's
+    # physics on the CPU turns off for the whole process (an earlier test may have)
+    assert report["baseline"] in (("computed", "cache") if report["cache"]["on"] else ("off",))
     assert report["totals"]["programs"] == len(report["programs"])
     text = capsys.readouterr().out
     assert "Compiled programs" in text
