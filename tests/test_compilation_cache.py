@@ -63,8 +63,10 @@ def test_apply_sets_jax_options(tmp_path, restore_jax_cache_options):
     assert jax.config.jax_compilation_cache_dir == str(target)
     assert jax.config.jax_enable_compilation_cache
     assert jax.config.jax_persistent_cache_min_compile_time_secs == MIN_COMPILE_TIME_S
+    assert compilation_cache.in_force() == target
     configure([FLAG, "off"], {})
     assert not jax.config.jax_enable_compilation_cache
+    assert compilation_cache.in_force() is None
 
 
 def test_a_small_eager_program_is_written(tmp_path, restore_jax_cache_options):

@@ -28,6 +28,7 @@ import numpy as np
 import mecanum_jax
 from mecanum_jax.config import CONFIG_DIR
 from mecanum_jax.evaluation.metrics import Part
+from train import compilation_cache
 from train.periodic import Result
 
 if TYPE_CHECKING:
@@ -55,10 +56,8 @@ class Entry(NamedTuple):
 def directory() -> Path | None:
     """``mecanum-baselines/`` in JAX's compilation cache directory; ``None`` where that
     cache is off or several processes run (each would compute and write the same)."""
-    where = getattr(jax.config, "jax_compilation_cache_dir", None)
-    if not (getattr(jax.config, "jax_enable_compilation_cache", False) and where):
-        return None
-    return None if jax.process_count() > 1 else Path(where) / SUBDIR
+    where = compilation_cache.in_force()
+    return None if where is None or jax.process_count() > 1 else where / SUBDIR
 
 
 def source_roots() -> list[tuple[str, Path]]:
@@ -215,17 +214,24 @@ def trace_in_place(learner: Learner, ts_first_device: Any) -> None:
     learner.evaluation.trace("analytic", jax.tree.map(lambda x: x[0], params))
 
 
+def _look_up_in_place(learner: Learner, ts_first_device: Any, enabled: bool, first: bool) -> Entry:
+    """:func:`lookup`; on a hit where the baseline runs before the first epoch
+    (``first``), its program traced all the same (:func:`trace_in_place`)."""
+    entry = lookup(learner, enabled)
+    if entry.result is not None and first:
+        trace_in_place(learner, ts_first_device)
+    return entry
+
+
 def baseline(
     learner: Learner, ts_first_device: Any, enabled: bool = True, first: bool = False
 ) -> tuple[Result, str]:
     """The baseline's result, read back or computed (and stored), and its ``origin``;
     ``first``: it runs before the first epoch (read back, it is traced then all the same:
     :func:`trace_in_place`)."""
-    entry = lookup(learner, enabled)
+    entry = _look_up_in_place(learner, ts_first_device, enabled, first)
     if entry.result is None:
         return compute(learner, ts_first_device, entry), entry.origin
-    if first:
-        trace_in_place(learner, ts_first_device)
     return entry.result, entry.origin
 
 
@@ -239,14 +245,12 @@ def start(
     """``mecanum-train``'s baseline and its ``origin``: read back (a finished future;
     ``log`` says from where; ``first``: traced all the same, :func:`trace_in_place`), or
     evaluated and stored in a thread of its own."""
-    entry = lookup(learner, enabled)
+    entry = _look_up_in_place(learner, ts_first_device, enabled, first)
     if entry.result is None:
         pool = ThreadPoolExecutor(1, thread_name_prefix="baseline-eval")
         job = pool.submit(compute, learner, ts_first_device, entry)
         pool.shutdown(wait=False)
         return job, entry.origin
-    if first:
-        trace_in_place(learner, ts_first_device)
     done: Future[Result] = Future()
     done.set_result(entry.result)
     home, path = str(Path.home()), str(entry.path)

@@ -181,8 +181,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         from mecanum_jax.precision import set_matmul_precision
         from train.config import apply_flags, load_train_config
         from train.ppo import Learner, first_device
-    cache_dir = getattr(jax.config, "jax_compilation_cache_dir", None)
-    cache_on = bool(getattr(jax.config, "jax_enable_compilation_cache", False) and cache_dir)
+    cache_dir = compilation_cache.in_force()
     with clock.phase("config (load, flags, validation)"):
         parser = argparse.ArgumentParser(prog="python -m train.coldstart", description=__doc__)
         parser.add_argument("--config", default="gpu")
@@ -256,7 +255,10 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         "robots": cfg.ppo.num_envs,
         "seeds": len(cfg.run.seeds),
         "devices": learner.n_devices,
-        "cache": {"on": cache_on, "dir": cache_dir if cache_on else None},
+        "cache": {
+            "on": cache_dir is not None,
+            "dir": None if cache_dir is None else str(cache_dir),
+        },
         "baseline": origin,  # "cache", "computed" (and stored) or "off"
         "from_process_start": AGE_AT_MODULE is not None,
         "json_out": args.json_out,

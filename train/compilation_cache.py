@@ -92,6 +92,15 @@ def apply(choice: CacheChoice, environ: Mapping[str, str] = os.environ) -> Cache
     return choice
 
 
+def in_force() -> Path | None:
+    """The persistent cache's directory as JAX has it now (``None``: the cache is off).
+    Read at the time of asking: building MuJoCo Warp's physics on the CPU turns the cache
+    off for the rest of the process (``mecanum_jax.sim.warp_cache``)."""
+    where = getattr(jax.config, "jax_compilation_cache_dir", None)
+    on = getattr(jax.config, "jax_enable_compilation_cache", False)
+    return Path(where) if on and where else None
+
+
 def _write_every_program(environ: Mapping[str, str]) -> None:
     if not environ.get(MIN_TIME_VAR):  # the user's own threshold stands
         jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_S)
@@ -138,5 +147,6 @@ __all__ = [
     "choose",
     "configure",
     "default_directory",
+    "in_force",
     "split_flag",
 ]
