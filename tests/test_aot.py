@@ -23,3 +23,41 @@ def test_compiling_ahead_is_refused_under_warp_naming_the_field():
     learner = SimpleNamespace(env=SimpleNamespace(robot=SimpleNamespace(impl="warp")))
     with pytest.raises(ValueError, match=r"env\.physics_impl = 'warp'"):
         aot.compile_epoch_ahead(learner)  # type: ignore[arg-type]
+
+
+def test_compiling_together_leaves_the_first_runs_nothing_to_compile(learner, monkeypatch):
+    """:func:`aot.compile_together` compiles the baseline's evaluation and the epoch before
+    either runs (under Warp, where they run one after the other): their first runs then
+    compile nothing, and the evaluation was traced before the epoch (Warp's trace order)."""
+    from train.coldstart import CompileLog
+    from train.ppo import first_device
+
+    evaluator = learner.evaluation.evaluator
+
+    def fresh_rollout(*args):  # a program this process has not compiled yet
+        return type(evaluator)._rollout(evaluator, *args)
+
+    monkeypatch.setattr(evaluator, "_run", jax.jit(fresh_rollout))
+    ts, env = learner.init()
+    order: list[str] = []
+    trace, lower_epoch = learner.evaluation.trace, learner.lower_epoch
+    monkeypatch.setattr(learner.evaluation, "trace", lambda *a: order.append("eval") or trace(*a))
+    monkeypatch.setattr(learner, "lower_epoch", lambda *a: order.append("epoch") or lower_epoch(*a))
+    with CompileLog() as log:
+        aot.compile_together(learner, ts, env)
+    assert order == ["eval", "epoch"]
+    compiled = [e["name"] for e in log.events if e["event"] == "compile_s"]
+    assert "jit(fresh_rollout)" in compiled  # the evaluation's rollout
+    assert "jit(_fun)" in compiled  # the epoch (train.parallel.spread's)
+    with CompileLog() as log:
+        learner.evaluate_baseline(first_device(ts))
+        jax.block_until_ready(learner.epoch(ts, env))
+    again = [e["name"] for e in log.events if e["event"] in ("trace_s", "compile_s")]
+    assert [n for n in again if n in ("jit(fresh_rollout)", "jit(_fun)")] == []
+
+
+def test_compiling_together_is_refused_on_the_split_path():
+    learner = SimpleNamespace(parallel="split", n_processes=1)
+    assert not aot.can_compile_together(learner)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="split"):
+        aot.compile_together(learner, None, None)  # type: ignore[arg-type]

@@ -1,4 +1,10 @@
-"""Compiling a learner's epoch ahead of time, from shapes, while the robots reset.
+"""Compiling a learner's programs ahead of their first runs.
+
+Under MuJoCo Warp (``train.run.first_runs_alone``) a start runs the baseline's evaluation
+and then the first epoch, never side by side; :func:`compile_together`, which
+``mecanum-train`` uses there, compiles the two at once before either runs.
+
+Compiling the epoch from shapes, while the robots reset:
 
 A cold start compiles three large programs before its first evaluation: the robots'
 reset, the training epoch and the evaluation rollout (docs/benchmarks.md). The epoch
@@ -24,7 +30,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from train.ppo import Learner
+from train.ppo import Learner, first_device
 
 
 def abstract_state(learner: Learner) -> tuple[Any, Any]:
@@ -69,4 +75,33 @@ def compile_epoch_ahead(learner: Learner) -> Future[None]:
     return job
 
 
-__all__ = ["abstract_state", "compile_epoch_ahead"]
+def can_compile_together(learner: Learner) -> bool:
+    """Whether :func:`compile_together` serves this learner: one process, and not the
+    ``split`` path (whose per-GPU programs compile on first use)."""
+    return learner.parallel != "split" and learner.n_processes == 1
+
+
+def compile_together(learner: Learner, ts: Any, env_state: Any) -> None:
+    """Trace and lower the baseline's evaluation, then the epoch, on this thread, and
+    compile them at once on threads of their own; runs nothing. For a start whose first
+    runs go one after the other (``train.run.first_runs_alone``: under MuJoCo Warp no GPU
+    work may run beside a program's first run, whose graph capture it breaks): the runs
+    stay in order, their compilations overlap, since no program runs while they do. The
+    order of tracing is the one every such start keeps, cold or warm (Warp numbers its
+    FFI calls in trace order, and the persistent cache's keys hold the numbers:
+    train/baseline_cache.py). The evaluation's later calls find their compiled programs in
+    jit's cache, the epoch's is the learner's (:meth:`~train.ppo.Learner.compile_epoch`)."""
+    if not can_compile_together(learner):
+        raise ValueError("compile_together: one process, and not run.parallel = 'split'")
+    first = first_device(ts)
+    params = jax.tree.map(lambda x: x[0], (first.normalizer_params, first.params.policy))
+    evaluation = learner.evaluation.trace("analytic", params)
+    epoch = learner.lower_epoch(ts, env_state)
+    with ThreadPoolExecutor(1 + len(evaluation), thread_name_prefix="compile") as pool:
+        jobs = [pool.submit(lowered.compile) for lowered in evaluation]
+        learner.compile_epoch(ts, env_state, epoch)
+        for job in jobs:
+            job.result()
+
+
+__all__ = ["abstract_state", "can_compile_together", "compile_epoch_ahead", "compile_together"]

@@ -8,7 +8,9 @@ for machines with many cores; docs/benchmarks.md), the evaluation of the analyti
 ``--baseline-cache off``; first where ``train.run.first_runs_alone``, as under Warp;
 elsewhere ``mecanum-train`` overlaps it with the first epoch, and here it is timed after
 that epoch, alone), the first epoch, the policy's evaluation (``mecanum-train`` evaluates
-each session's first epoch), and then a second epoch (compiled already: the first one's
+each session's first epoch; where the baseline runs first, its evaluation and the epoch
+are compiled together before either runs, ``train.aot.compile_together``, unless
+``--compile-together off``), and then a second epoch (compiled already: the first one's
 compilation shows as the difference).
 
 Every program JAX compiles is listed from ``jax.monitoring``'s events: its tracing,
@@ -195,6 +197,13 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             default="on",
             help="read the baseline's evaluation from its cache (train.baseline_cache)",
         )
+        parser.add_argument(
+            "--compile-together",
+            choices=("on", "off"),
+            default="on",
+            help="where the baseline runs first: compile its evaluation and the epoch at "
+            "once before either runs, as mecanum-train does (train.aot.compile_together)",
+        )
         args, flags = parser.parse_known_args(argv)
         try:
             if args.json_out and not Path(args.json_out).absolute().parent.is_dir():
@@ -206,7 +215,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         set_matmul_precision(cfg.run.matmul_precision)
     with clock.phase("model and environment build"):
         learner = Learner(cfg)
-    from train.aot import compile_epoch_ahead
+    from train.aot import can_compile_together, compile_epoch_ahead, compile_together
 
     with clock.phase("robots' reset" + (" (the epoch compiling)" if args.ahead else "")):
         try:
@@ -235,11 +244,16 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         nonlocal origin
         with clock.phase("first evaluation: baseline") as extra:
             _, origin = baseline_cache.baseline(
-                learner, first_device(ts), use_cache, baseline_first
+                learner, first_device(ts), use_cache, baseline_first and not together
             )
             extra["baseline"] = origin
 
     baseline_first = first_runs_alone(learner)  # as mecanum-train orders them
+    together = baseline_first and args.compile_together == "on"
+    together = together and can_compile_together(learner)
+    if together:
+        with clock.phase("compiling together: the evaluation and the epoch"):
+            compile_together(learner, ts, env)
     if baseline_first:
         baseline()
     epoch("first epoch")
@@ -263,6 +277,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         "from_process_start": AGE_AT_MODULE is not None,
         "json_out": args.json_out,
         "epoch_compiled_ahead": args.ahead,
+        "compiled_together": together,
     }
 
 

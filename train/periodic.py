@@ -91,9 +91,10 @@ class PeriodicEvaluation:
             values[name] = evaluation.summarize(trace, dt, False, self._jacobian, parts=parts[name])
         return Result(values, parts)
 
-    def trace(self, who: str, params: Any = None) -> None:
-        """Trace what :meth:`play` would run, running nothing (``Evaluator.trace_many``)."""
-        self.evaluator.trace_many([(b, who) for b in self.batches().values()], params)
+    def trace(self, who: str, params: Any = None) -> list[Any]:
+        """Trace and lower what :meth:`play` would run, running nothing; the lowered
+        programs (``Evaluator.trace_many``)."""
+        return self.evaluator.trace_many([(b, who) for b in self.batches().values()], params)
 
     def policies(self, params: Any, n_seeds: int) -> list[Result]:
         """Each seed's deterministic policy; ``params`` has a leading seed axis."""

@@ -172,12 +172,17 @@ class Learner:
             return self._compiled_epoch(ts, env_state)
         return self._parallel_epoch(ts, env_state)
 
-    def compile_epoch(self, ts: TrainingState, env_state: Any) -> None:
+    def compile_epoch(self, ts: TrainingState, env_state: Any, lowered: Any = None) -> None:
         """Compile :meth:`epoch` for these states (or their ``ShapeDtypeStruct``s) now,
-        ahead of its first call (train.aot: from shapes, while the robots reset)."""
+        ahead of its first call (train.aot); ``lowered``: :meth:`lower_epoch`'s, if done."""
+        lowered = self.lower_epoch(ts, env_state) if lowered is None else lowered
+        self._compiled_epoch = lowered.compile()
+
+    def lower_epoch(self, ts: TrainingState, env_state: Any) -> Any:
+        """:meth:`epoch` traced and lowered for these states, compiled by nothing yet."""
         if self.parallel == "split":
             raise ValueError("run.parallel = 'split' compiles its programs on first use")
-        self._compiled_epoch = self._parallel_epoch.lower(ts, env_state).compile()
+        return self._parallel_epoch.lower(ts, env_state)
 
     @property
     def reset_program(self) -> Any:

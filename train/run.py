@@ -31,7 +31,7 @@ from rich.console import Console
 from mecanum_jax.config import ConfigError
 from mecanum_jax.precision import set_matmul_precision
 from mecanum_jax.sim.description import fingerprint
-from train import baseline_cache, checkpoint
+from train import aot, baseline_cache, checkpoint
 from train import run_records as records
 from train.config import TrainConfig, config_diff, load_train_config
 from train.distributed import barrier, restore_process, save_process
@@ -302,8 +302,9 @@ class Run:
     def _set_up(self, learner: Learner | None) -> _Loop:
         """The learner, fresh or restored state, logs, and the baseline's evaluation: read
         back (train.baseline_cache) or begun in a thread, beside the first epoch's
-        compilation (finished first where :func:`first_runs_alone`). The checkpoint manager
-        opens at the first save."""
+        compilation (where :func:`first_runs_alone`: finished first, compiled together with
+        the epoch, ``train.aot.compile_together``). The checkpoint manager opens at the
+        first save."""
         cfg = self.cfg
         set_matmul_precision(cfg.run.matmul_precision)  # before anything is traced
         t_start = time.time()
@@ -326,8 +327,15 @@ class Run:
         self._open_logs()
         self._status("running", epoch=loop.epoch)
         alone = first_runs_alone(learner)
+        together = alone and aot.can_compile_together(learner)
+        if together:  # the evaluation, then the epoch, traced; compiled at once
+            aot.compile_together(learner, loop.state, loop.env_state)
         loop.baseline_job, loop.baseline_from = baseline_cache.start(
-            learner, first_device(loop.state), cfg.run.baseline_cache, self.console.log, alone
+            learner,
+            first_device(loop.state),
+            cfg.run.baseline_cache,
+            self.console.log,
+            alone and not together,
         )
         if alone:
             loop.baseline_job.result()

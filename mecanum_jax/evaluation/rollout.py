@@ -193,16 +193,22 @@ class Evaluator:
                 lo += e
         return [r for r in results if r is not None]
 
-    def trace_many(self, jobs: Sequence[tuple[EpisodeBatch, str]], params: Any = None) -> None:
+    def trace_many(self, jobs: Sequence[tuple[EpisodeBatch, str]], params: Any = None) -> list[Any]:
         """Trace and lower the programs :meth:`run_many` would run for ``jobs``, running
-        nothing; a later :meth:`run_many` of the same shapes reuses the trace. MuJoCo Warp
-        numbers its FFI calls in the order a process traces them, and the persistent
-        compilation cache's keys hold those numbers, so a start that skips a program
-        another start ran first must still trace it at that point to find the others'
-        compiled programs (train/baseline_cache.py)."""
+        nothing, and return them (``jax.stages.Lowered``, one per distinct chunk shape); a
+        later :meth:`run_many` of the same shapes reuses the trace, and the compilation of
+        a returned program (train/aot.py). MuJoCo Warp numbers its FFI calls in the order a
+        process traces them, and the persistent compilation cache's keys hold those
+        numbers, so a start that skips a program another start ran first must still trace
+        it at that point to find the others' compiled programs (train/baseline_cache.py)."""
         gains = self._gains(None)
+        lowered: dict[Any, Any] = {}
         for _, part, flags, _ in self._chunks(jobs):
-            self._run.lower(params, jnp.asarray(flags), part, gains)
+            shapes = jax.tree.map(np.shape, (part, flags))
+            key = tuple(jax.tree.leaves(shapes))
+            if key not in lowered:
+                lowered[key] = self._run.lower(params, jnp.asarray(flags), part, gains)
+        return list(lowered.values())
 
     def _gains(self, feedback_gains: Any) -> jax.Array:
         gains = self.env.feedback_gains() if feedback_gains is None else feedback_gains

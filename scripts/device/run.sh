@@ -72,6 +72,8 @@
 #                           ARGS), twice: empty compilation cache (the baseline's cache
 #                           inside it too), then warm;
 #                           $OUT/coldstart_cold.json and coldstart_warm.json
+#                           (COLDSTART_TAG=T: coldstart_T_cold.json ...; e.g. the same call
+#                           with --compile-together off, then on)
 #   scaling [N...] [FLAGS...]      PPO env steps/s of the gpu config at N robots (default 1024
 #                           4096 16384 32768 65536; batch N/8: 2 unrolls per iteration as at
 #                           32768), one process each: $OUT/scaling.json, $OUT/scaling.png
@@ -331,9 +333,10 @@ coldstart() {  # [flags]: an empty compilation cache, then the same start with i
   local pass
   rm -rf /tmp/coldstart-cache
   for pass in cold warm; do
-    echo "== $pass compilation cache"
+    echo "== $pass compilation cache ${COLDSTART_TAG:-}"
     python3 -m train.coldstart --config gpu --compilation-cache /tmp/coldstart-cache \
-      --json-out "$O/coldstart_$pass.json" "$@" 2>&1 | quiet | tail -42
+      --json-out "$O/coldstart_${COLDSTART_TAG:+${COLDSTART_TAG}_}$pass.json" "$@" 2>&1 \
+      | quiet | tail -42
   done
 }
 
