@@ -28,7 +28,7 @@ def test_compiling_ahead_is_refused_under_warp_naming_the_field():
 def test_compiling_together_leaves_the_first_runs_nothing_to_compile(learner, monkeypatch):
     """:func:`aot.compile_together` compiles the baseline's evaluation and the epoch before
     either runs (under Warp, where they run one after the other): their first runs then
-    compile nothing, and the evaluation was traced before the epoch (Warp's trace order)."""
+    compile nothing, and the epoch was traced before the evaluation (Warp's trace order)."""
     from train.coldstart import CompileLog
     from train.ppo import first_device
 
@@ -45,7 +45,7 @@ def test_compiling_together_leaves_the_first_runs_nothing_to_compile(learner, mo
     monkeypatch.setattr(learner, "lower_epoch", lambda *a: order.append("epoch") or lower_epoch(*a))
     with CompileLog() as log:
         aot.compile_together(learner, ts, env)
-    assert order == ["eval", "epoch"]
+    assert order == ["epoch", "eval"]
     compiled = [e["name"] for e in log.events if e["event"] == "compile_s"]
     assert "jit(fresh_rollout)" in compiled  # the evaluation's rollout
     assert "jit(_fun)" in compiled  # the epoch (train.parallel.spread's)

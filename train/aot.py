@@ -2,7 +2,7 @@
 
 Under MuJoCo Warp (``train.run.first_runs_alone``) a start runs the baseline's evaluation
 and then the first epoch, never side by side; :func:`compile_together`, which
-``mecanum-train`` uses there, compiles the two at once before either runs.
+``mecanum-train`` uses there, compiles the two at the same time before either runs.
 
 Compiling the epoch from shapes, while the robots reset:
 
@@ -82,11 +82,13 @@ def can_compile_together(learner: Learner) -> bool:
 
 
 def compile_together(learner: Learner, ts: Any, env_state: Any) -> None:
-    """Trace and lower the baseline's evaluation, then the epoch, on this thread, and
-    compile them at once on threads of their own; runs nothing. For a start whose first
-    runs go one after the other (``train.run.first_runs_alone``: under MuJoCo Warp no GPU
-    work may run beside a program's first run, whose graph capture it breaks): the runs
-    stay in order, their compilations overlap, since no program runs while they do. The
+    """Trace and lower the epoch, then the baseline's evaluation, on this thread, and
+    compile them at the same time, the epoch on a thread of its own; runs nothing of
+    Warp's. For a start whose first runs go one after the other
+    (``train.run.first_runs_alone``: under MuJoCo Warp no GPU work may run beside a
+    program's first run, whose graph capture it breaks): the runs stay in order, their
+    compilations overlap, since no Warp program runs while they do. The evaluation's
+    episodes are drawn while the epoch compiles (their samplers hold no Warp call). The
     order of tracing is the one every such start keeps, cold or warm (Warp numbers its
     FFI calls in trace order, and the persistent cache's keys hold the numbers:
     train/baseline_cache.py). The evaluation's later calls find their compiled programs in
@@ -95,13 +97,12 @@ def compile_together(learner: Learner, ts: Any, env_state: Any) -> None:
         raise ValueError("compile_together: one process, and not run.parallel = 'split'")
     first = first_device(ts)
     params = jax.tree.map(lambda x: x[0], (first.normalizer_params, first.params.policy))
-    evaluation = learner.evaluation.trace("analytic", params)
     epoch = learner.lower_epoch(ts, env_state)
-    with ThreadPoolExecutor(1 + len(evaluation), thread_name_prefix="compile") as pool:
-        jobs = [pool.submit(lowered.compile) for lowered in evaluation]
-        learner.compile_epoch(ts, env_state, epoch)
-        for job in jobs:
-            job.result()
+    with ThreadPoolExecutor(1, thread_name_prefix="compile-epoch") as pool:
+        job = pool.submit(learner.compile_epoch, ts, env_state, epoch)
+        for lowered in learner.evaluation.trace("analytic", params):
+            lowered.compile()
+        job.result()
 
 
 __all__ = ["abstract_state", "can_compile_together", "compile_epoch_ahead", "compile_together"]

@@ -8,7 +8,7 @@ for machines with many cores; docs/benchmarks.md), the evaluation of the analyti
 ``--baseline-cache off``; first where ``train.run.first_runs_alone``, as under Warp;
 elsewhere ``mecanum-train`` overlaps it with the first epoch, and here it is timed after
 that epoch, alone), the first epoch, the policy's evaluation (``mecanum-train`` evaluates
-each session's first epoch; where the baseline runs first, its evaluation and the epoch
+each session's first epoch; where the baseline runs first, the epoch and its evaluation
 are compiled together before either runs, ``train.aot.compile_together``, unless
 ``--compile-together off``), and then a second epoch (compiled already: the first one's
 compilation shows as the difference).
@@ -201,7 +201,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             "--compile-together",
             choices=("on", "off"),
             default="on",
-            help="where the baseline runs first: compile its evaluation and the epoch at "
+            help="where the baseline runs first: compile the epoch and its evaluation at "
             "once before either runs, as mecanum-train does (train.aot.compile_together)",
         )
         args, flags = parser.parse_known_args(argv)
@@ -252,7 +252,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
     together = baseline_first and args.compile_together == "on"
     together = together and can_compile_together(learner)
     if together:
-        with clock.phase("compiling together: the evaluation and the epoch"):
+        with clock.phase("compiling together: the epoch and the evaluation"):
             compile_together(learner, ts, env)
     if baseline_first:
         baseline()

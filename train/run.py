@@ -328,7 +328,7 @@ class Run:
         self._status("running", epoch=loop.epoch)
         alone = first_runs_alone(learner)
         together = alone and aot.can_compile_together(learner)
-        if together:  # the evaluation, then the epoch, traced; compiled at once
+        if together:  # the epoch, then the evaluation, traced; compiled at once
             aot.compile_together(learner, loop.state, loop.env_state)
         loop.baseline_job, loop.baseline_from = baseline_cache.start(
             learner,
