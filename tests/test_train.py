@@ -633,7 +633,7 @@ def test_first_runs_alone_under_warp(parallel, impl, alone):
     another thread's GPU work meanwhile breaks the capture (train/run.py)."""
     from types import SimpleNamespace
 
-    from train.run import first_runs_alone
+    from train.aot import first_runs_alone
 
     learner = SimpleNamespace(
         parallel=parallel, env=SimpleNamespace(robot=SimpleNamespace(impl=impl))

@@ -1,6 +1,6 @@
 """Compiling a learner's programs ahead of their first runs.
 
-Under MuJoCo Warp (``train.run.first_runs_alone``) a start runs the baseline's evaluation
+Under MuJoCo Warp (:func:`first_runs_alone`) a start runs the baseline's evaluation
 and then the first epoch, never side by side; :func:`compile_together`, which
 ``mecanum-train`` uses there, compiles the two at the same time before either runs.
 
@@ -75,6 +75,16 @@ def compile_epoch_ahead(learner: Learner) -> Future[None]:
     return job
 
 
+def first_runs_alone(learner: Learner) -> bool:
+    """Whether the baseline's first evaluation must finish before the first epoch starts.
+    Under MuJoCo Warp a GPU program's first run loads it and Warp captures its CUDA graphs,
+    and GPU work from another thread meanwhile breaks the capture: on the ``split`` path
+    (CUDA_ERROR_STREAM_CAPTURE_UNSUPPORTED, train/split_epoch.py) and with the epoch loaded
+    on another thread during the reset (Warp CUDA error 904, docs/benchmarks.md). With the
+    persistent cache, programs load in a second, so the two first runs would overlap."""
+    return learner.parallel == "split" or learner.env.robot.impl == "warp"
+
+
 def can_compile_together(learner: Learner) -> bool:
     """Whether :func:`compile_together` serves this learner: one process, and not the
     ``split`` path (whose per-GPU programs compile on first use)."""
@@ -85,7 +95,7 @@ def compile_together(learner: Learner, ts: Any, env_state: Any) -> None:
     """Trace and lower the epoch, then the baseline's evaluation, on this thread, and
     compile them at the same time, the epoch on a thread of its own; runs nothing of
     Warp's. For a start whose first runs go one after the other
-    (``train.run.first_runs_alone``: under MuJoCo Warp no GPU work may run beside a
+    (``first_runs_alone``: under MuJoCo Warp no GPU work may run beside a
     program's first run, whose graph capture it breaks): the runs stay in order, their
     compilations overlap, since no Warp program runs while they do. The evaluation's
     episodes are drawn while the epoch compiles (their samplers hold no Warp call). The
@@ -105,4 +115,10 @@ def compile_together(learner: Learner, ts: Any, env_state: Any) -> None:
         job.result()
 
 
-__all__ = ["abstract_state", "can_compile_together", "compile_epoch_ahead", "compile_together"]
+__all__ = [
+    "abstract_state",
+    "can_compile_together",
+    "compile_epoch_ahead",
+    "compile_together",
+    "first_runs_alone",
+]

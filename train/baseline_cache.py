@@ -205,7 +205,7 @@ def compute(learner: Learner, ts_first_device: Any, entry: Entry) -> Result:
 
 def trace_in_place(learner: Learner, ts_first_device: Any) -> None:
     """Trace the evaluation program the baseline would have run, running nothing. Where
-    the baseline runs first (``train.run.first_runs_alone``: under MuJoCo Warp), a start
+    the baseline runs first (``train.aot.first_runs_alone``: under MuJoCo Warp), a start
     that reads it back must still trace that program at the same point: Warp numbers its
     FFI calls in trace order and the compilation cache's keys hold those numbers, so a
     start that traced the epoch first missed the cache for the epoch and the evaluation

@@ -5,7 +5,7 @@ config, the model and environment build (:class:`train.ppo.Learner`), the robots
 (``--ahead``: with the epoch compiling alongside from shapes, ``train.aot``, a candidate
 for machines with many cores; docs/benchmarks.md), the evaluation of the analytic baseline
 (read back where an earlier start stored it, ``train.baseline_cache``, unless
-``--baseline-cache off``; first where ``train.run.first_runs_alone``, as under Warp;
+``--baseline-cache off``; first where ``train.aot.first_runs_alone``, as under Warp;
 elsewhere ``mecanum-train`` overlaps it with the first epoch, and here it is timed after
 that epoch, alone), the first epoch, the policy's evaluation (``mecanum-train`` evaluates
 each session's first epoch; where the baseline runs first, the epoch and its evaluation
@@ -224,7 +224,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             print(f"error: {err}", file=sys.stderr)
             raise SystemExit(2) from None
         ts, env = jax.block_until_ready(learner.init())
-    from train.run import first_runs_alone
+    from train.aot import first_runs_alone
 
     def epoch(name: str) -> None:
         nonlocal ts, env, ahead

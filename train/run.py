@@ -33,6 +33,7 @@ from mecanum_jax.precision import set_matmul_precision
 from mecanum_jax.sim.description import fingerprint
 from train import aot, baseline_cache, checkpoint
 from train import run_records as records
+from train.aot import first_runs_alone
 from train.config import TrainConfig, config_diff, load_train_config
 from train.distributed import barrier, restore_process, save_process
 from train.loggers import MetricLogger, TensorBoardLogger, WandbLogger
@@ -52,16 +53,6 @@ RESUMABLE_CHANGES = {
 }
 # Fields the compiled learner never reads: a learner built without them serves the run.
 LOGGING_ONLY = {"run.wandb_project", "run.progress_every_s", "run.baseline_cache"}
-
-
-def first_runs_alone(learner: Learner) -> bool:
-    """Whether the baseline's first evaluation must finish before the first epoch starts.
-    Under MuJoCo Warp a GPU program's first run loads it and Warp captures its CUDA graphs,
-    and GPU work from another thread meanwhile breaks the capture: on the ``split`` path
-    (CUDA_ERROR_STREAM_CAPTURE_UNSUPPORTED, train/split_epoch.py) and with the epoch loaded
-    on another thread during the reset (Warp CUDA error 904, docs/benchmarks.md). With the
-    persistent cache, programs load in a second, so the two first runs would overlap."""
-    return learner.parallel == "split" or learner.env.robot.impl == "warp"
 
 
 class TrainingDiverged(RuntimeError):  # noqa: N818 (reads as the event it reports)
@@ -330,12 +321,9 @@ class Run:
         together = alone and aot.can_compile_together(learner)
         if together:  # the epoch, then the evaluation, traced; compiled at once
             aot.compile_together(learner, loop.state, loop.env_state)
+        in_place = alone and not together  # on a hit, its program traced all the same
         loop.baseline_job, loop.baseline_from = baseline_cache.start(
-            learner,
-            first_device(loop.state),
-            cfg.run.baseline_cache,
-            self.console.log,
-            alone and not together,
+            learner, first_device(loop.state), cfg.run.baseline_cache, self.console.log, in_place
         )
         if alone:
             loop.baseline_job.result()
