@@ -30,6 +30,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from train import baseline_cache
 from train.ppo import Learner, first_device
 
 
@@ -105,12 +106,10 @@ def compile_together(learner: Learner, ts: Any, env_state: Any) -> None:
     jit's cache, the epoch's is the learner's (:meth:`~train.ppo.Learner.compile_epoch`)."""
     if not can_compile_together(learner):
         raise ValueError("compile_together: one process, and not run.parallel = 'split'")
-    first = first_device(ts)
-    params = jax.tree.map(lambda x: x[0], (first.normalizer_params, first.params.policy))
     epoch = learner.lower_epoch(ts, env_state)
     with ThreadPoolExecutor(1, thread_name_prefix="compile-epoch") as pool:
         job = pool.submit(learner.compile_epoch, ts, env_state, epoch)
-        for lowered in learner.evaluation.trace("analytic", params):
+        for lowered in baseline_cache.trace_in_place(learner, first_device(ts)):
             lowered.compile()
         job.result()
 

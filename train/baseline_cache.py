@@ -203,15 +203,16 @@ def compute(learner: Learner, ts_first_device: Any, entry: Entry) -> Result:
     return result
 
 
-def trace_in_place(learner: Learner, ts_first_device: Any) -> None:
-    """Trace the evaluation program the baseline would have run, running nothing. Where
+def trace_in_place(learner: Learner, ts_first_device: Any) -> list[Any]:
+    """Trace and lower the evaluation program the baseline would have run, running nothing;
+    the lowered programs (``PeriodicEvaluation.trace``). Where
     the baseline runs first (``train.aot.first_runs_alone``: under MuJoCo Warp), a start
     that reads it back must still trace that program at the same point: Warp numbers its
     FFI calls in trace order and the compilation cache's keys hold those numbers, so a
     start that traced the epoch first missed the cache for the epoch and the evaluation
     that an earlier start had compiled (an H200, 2026-11-27; docs/benchmarks.md)."""
     params = (ts_first_device.normalizer_params, ts_first_device.params.policy)
-    learner.evaluation.trace("analytic", jax.tree.map(lambda x: x[0], params))
+    return learner.evaluation.trace("analytic", jax.tree.map(lambda x: x[0], params))
 
 
 def _look_up_in_place(learner: Learner, ts_first_device: Any, enabled: bool, first: bool) -> Entry:

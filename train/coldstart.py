@@ -249,8 +249,8 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             extra["baseline"] = origin
 
     baseline_first = first_runs_alone(learner)  # as mecanum-train orders them
-    together = baseline_first and args.compile_together == "on"
-    together = together and can_compile_together(learner)
+    on = args.compile_together == "on"
+    together = baseline_first and on and can_compile_together(learner)
     if together:
         with clock.phase("compiling together: the epoch and the evaluation"):
             compile_together(learner, ts, env)

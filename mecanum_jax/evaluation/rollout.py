@@ -204,8 +204,7 @@ class Evaluator:
         gains = self._gains(None)
         lowered: dict[Any, Any] = {}
         for _, part, flags, _ in self._chunks(jobs):
-            shapes = jax.tree.map(np.shape, (part, flags))
-            key = tuple(jax.tree.leaves(shapes))
+            key = tuple(np.shape(x) for x in jax.tree.leaves((part, flags)))
             if key not in lowered:
                 lowered[key] = self._run.lower(params, jnp.asarray(flags), part, gains)
         return list(lowered.values())
