@@ -26,38 +26,55 @@ def test_compiling_ahead_is_refused_under_warp_naming_the_field():
 
 
 def test_compiling_together_leaves_the_first_runs_nothing_to_compile(learner, monkeypatch):
-    """:func:`aot.compile_together` compiles the baseline's evaluation and the epoch before
-    either runs (under Warp, where they run one after the other): their first runs then
-    compile nothing, and the epoch was traced before the evaluation (Warp's trace order)."""
+    """:func:`aot.compile_together` compiles the robots' reset, the baseline's evaluation
+    and the epoch before any of them runs (under Warp, where they run one after the
+    other): their first runs then compile nothing, and they were traced in Warp's trace
+    order (the reset, the epoch, the evaluation)."""
     from train.coldstart import CompileLog
     from train.ppo import first_device
 
     evaluator = learner.evaluation.evaluator
 
-    def fresh_rollout(*args):  # a program this process has not compiled yet
+    def fresh_rollout(*args):  # programs this process has not compiled yet
         return type(evaluator)._rollout(evaluator, *args)
 
+    def fresh_reset(keys):
+        return jax.vmap(jax.vmap(learner.train_env.reset))(keys)
+
     monkeypatch.setattr(evaluator, "_run", jax.jit(fresh_rollout))
-    ts, env = learner.init()
     order: list[str] = []
+    reset = jax.jit(fresh_reset)
     trace, lower_epoch = learner.evaluation.trace, learner.lower_epoch
+    monkeypatch.setattr(
+        learner,
+        "_reset",
+        SimpleNamespace(lower=lambda *a: order.append("reset") or reset.lower(*a)),
+    )
     monkeypatch.setattr(learner.evaluation, "trace", lambda *a: order.append("eval") or trace(*a))
     monkeypatch.setattr(learner, "lower_epoch", lambda *a: order.append("epoch") or lower_epoch(*a))
     with CompileLog() as log:
-        aot.compile_together(learner, ts, env)
-    assert order == ["epoch", "eval"]
+        host, compiled_reset = aot.compile_together(learner)
+    assert order == ["reset", "epoch", "eval"]
     compiled = [e["name"] for e in log.events if e["event"] == "compile_s"]
     assert "jit(fresh_rollout)" in compiled  # the evaluation's rollout
+    assert "jit(fresh_reset)" in compiled  # the robots' reset
     assert "jit(_fun)" in compiled  # the epoch (train.parallel.spread's)
     with CompileLog() as log:
+        ts, env = learner.init(host, compiled_reset)
         learner.evaluate_baseline(first_device(ts))
         jax.block_until_ready(learner.epoch(ts, env))
     again = [e["name"] for e in log.events if e["event"] in ("trace_s", "compile_s")]
-    assert [n for n in again if n in ("jit(fresh_rollout)", "jit(_fun)")] == []
+    big = ("jit(fresh_rollout)", "jit(fresh_reset)", "jit(_fun)")
+    assert [n for n in again if n in big] == []
+    # the same start as an uncompiled one: the same fresh state
+    ts2, env2 = learner.init(host, reset)
+    for a, b in zip(jax.tree.leaves((ts, env)), jax.tree.leaves((ts2, env2)), strict=True):
+        assert (a.shape, a.dtype) == (b.shape, b.dtype)
+        assert bool((a == b).all())
 
 
 def test_compiling_together_is_refused_on_the_split_path():
     learner = SimpleNamespace(parallel="split", n_processes=1)
     assert not aot.can_compile_together(learner)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="split"):
-        aot.compile_together(learner, None, None)  # type: ignore[arg-type]
+        aot.compile_together(learner)  # type: ignore[arg-type]

@@ -51,24 +51,29 @@ from train.config import apply_flags, load_train_config
 from train.ppo import Learner
 flags = ["--env.physics-impl", "warp", "--ppo.num-envs", "16", "--ppo.batch-size", "16"]
 learner = Learner(apply_flags(load_train_config("tiny"), flags, "check"))
-# what the learner took before: a reset of one robot of its own, compiled apart
+fresh = learner._shared  # built from shapes, before any reset
+assert len(fresh) > 0 and sorted(fresh) == sorted(learner._shared_at), learner._shared_at
+# a reset of one robot, and the robots' batch reset: their counters (the small leaves)
+# are what the learner starts every program with; the buffers the learner zeroes
 one = jax.tree.leaves(jax.jit(learner.env.reset)(jax.numpy.zeros((2,), jax.numpy.uint32)))
-before = {i: np.asarray(one[i]) if one[i].size <= 64 else np.zeros_like(one[i])
-          for i in learner._shared_at}
+_, keys = learner.init_training()
+batch = jax.tree.leaves(learner.reset_program(keys))
+for leaves in (one, batch):
+    for i, y in fresh.items():
+        x = np.asarray(leaves[i])
+        assert x.dtype == y.dtype and x.shape == y.shape, i
+        assert x.size > 64 or np.array_equal(x, y), (i, x)
 ts, env = learner.init()
-assert len(before) > 0 and sorted(before) == sorted(learner._shared), learner._shared_at
-for i, x in before.items():
-    y = learner._shared[i]
-    assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y), i
 ts, env, metrics = learner.epoch(ts, env)
 assert np.all(np.asarray(metrics["finite"]) > 0)
-print("ok", len(before))
+print("ok", len(fresh))
 """
 
 
-def test_batch_wide_leaves_come_from_the_first_reset():
-    """MuJoCo Warp's batch-wide buffers, taken from the robots' first reset, are those a
-    reset of one robot made, and an epoch runs on them."""
+def test_batch_wide_leaves_are_those_a_reset_makes():
+    """MuJoCo Warp's batch-wide buffers, built from shapes before any reset, hold the
+    counters a reset of one robot and the robots' batch reset make, and an epoch runs on
+    them."""
     env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
     env["JAX_ENABLE_COMPILATION_CACHE"] = "false"
     done = subprocess.run(

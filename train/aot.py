@@ -1,8 +1,9 @@
 """Compiling a learner's programs ahead of their first runs.
 
-Under MuJoCo Warp (:func:`first_runs_alone`) a start runs the baseline's evaluation
-and then the first epoch, never side by side; :func:`compile_together`, which
-``mecanum-train`` uses there, compiles the two at the same time before either runs.
+Under MuJoCo Warp (:func:`first_runs_alone`) a start runs the robots' reset, the
+baseline's evaluation and the first epoch one after the other, never side by side;
+:func:`compile_together`, which ``mecanum-train`` uses there, compiles the three at the
+same time before any of them runs.
 
 Compiling the epoch from shapes, while the robots reset:
 
@@ -34,14 +35,20 @@ from train import baseline_cache
 from train.ppo import Learner, first_device
 
 
-def abstract_state(learner: Learner) -> tuple[Any, Any]:
+def abstract_state(
+    learner: Learner, host: tuple[Any, Any] | None = None, reset_out: Any = None
+) -> tuple[Any, Any]:
     """The training and environment state :meth:`Learner.init` returns, as
     ``jax.ShapeDtypeStruct`` leaves laid out as :meth:`Learner.place` lays them out
-    (concrete dtypes; the device mesh's sharding on the ``sharded`` path). Runs no reset."""
+    (concrete dtypes; the device mesh's sharding on the ``sharded`` path). Runs no reset.
+    ``host``: :meth:`Learner.init_training`'s, if made; ``reset_out``: the reset's
+    output shapes (its lowering's ``out_info``), if lowered."""
     if learner.n_processes > 1:
         raise ValueError("abstract_state: one process only (several compile from their states)")
-    state, env_keys = learner.init_training()
-    env_state = learner.pack_env(jax.eval_shape(learner.reset_program, env_keys))
+    state, env_keys = learner.init_training() if host is None else host
+    if reset_out is None:
+        reset_out = jax.eval_shape(learner.reset_program, env_keys)
+    env_state = learner.pack_env(reset_out)
     sharding = learner.sharding
 
     def spec(x: Any) -> jax.ShapeDtypeStruct:
@@ -92,26 +99,38 @@ def can_compile_together(learner: Learner) -> bool:
     return learner.parallel != "split" and learner.n_processes == 1
 
 
-def compile_together(learner: Learner, ts: Any, env_state: Any) -> None:
-    """Trace and lower the epoch, then the baseline's evaluation, on this thread, and
-    compile them at the same time, the epoch on a thread of its own; runs nothing of
-    Warp's. For a start whose first runs go one after the other
-    (``first_runs_alone``: under MuJoCo Warp no GPU work may run beside a
-    program's first run, whose graph capture it breaks): the runs stay in order, their
-    compilations overlap, since no Warp program runs while they do. The evaluation's
-    episodes are drawn while the epoch compiles (their samplers hold no Warp call). The
-    order of tracing is the one every such start keeps, cold or warm (Warp numbers its
-    FFI calls in trace order, and the persistent cache's keys hold the numbers:
-    train/baseline_cache.py). The evaluation's later calls find their compiled programs in
-    jit's cache, the epoch's is the learner's (:meth:`~train.ppo.Learner.compile_epoch`)."""
+def compile_together(learner: Learner) -> tuple[tuple[Any, Any], Any]:
+    """Trace and lower the robots' reset, the epoch and the baseline's evaluation, in that
+    order, on this thread, and compile the three at the same time (the reset and the epoch
+    each on a thread of its own, as soon as it is lowered); runs nothing of Warp's.
+    Returns ``(host, reset)`` for :meth:`~train.ppo.Learner.init`: the fresh host state
+    and the compiled reset.
+
+    For a start whose first runs go one after the other (``first_runs_alone``: under
+    MuJoCo Warp no GPU work may run beside a program's first run, whose graph capture it
+    breaks): the runs stay in order, their compilations overlap, since no Warp program
+    runs while they do. The epoch is lowered from shapes (:func:`abstract_state`: Warp's
+    batch-wide buffers are zeros of known shape, ``train.leaves.fresh_batch_wide``), and
+    the evaluation's episodes are drawn on the CPU (``mecanum_jax.host``) while the two
+    compile. The order of tracing is the one every such start keeps, cold or warm (Warp
+    numbers its FFI calls in trace order, and the persistent cache's keys hold the
+    numbers: train/baseline_cache.py). The evaluation's later calls find their compiled
+    programs in jit's cache; the epoch's is the learner's
+    (:meth:`~train.ppo.Learner.compile_epoch`)."""
     if not can_compile_together(learner):
         raise ValueError("compile_together: one process, and not run.parallel = 'split'")
-    epoch = learner.lower_epoch(ts, env_state)
-    with ThreadPoolExecutor(1, thread_name_prefix="compile-epoch") as pool:
-        job = pool.submit(learner.compile_epoch, ts, env_state, epoch)
-        for lowered in baseline_cache.trace_in_place(learner, first_device(ts)):
+    host = learner.init_training()
+    reset = learner.reset_program.lower(host[1])
+    with ThreadPoolExecutor(2, thread_name_prefix="compile") as pool:
+        reset_job = pool.submit(reset.compile)
+        ts, env_state = abstract_state(learner, host, reset.out_info)
+        epoch = learner.lower_epoch(ts, env_state)
+        epoch_job = pool.submit(learner.compile_epoch, ts, env_state, epoch)
+        for lowered in baseline_cache.trace_in_place(learner, first_device(host[0])):
             lowered.compile()
-        job.result()
+        compiled_reset = reset_job.result()
+        epoch_job.result()
+    return host, compiled_reset
 
 
 __all__ = [

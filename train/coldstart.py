@@ -1,17 +1,17 @@
 """Cold start of training: from process start to the first evaluation, phase by phase.
 
 Runs what ``mecanum-train`` runs before its first evaluation, in its order: imports, the
-config, the model and environment build (:class:`train.ppo.Learner`), the robots' reset
-(``--ahead``: with the epoch compiling alongside from shapes, ``train.aot``, a candidate
-for machines with many cores; docs/benchmarks.md), the evaluation of the analytic baseline
-(read back where an earlier start stored it, ``train.baseline_cache``, unless
-``--baseline-cache off``; first where ``train.aot.first_runs_alone``, as under Warp;
-elsewhere ``mecanum-train`` overlaps it with the first epoch, and here it is timed after
-that epoch, alone), the first epoch, the policy's evaluation (``mecanum-train`` evaluates
-each session's first epoch; where the baseline runs first, the epoch and its evaluation
-are compiled together before either runs, ``train.aot.compile_together``, unless
-``--compile-together off``), and then a second epoch (compiled already: the first one's
-compilation shows as the difference).
+config, the model and environment build (:class:`train.ppo.Learner`); where the baseline
+runs first (``train.aot.first_runs_alone``, as under Warp) the reset, the epoch and the
+evaluation compiled together before any of them runs (``train.aot.compile_together``,
+unless ``--compile-together off``); the robots' reset (``--ahead``: with the epoch
+compiling alongside from shapes, ``train.aot``, a candidate for machines with many cores;
+docs/benchmarks.md); the evaluation of the analytic baseline (read back where an earlier
+start stored it, ``train.baseline_cache``, unless ``--baseline-cache off``; first where
+the baseline runs first; elsewhere ``mecanum-train`` overlaps it with the first epoch, and
+here it is timed after that epoch, alone); the first epoch; the policy's evaluation
+(``mecanum-train`` evaluates each session's first epoch); and then a second epoch
+(compiled already: the first one's compilation shows as the difference).
 
 Every program JAX compiles is listed from ``jax.monitoring``'s events: its tracing,
 lowering and XLA compilation times, whether the persistent compilation cache served it
@@ -201,8 +201,9 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             "--compile-together",
             choices=("on", "off"),
             default="on",
-            help="where the baseline runs first: compile the epoch and its evaluation at "
-            "once before either runs, as mecanum-train does (train.aot.compile_together)",
+            help="where the baseline runs first: compile the reset, the epoch and the "
+            "evaluation at once before any runs, as mecanum-train does "
+            "(train.aot.compile_together)",
         )
         args, flags = parser.parse_known_args(argv)
         try:
@@ -215,16 +216,27 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         set_matmul_precision(cfg.run.matmul_precision)
     with clock.phase("model and environment build"):
         learner = Learner(cfg)
-    from train.aot import can_compile_together, compile_epoch_ahead, compile_together
+    from train.aot import (
+        can_compile_together,
+        compile_epoch_ahead,
+        compile_together,
+        first_runs_alone,
+    )
 
+    baseline_first = first_runs_alone(learner)  # as mecanum-train orders them
+    on = args.compile_together == "on"
+    together = baseline_first and on and can_compile_together(learner)
+    prepared: tuple[Any, Any] = (None, None)
+    if together:
+        with clock.phase("compiling together: the reset, the epoch and the evaluation"):
+            prepared = compile_together(learner)
     with clock.phase("robots' reset" + (" (the epoch compiling)" if args.ahead else "")):
         try:
             ahead = compile_epoch_ahead(learner) if args.ahead else None
         except ValueError as err:
             print(f"error: {err}", file=sys.stderr)
             raise SystemExit(2) from None
-        ts, env = jax.block_until_ready(learner.init())
-    from train.aot import first_runs_alone
+        ts, env = jax.block_until_ready(learner.init(*prepared))
 
     def epoch(name: str) -> None:
         nonlocal ts, env, ahead
@@ -248,12 +260,6 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             )
             extra["baseline"] = origin
 
-    baseline_first = first_runs_alone(learner)  # as mecanum-train orders them
-    on = args.compile_together == "on"
-    together = baseline_first and on and can_compile_together(learner)
-    if together:
-        with clock.phase("compiling together: the epoch and the evaluation"):
-            compile_together(learner, ts, env)
     if baseline_first:
         baseline()
     epoch("first epoch")

@@ -214,16 +214,15 @@ def batch_wide(template: Any, robots: int) -> frozenset[int]:
     )
 
 
-def fresh_batch_wide(env_state: Any, at: Collection[int]) -> dict[int, np.ndarray]:
-    """The leaves at ``at`` of a freshly reset batch (MuJoCo Warp's types keep them
-    unbatched under ``vmap``): the small ones (counts, capacities) as the reset made them,
-    the buffers as zeros. Taken from the robots' first reset, where a reset of one robot
-    of their own cost the learner a program of 5 s to compile at a cold start on a GPU."""
-    flat = jax.tree.leaves(env_state)
-    return {
-        i: np.asarray(flat[i]) if flat[i].size <= 64 else np.zeros(flat[i].shape, flat[i].dtype)
-        for i in sorted(at)
-    }
+def fresh_batch_wide(template: Any, at: Collection[int]) -> dict[int, np.ndarray]:
+    """The leaves at ``at`` of ``template`` (arrays or shapes) as every program starts
+    them: zeros. MuJoCo Warp's batch-wide leaves are its contact buffers and their counters
+    (``nacon``, ``ncollision``), which each physics step zeroes and refills, and which a
+    reset leaves at zero (tests/test_warp_training.py checks it against a reset). Built
+    from shapes alone, they let the epoch be compiled before the robots' first reset has
+    run (train.aot)."""
+    flat = jax.tree.leaves(template)
+    return {i: np.zeros(flat[i].shape, flat[i].dtype) for i in sorted(at)}
 
 
 __all__ = [

@@ -39,6 +39,7 @@ from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
 from jax.sharding import NamedSharding
 
+from mecanum_jax.host import host_side
 from mecanum_jax.task.env import MecanumEnv, TrainingEnv
 from train import distill, leaves, losses, parallel
 from train.config import TrainConfig
@@ -60,6 +61,7 @@ from train.state import (
 class Learner:
     """The compiled pieces of a run: init, the per-epoch training program, evaluation."""
 
+    @host_side  # its constants and set-up on the CPU (mecanum_jax.host)
     def __init__(self, cfg: TrainConfig, devices: list[Any] | None = None):
         self.cfg = cfg.validate()
         self.devices = devices or parallel.devices_for(cfg)
@@ -115,22 +117,22 @@ class Learner:
             self.train_env.reset, jax.ShapeDtypeStruct((self.envs_per_device, 2), jnp.uint32)
         )
         # the environment state's batch-wide leaves (MuJoCo Warp's contact buffers; none
-        # under MJX's JAX): out of the (D, S, E) layout, fresh from the first reset
+        # under MJX's JAX): out of the (D, S, E) layout, fresh (zeros) in every program
         self._shared_at = leaves.batch_wide(self._env_template, self.envs_per_device)
-        self._shared: dict[int, np.ndarray] | None = None if self._shared_at else {}
+        self._shared = leaves.fresh_batch_wide(self._env_template, self._shared_at)
         on_gpu = all(d.platform == "gpu" for d in self.devices)
         self.evaluation = PeriodicEvaluation(cfg, self.env, self.networks, on_gpu)
 
     # --- state ------------------------------------------------------------------------------
 
-    def init(self) -> tuple[TrainingState, Any]:
-        """Fresh training and environment state, laid out ``(D, S, ...)``."""
-        state, env_keys = self.init_training()
-        env_state = self._reset(env_keys)
-        if self._shared is None:
-            self._shared = leaves.fresh_batch_wide(env_state, self._shared_at)
+    def init(self, host: tuple[Any, Any] | None = None, reset: Any = None) -> tuple[Any, Any]:
+        """Fresh training and environment state, laid out ``(D, S, ...)``; ``host``:
+        :meth:`init_training`'s, if made, ``reset``: the reset compiled (train.aot)."""
+        state, env_keys = self.init_training() if host is None else host
+        env_state = (self._reset if reset is None else reset)(env_keys)
         return self.place(state, self.pack_env(env_state))
 
+    @host_side
     def init_training(self) -> tuple[TrainingState, np.ndarray]:
         """Fresh host training state ``(D, S, ...)`` and environment keys ``(D, S, E/D, 2)``."""
         seeds = self.cfg.run.seeds
@@ -202,8 +204,6 @@ class Learner:
 
     def unpack_env(self, packed: Any) -> Any:
         """Inverse of :meth:`pack_env` for one seed's per-device batch (inside the program)."""
-        if self._shared is None:
-            raise RuntimeError("the robots' first reset (Learner.init) comes before any epoch")
         fresh = {i: jnp.asarray(v) for i, v in self._shared.items()}
         return leaves.graft(self._env_template, packed, fresh)
 

@@ -294,8 +294,8 @@ class Run:
         """The learner, fresh or restored state, logs, and the baseline's evaluation: read
         back (train.baseline_cache) or begun in a thread, beside the first epoch's
         compilation (where :func:`first_runs_alone`: finished first, compiled together with
-        the epoch, ``train.aot.compile_together``). The checkpoint manager opens at the
-        first save."""
+        the reset and the epoch, ``train.aot.compile_together``). The checkpoint manager
+        opens at the first save."""
         cfg = self.cfg
         set_matmul_precision(cfg.run.matmul_precision)  # before anything is traced
         t_start = time.time()
@@ -306,7 +306,11 @@ class Run:
         learner = self.learner = learner or Learner(cfg)
         if learner.teacher is not None:
             self.console.log(f"imitating {learner.teacher.describe()} (ppo.distill)")
-        state, env_state = learner.init()
+        alone = first_runs_alone(learner)
+        together = alone and aot.can_compile_together(learner)
+        state, env_state = (
+            learner.init(*aot.compile_together(learner)) if together else learner.init()
+        )
         loop = _Loop(self, learner, t_start, state, env_state)
         if checkpoint.latest_epoch(self.dir) is not None:
             self._restore(loop)
@@ -317,10 +321,6 @@ class Run:
             barrier("epoch-compiled")
         self._open_logs()
         self._status("running", epoch=loop.epoch)
-        alone = first_runs_alone(learner)
-        together = alone and aot.can_compile_together(learner)
-        if together:  # the epoch, then the evaluation, traced; compiled at once
-            aot.compile_together(learner, loop.state, loop.env_state)
         in_place = alone and not together  # on a hit, its program traced all the same
         loop.baseline_job, loop.baseline_from = baseline_cache.start(
             learner, first_device(loop.state), cfg.run.baseline_cache, self.console.log, in_place

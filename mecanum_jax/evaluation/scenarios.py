@@ -59,6 +59,7 @@ from mecanum_jax.config import (
     load_toml,
     require,
 )
+from mecanum_jax.host import host_side
 from mecanum_jax.kinematics import limits, singularity
 from mecanum_jax.kinematics.modes import SIX_MODES
 from mecanum_jax.sim.physics import RobotParams
@@ -410,6 +411,7 @@ def scripted_commands(env: MecanumEnv, scenario: Scenario) -> np.ndarray:
     return out
 
 
+@host_side  # drawn on the CPU: the same episodes on every device (mecanum_jax.host)
 def prepare(env: MecanumEnv, scenario: Scenario) -> EpisodeBatch:
     """The scenario's episodes as arrays for ``env`` (whose latency history must be long
     enough: see :func:`eval_env_config`)."""

@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from brax.envs.base import Env, State, Wrapper
 
+from mecanum_jax.host import host_side
 from mecanum_jax.kinematics import limits
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.sim.physics import Robot, RobotParams, chunked_vmap, cpu_chunk, select
@@ -56,6 +57,7 @@ class MecanumEnv(Env):
 
     metric_names = METRIC_NAMES
 
+    @host_side  # its constants on the CPU (mecanum_jax.host)
     def __init__(self, config: EnvConfig | None = None, robots: int = 1, fidelity: str = "fast"):
         """``robots``: the most robots one batched call simulates (all vmapped axes
         together), for MuJoCo Warp's shared contact buffer (:class:`Robot`). ``fidelity``:

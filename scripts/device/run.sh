@@ -73,7 +73,9 @@
 #                           inside it too), then warm;
 #                           $OUT/coldstart_cold.json and coldstart_warm.json
 #                           (COLDSTART_TAG=T: coldstart_T_cold.json ...; e.g. the same call
-#                           with --compile-together off, then on)
+#                           with --compile-together off, then on; COLDSTART_TREE=DIR: the
+#                           start from the sources in DIR, e.g. an earlier commit's
+#                           `git archive`, to compare two versions on one machine)
 #   scaling [N...] [FLAGS...]      PPO env steps/s of the gpu config at N robots (default 1024
 #                           4096 16384 32768 65536; batch N/8: 2 unrolls per iteration as at
 #                           32768), one process each: $OUT/scaling.json, $OUT/scaling.png
@@ -330,12 +332,13 @@ profile() {  # [--trace] [flags]: the epoch's parts (train/profile.py)
 }
 
 coldstart() {  # [flags]: an empty compilation cache, then the same start with it warm
-  local pass
+  local pass tree=${COLDSTART_TREE:-$PWD}
   rm -rf /tmp/coldstart-cache
   for pass in cold warm; do
-    echo "== $pass compilation cache ${COLDSTART_TAG:-}"
-    python3 -m train.coldstart --config gpu --compilation-cache /tmp/coldstart-cache \
-      --json-out "$O/coldstart_${COLDSTART_TAG:+${COLDSTART_TAG}_}$pass.json" "$@" 2>&1 \
+    echo "== $pass compilation cache ${COLDSTART_TAG:-} (sources: $tree)"
+    (cd "$tree" && PYTHONPATH=/tmp/site:$tree python3 -m train.coldstart --config gpu \
+      --compilation-cache /tmp/coldstart-cache \
+      --json-out "$O/coldstart_${COLDSTART_TAG:+${COLDSTART_TAG}_}$pass.json" "$@") 2>&1 \
       | quiet | tail -42
   done
 }
