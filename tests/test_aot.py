@@ -10,6 +10,7 @@ from train import aot
 
 
 def test_abstract_state_has_the_placed_states_shapes_and_dtypes(tiny, learner):
+    """Made from shapes alone (no reset runs), for the states the learner places."""
     abstract = aot.abstract_state(learner)
     placed = learner.init()
     for a, p in zip(jax.tree.leaves(abstract), jax.tree.leaves(placed), strict=True):
@@ -28,8 +29,8 @@ def test_compiling_ahead_is_refused_under_warp_naming_the_field():
 def test_compiling_together_leaves_the_first_runs_nothing_to_compile(learner, monkeypatch):
     """:func:`aot.compile_together` compiles the robots' reset, the baseline's evaluation
     and the epoch before any of them runs (under Warp, where they run one after the
-    other): their first runs then compile nothing, and they were traced in Warp's trace
-    order (the reset, the epoch, the evaluation)."""
+    other): their first runs then compile nothing, and they were traced in the order every
+    such start keeps (Warp's FFI numbers follow it): the epoch, the reset, the evaluation."""
     from train.coldstart import CompileLog
     from train.ppo import first_device
 
@@ -54,7 +55,7 @@ def test_compiling_together_leaves_the_first_runs_nothing_to_compile(learner, mo
     monkeypatch.setattr(learner, "lower_epoch", lambda *a: order.append("epoch") or lower_epoch(*a))
     with CompileLog() as log:
         host, compiled_reset = aot.compile_together(learner)
-    assert order == ["reset", "epoch", "eval"]
+    assert order == ["epoch", "reset", "eval"]
     compiled = [e["name"] for e in log.events if e["event"] == "compile_s"]
     assert "jit(fresh_rollout)" in compiled  # the evaluation's rollout
     assert "jit(fresh_reset)" in compiled  # the robots' reset

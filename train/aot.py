@@ -29,34 +29,34 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import jax
-import numpy as np
 
 from train import baseline_cache
 from train.ppo import Learner, first_device
+from train.state import fresh_state
 
 
-def abstract_state(
-    learner: Learner, host: tuple[Any, Any] | None = None, reset_out: Any = None
-) -> tuple[Any, Any]:
+def abstract_state(learner: Learner) -> tuple[Any, Any]:
     """The training and environment state :meth:`Learner.init` returns, as
     ``jax.ShapeDtypeStruct`` leaves laid out as :meth:`Learner.place` lays them out
-    (concrete dtypes; the device mesh's sharding on the ``sharded`` path). Runs no reset.
-    ``host``: :meth:`Learner.init_training`'s, if made; ``reset_out``: the reset's
-    output shapes (its lowering's ``out_info``), if lowered."""
+    (concrete dtypes; the device mesh's sharding on the ``sharded`` path), from shapes
+    alone: one seed's fresh state (``jax.eval_shape`` of ``train.state.fresh_state``) and
+    the learner's environment template, each with the devices' and the seeds' axes in
+    front. Runs nothing, the reset included."""
     if learner.n_processes > 1:
         raise ValueError("abstract_state: one process only (several compile from their states)")
-    state, env_keys = learner.init_training() if host is None else host
-    if reset_out is None:
-        reset_out = jax.eval_shape(learner.reset_program, env_keys)
-    env_state = learner.pack_env(reset_out)
+    cfg = learner.cfg
+    one_seed = jax.eval_shape(
+        lambda: fresh_state(cfg, learner.env, learner.networks, learner.optimizer, 0)[0]
+    )
+    lead = (learner.n_devices, learner.n_seeds)
     sharding = learner.sharding
 
     def spec(x: Any) -> jax.ShapeDtypeStruct:
-        dtype = x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype  # (x64 off: float32)
-        dtype = jax.dtypes.canonicalize_dtype(dtype)
-        return jax.ShapeDtypeStruct(np.shape(x), dtype, sharding=sharding)
+        dtype = jax.dtypes.canonicalize_dtype(x.dtype)  # (x64 off: float32)
+        return jax.ShapeDtypeStruct((*lead, *x.shape), dtype, sharding=sharding)
 
-    return jax.tree.map(spec, state), jax.tree.map(spec, env_state)
+    env_state = learner.pack_env(learner.env_template)
+    return jax.tree.map(spec, one_seed), jax.tree.map(spec, env_state)
 
 
 def compile_epoch_ahead(learner: Learner) -> Future[None]:
@@ -100,8 +100,8 @@ def can_compile_together(learner: Learner) -> bool:
 
 
 def compile_together(learner: Learner) -> tuple[tuple[Any, Any], Any]:
-    """Trace and lower the robots' reset, the epoch and the baseline's evaluation, in that
-    order, on this thread, and compile the three at the same time (the reset and the epoch
+    """Trace and lower the epoch, the robots' reset and the baseline's evaluation, in that
+    order, on this thread, and compile the three at the same time (the epoch and the reset
     each on a thread of its own, as soon as it is lowered); runs nothing of Warp's.
     Returns ``(host, reset)`` for :meth:`~train.ppo.Learner.init`: the fresh host state
     and the compiled reset.
@@ -109,23 +109,24 @@ def compile_together(learner: Learner) -> tuple[tuple[Any, Any], Any]:
     For a start whose first runs go one after the other (``first_runs_alone``: under
     MuJoCo Warp no GPU work may run beside a program's first run, whose graph capture it
     breaks): the runs stay in order, their compilations overlap, since no Warp program
-    runs while they do. The epoch is lowered from shapes (:func:`abstract_state`: Warp's
-    batch-wide buffers are zeros of known shape, ``train.leaves.fresh_batch_wide``), and
-    the evaluation's episodes are drawn on the CPU (``mecanum_jax.host``) while the two
-    compile. The order of tracing is the one every such start keeps, cold or warm (Warp
-    numbers its FFI calls in trace order, and the persistent cache's keys hold the
-    numbers: train/baseline_cache.py). The evaluation's later calls find their compiled
-    programs in jit's cache; the epoch's is the learner's
+    runs while they do. The epoch, the longest to compile, is lowered first and from
+    shapes (:func:`abstract_state`; Warp's batch-wide buffers are zeros of known shape,
+    ``train.leaves.fresh_batch_wide``); the fresh state is made and the evaluation's
+    episodes drawn on the CPU (``mecanum_jax.host``) while it compiles. The order of
+    tracing is the one every such start keeps, cold or warm (Warp numbers its FFI calls
+    in trace order, and the persistent cache's keys hold the numbers:
+    train/baseline_cache.py). The evaluation's later calls find their compiled programs
+    in jit's cache; the epoch's is the learner's
     (:meth:`~train.ppo.Learner.compile_epoch`)."""
     if not can_compile_together(learner):
         raise ValueError("compile_together: one process, and not run.parallel = 'split'")
-    host = learner.init_training()
-    reset = learner.reset_program.lower(host[1])
+    ts, env_state = abstract_state(learner)
+    epoch = learner.lower_epoch(ts, env_state)
     with ThreadPoolExecutor(2, thread_name_prefix="compile") as pool:
-        reset_job = pool.submit(reset.compile)
-        ts, env_state = abstract_state(learner, host, reset.out_info)
-        epoch = learner.lower_epoch(ts, env_state)
         epoch_job = pool.submit(learner.compile_epoch, ts, env_state, epoch)
+        host = learner.init_training()
+        reset = learner.reset_program.lower(host[1])
+        reset_job = pool.submit(reset.compile)
         for lowered in baseline_cache.trace_in_place(learner, first_device(host[0])):
             lowered.compile()
         compiled_reset = reset_job.result()

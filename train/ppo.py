@@ -192,6 +192,11 @@ class Learner:
         return self._reset
 
     @property
+    def env_template(self) -> Any:
+        """One device's environment state as the reset makes it, as shapes (E robots)."""
+        return self._env_template
+
+    @property
     def sharding(self) -> NamedSharding | None:
         """The device mesh's sharding of the ``sharded`` path (``None``: ``pmap``)."""
         return self._sharding
