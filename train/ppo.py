@@ -138,8 +138,11 @@ class Learner:
         seeds = self.cfg.run.seeds
         D, E = self.n_devices, self.envs_per_device
         states, env_keys = [], []
+        # one program for every seed's networks, optimizer and normalizer (on the CPU),
+        # not some 60 eager operations, each a program of its own
+        fresh = jax.jit(lambda s: fresh_state(self.cfg, self.env, self.networks, self.optimizer, s))
         for seed in seeds:
-            state, k_env = fresh_state(self.cfg, self.env, self.networks, self.optimizer, seed)
+            state, k_env = fresh(np.int32(seed))
             states.append(state)
             k_env = jax.random.fold_in(k_env, jax.process_index())
             env_keys.append(jax.random.split(k_env, D * E).reshape(D, E, -1))
