@@ -30,7 +30,7 @@ def test_compiling_together_leaves_the_first_runs_nothing_to_compile(learner, mo
     """:func:`aot.compile_together` compiles the robots' reset, the baseline's evaluation
     and the epoch before any of them runs (under Warp, where they run one after the
     other): their first runs then compile nothing, and they were traced in the order every
-    such start keeps (Warp's FFI numbers follow it): the epoch, the reset, the evaluation."""
+    such start keeps (Warp's FFI numbers follow it): the reset, the epoch, the evaluation."""
     from train.coldstart import CompileLog
     from train.ppo import first_device
 
@@ -55,7 +55,7 @@ def test_compiling_together_leaves_the_first_runs_nothing_to_compile(learner, mo
     monkeypatch.setattr(learner, "lower_epoch", lambda *a: order.append("epoch") or lower_epoch(*a))
     with CompileLog() as log:
         host, compiled_reset = aot.compile_together(learner)
-    assert order == ["epoch", "reset", "eval"]
+    assert order == ["reset", "epoch", "eval"]
     compiled = [e["name"] for e in log.events if e["event"] == "compile_s"]
     assert "jit(fresh_rollout)" in compiled  # the evaluation's rollout
     assert "jit(fresh_reset)" in compiled  # the robots' reset

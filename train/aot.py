@@ -100,38 +100,49 @@ def can_compile_together(learner: Learner) -> bool:
 
 
 def compile_together(learner: Learner) -> tuple[tuple[Any, Any], Any]:
-    """Trace and lower the epoch, the robots' reset and the baseline's evaluation, in that
-    order, on this thread, and compile the three at the same time (the epoch and the reset
-    each on a thread of its own, as soon as it is lowered); runs nothing of Warp's.
+    """Trace and lower the robots' reset, the epoch and the baseline's evaluation, in that
+    order, on this thread, and compile them at the same time as far as XLA's autotuning
+    allows; runs nothing of Warp's. The reset compiles on a worker thread while the epoch
+    is traced, the epoch there next, not beside the reset (one of four starts that
+    compiled the two at once got an epoch 14% slower, likely from their autotuning timing
+    kernels on one GPU at once; none of eight that compiled it beside the evaluation
+    alone did: docs/benchmarks.md), and the evaluation here meanwhile.
     Returns ``(host, reset)`` for :meth:`~train.ppo.Learner.init`: the fresh host state
     and the compiled reset.
 
     For a start whose first runs go one after the other (``first_runs_alone``: under
     MuJoCo Warp no GPU work may run beside a program's first run, whose graph capture it
     breaks): the runs stay in order, their compilations overlap, since no Warp program
-    runs while they do. The epoch, the longest to compile, is lowered first and from
-    shapes (:func:`abstract_state`; Warp's batch-wide buffers are zeros of known shape,
-    ``train.leaves.fresh_batch_wide``); the fresh state is made and the evaluation's
-    episodes drawn on the CPU (``mecanum_jax.host``) while it compiles. The order of
-    tracing is the one every such start keeps, cold or warm (Warp numbers its FFI calls
-    in trace order, and the persistent cache's keys hold the numbers:
-    train/baseline_cache.py). The evaluation's later calls find their compiled programs
+    runs while they do. The reset and the epoch are lowered from shapes
+    (:func:`env_keys_shape`, :func:`abstract_state`; Warp's batch-wide buffers are zeros
+    of known shape, ``train.leaves.fresh_batch_wide``); the fresh state is made and the
+    evaluation's episodes drawn on the CPU (``mecanum_jax.host``) while the epoch
+    compiles. The order of tracing is the one every such start keeps, cold or warm (Warp
+    numbers its FFI calls in trace order, and the persistent cache's keys hold the
+    numbers: train/baseline_cache.py). The evaluation's later calls find their compiled programs
     in jit's cache; the epoch's is the learner's
     (:meth:`~train.ppo.Learner.compile_epoch`)."""
     if not can_compile_together(learner):
         raise ValueError("compile_together: one process, and not run.parallel = 'split'")
-    ts, env_state = abstract_state(learner)
-    epoch = learner.lower_epoch(ts, env_state)
-    with ThreadPoolExecutor(2, thread_name_prefix="compile") as pool:
+    reset = learner.reset_program.lower(env_keys_shape(learner))
+    with ThreadPoolExecutor(1, thread_name_prefix="compile") as pool:
+        reset_job = pool.submit(reset.compile)
+        ts, env_state = abstract_state(learner)
+        epoch = learner.lower_epoch(ts, env_state)
+        compiled_reset = reset_job.result()  # the two autotune on the GPU one at a time
         epoch_job = pool.submit(learner.compile_epoch, ts, env_state, epoch)
         host = learner.init_training()
-        reset = learner.reset_program.lower(host[1])
-        reset_job = pool.submit(reset.compile)
         for lowered in baseline_cache.trace_in_place(learner, first_device(host[0])):
             lowered.compile()
-        compiled_reset = reset_job.result()
         epoch_job.result()
     return host, compiled_reset
+
+
+def env_keys_shape(learner: Learner) -> jax.ShapeDtypeStruct:
+    """The shape of :meth:`Learner.init_training`'s environment keys, ``(D, S, E/D, key)``."""
+    key = jax.eval_shape(lambda: jax.random.split(jax.random.PRNGKey(0), 1)[0])
+    lead = (learner.n_devices, learner.n_seeds, learner.envs_per_device)
+    return jax.ShapeDtypeStruct((*lead, *key.shape), key.dtype)
 
 
 __all__ = [
@@ -139,5 +150,6 @@ __all__ = [
     "can_compile_together",
     "compile_epoch_ahead",
     "compile_together",
+    "env_keys_shape",
     "first_runs_alone",
 ]

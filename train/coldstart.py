@@ -2,7 +2,7 @@
 
 Runs what ``mecanum-train`` runs before its first evaluation, in its order: imports, the
 config, the model and environment build (:class:`train.ppo.Learner`); where the baseline
-runs first (``train.aot.first_runs_alone``, as under Warp) the epoch, the reset and the
+runs first (``train.aot.first_runs_alone``, as under Warp) the reset, the epoch and the
 evaluation compiled together before any of them runs (``train.aot.compile_together``,
 unless ``--compile-together off``); the robots' reset (``--ahead``: with the epoch
 compiling alongside from shapes, ``train.aot``, a candidate for machines with many cores;
@@ -228,7 +228,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
     together = baseline_first and on and can_compile_together(learner)
     prepared: tuple[Any, Any] = (None, None)
     if together:
-        with clock.phase("compiling together: the epoch, the reset and the evaluation"):
+        with clock.phase("compiling together: the reset, the epoch and the evaluation"):
             prepared = compile_together(learner)
     with clock.phase("robots' reset" + (" (the epoch compiling)" if args.ahead else "")):
         try:
