@@ -105,7 +105,7 @@ def compile_together(learner: Learner) -> tuple[tuple[Any, Any], Any]:
     allows; runs nothing of Warp's. The reset compiles on a worker thread while the epoch
     is traced, the epoch there next, not beside the reset (one of four starts that
     compiled the two at once got an epoch 14% slower, likely from their autotuning timing
-    kernels on one GPU at once; none of eight that compiled it beside the evaluation
+    kernels on one GPU at once; none of seven that compiled it beside the evaluation
     alone did: docs/benchmarks.md), and the evaluation here meanwhile.
     Returns ``(host, reset)`` for :meth:`~train.ppo.Learner.init`: the fresh host state
     and the compiled reset.
