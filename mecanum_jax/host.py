@@ -5,8 +5,8 @@ hundred small JAX operations eagerly (constants of the geometry and the limits, 
 initializers, samplers). On a GPU each distinct one is an XLA program of its own, compiled
 for the GPU at 50 to 200 ms each: about 8 s of a cold start of ``mecanum-train`` on an
 H200 went to compiling them (docs/benchmarks.md). On the CPU backend the same operations
-compile in a few milliseconds, and they give the same numbers on every machine: the
-episodes and the initial parameters no longer depend on the accelerator.
+compile in some 20 ms each, and they give the same numbers on a GPU machine as on a CPU
+one: the episodes and the initial parameters no longer depend on the accelerator.
 
 :func:`on_host` runs a block with the CPU as JAX's default device; :func:`host_side`
 runs a function so. Arrays made there are *uncommitted*: a jitted program on the
