@@ -51,7 +51,7 @@ from train.state import (
     all_finite,
     allow_rank_promotion,
     epoch_metrics,
-    fresh_state,
+    fresh_state_program,
     make_networks,
     make_optimizer,
     policy_obs_key,
@@ -138,9 +138,7 @@ class Learner:
         seeds = self.cfg.run.seeds
         D, E = self.n_devices, self.envs_per_device
         states, env_keys = [], []
-        # one program for every seed's networks, optimizer and normalizer (on the CPU),
-        # not some 60 eager operations, each a program of its own
-        fresh = jax.jit(lambda s: fresh_state(self.cfg, self.env, self.networks, self.optimizer, s))
+        fresh = fresh_state_program(self.cfg, self.env, self.networks, self.optimizer)
         for seed in seeds:
             state, k_env = fresh(np.int32(seed))
             states.append(state)

@@ -185,6 +185,26 @@ def fresh_state(
     return state, k_env
 
 
+_FRESH: dict[Any, Any] = {}
+
+
+def fresh_state_program(
+    cfg: TrainConfig,
+    env: MecanumEnv,
+    networks: ppo_networks.PPONetworks,
+    optimizer: optax.GradientTransformation,
+) -> Any:
+    """:func:`fresh_state` of a seed as one jitted program (not some 60 eager operations,
+    each a program of its own: at a warm start on a GPU each was read back from the
+    compilation cache one by one), bit-identical to it. Kept per config and environment
+    shape, which are all that ``networks`` and ``optimizer`` are made from, so learners of
+    one config share it."""
+    key = (cfg, tuple(sorted(env.observation_size.items())), env.action_size)
+    if key not in _FRESH:
+        _FRESH[key] = jax.jit(lambda seed: fresh_state(cfg, env, networks, optimizer, seed))
+    return _FRESH[key]
+
+
 def state_template(cfg: TrainConfig, env: MecanumEnv, devices: int) -> TrainingState:
     """Zero arrays shaped like a saved training state ``(devices, seeds, ...)``, built from
     shapes alone (nothing is initialised or compiled): what a checkpoint restores into."""
@@ -222,6 +242,7 @@ __all__ = [
     "allow_rank_promotion",
     "epoch_metrics",
     "fresh_state",
+    "fresh_state_program",
     "gradient_clip",
     "initial_policy",
     "make_networks",
