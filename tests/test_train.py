@@ -379,6 +379,7 @@ def test_beating_the_baseline_takes_a_paired_interval_below_one():
         (["--ppo.num-envs", "7"], "ppo.num_envs = 7"),
         (["--ppo.learning-rate", "-1"], "ppo.learning_rate = -1.0"),
         (["--run.seeds", "1", "1"], "run.seeds"),
+        (["--run.seeds", "4294967296"], "seeds must be < 2**32"),
         (["--env.randomization.friction", "0.5", "0.1"], "env.randomization.friction"),
         (["--run.progress-every-s", "0"], "run.progress_every_s = 0.0: must be > 0 seconds"),
         (["--run.progress-every-s", "inf"], "run.progress_every_s = inf: must be > 0 seconds"),
@@ -661,3 +662,17 @@ def test_each_session_evaluates_its_first_epoch():
     assert evaluated(range(1, 18)) == [1, 8, 16, 17]
     loop.first_epoch = 11  # resumed after epoch 10
     assert evaluated(range(11, 20)) == [11, 16, 19]
+
+
+def test_the_fresh_state_program_is_fresh_state_for_any_valid_seed(learner):
+    """Seeds past int32 (``run.seeds`` allows up to 2**32 - 1) give the eager state's keys."""
+    from train.state import fresh_state, fresh_state_program
+
+    program = fresh_state_program(learner.cfg, learner.env, learner.networks, learner.optimizer)
+    for seed in (3, 2**31, 2**32 - 1):
+        state, k_env = program(np.uint32(seed))
+        eager, k_eager = fresh_state(
+            learner.cfg, learner.env, learner.networks, learner.optimizer, seed
+        )
+        assert np.array_equal(k_env, k_eager)
+        assert np.array_equal(state.key, eager.key)

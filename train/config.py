@@ -128,7 +128,7 @@ class RunConfig:
     """
 
     seeds: tuple[int, ...] = (0,)
-    """Training seeds, trained side by side in one program (distinct, >= 0)."""
+    """Training seeds, trained side by side in one program (distinct, 0 <= seed < 2**32)."""
     epoch_iterations: int = 10
     """Training iterations per compiled call; logging happens between calls (>= 1)."""
     eval_every: int = 1
@@ -253,6 +253,8 @@ class TrainConfig:
             raise invalid("run.seeds", list(r.seeds), "seeds must be distinct")
         if any(s < 0 for s in r.seeds):
             raise invalid("run.seeds", list(r.seeds), "seeds must be >= 0")
+        if any(s >= 2**32 for s in r.seeds):  # JAX's key of a larger one wraps onto another
+            raise invalid("run.seeds", list(r.seeds), "seeds must be < 2**32")
         if r.eval_seed in r.seeds:
             raise invalid("run.eval_seed", r.eval_seed, "must differ from the training seeds")
         cadences = (

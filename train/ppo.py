@@ -140,7 +140,7 @@ class Learner:
         states, env_keys = [], []
         fresh = fresh_state_program(self.cfg, self.env, self.networks, self.optimizer)
         for seed in seeds:
-            state, k_env = fresh(np.int32(seed))
+            state, k_env = fresh(np.uint32(seed))  # (run.seeds: 0 <= seed < 2**32)
             states.append(state)
             k_env = jax.random.fold_in(k_env, jax.process_index())
             env_keys.append(jax.random.split(k_env, D * E).reshape(D, E, -1))
