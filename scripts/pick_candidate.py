@@ -4,7 +4,7 @@ Reads ``mecanum-eval`` reports of ``configs/eval/tuning.toml`` (``run.sh tune`` 
 them as ``/tmp/tune-reports/tune_NAME.json``) and ranks every candidate against
 ``analytic`` on the same episodes:
 
-1. fewest **losses** (``train.eval_output.score``: the paired 95% interval on the worse
+1. fewest **losses** (``train.cli.eval_output.score``: the paired 95% interval on the worse
    side and an excess above the metric's margin) over the six tuning scenarios;
 2. then the lowest **geometric mean of the ratios** to ``analytic`` over the figures the
    product is judged on: the training mix's ss v, ss ωz, settling of v and ωz and energy;
@@ -31,7 +31,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from train.eval_output import score
+from train.cli.eval_output import score
 
 FIGURES = (
     ("tuning_randomized", "ss_lin"),

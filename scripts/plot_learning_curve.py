@@ -1,6 +1,6 @@
 """Plot a run's learning curve against the baseline's line (PNG): the training reward, and
 the steady-state error of v and ωz on the held-out evaluation episodes
-(:func:`train.curve.plot_learning_curve`; ``mecanum-train`` writes it as
+(:func:`train.loop.curve.plot_learning_curve`; ``mecanum-train`` writes it as
 ``<run>/learning_curve.png`` at the end of a run).
 
 .venv/bin/python scripts/plot_learning_curve.py RUN_DIR OUT.png
@@ -9,7 +9,7 @@ the steady-state error of v and ωz on the held-out evaluation episodes
 import sys
 from pathlib import Path
 
-from train.curve import plot_learning_curve
+from train.loop.curve import plot_learning_curve
 
 
 def main() -> None:

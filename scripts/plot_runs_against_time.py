@@ -1,6 +1,6 @@
 """Plot several runs' learning curves against wall time (PNG): training reward, and the
 randomized evaluation's ss v and ss ωz ratios to ``analytic``
-(:func:`train.curve.plot_runs_against_time`). For variants that train at different speeds,
+(:func:`train.loop.curve.plot_runs_against_time`). For variants that train at different speeds,
 e.g. the two sides of an ``ab`` call, whose ``NAME_metrics.jsonl`` files it reads.
 
 .venv/bin/python scripts/plot_runs_against_time.py OUT.png LABEL=RUN_DIR_OR_METRICS ...
@@ -9,7 +9,7 @@ e.g. the two sides of an ``ab`` call, whose ``NAME_metrics.jsonl`` files it read
 import sys
 from pathlib import Path
 
-from train.curve import plot_runs_against_time
+from train.loop.curve import plot_runs_against_time
 
 
 def main() -> None:

@@ -1,9 +1,9 @@
-"""PPO throughput against the number of robots: ``python -m train.bench`` JSON to a PNG.
+"""PPO throughput against the number of robots: ``python -m train.tools.bench`` JSON to a PNG.
 
     python scripts/plot_scaling.py e1024.json e4096.json ... --out scaling.png \\
         [--json-out scaling.json]
 
-Reads the results of one or more ``train.bench --json-out`` files (``run.sh scaling``
+Reads the results of one or more ``train.tools.bench --json-out`` files (``run.sh scaling``
 writes one per robot count), plots env steps/s (and the physics steps/s they imply)
 against ``num_envs`` on a log axis, and optionally writes the results merged into one
 JSON file, sorted by robot count.
@@ -33,9 +33,9 @@ def load(paths: list[str]) -> dict[str, Any]:
         try:
             data = json.loads(Path(path).read_text())
         except (OSError, json.JSONDecodeError) as err:
-            raise SystemExit(f"{path}: cannot read a train.bench JSON file: {err}") from None
+            raise SystemExit(f"{path}: cannot read a train.tools.bench JSON file: {err}") from None
         if not isinstance(data, dict) or not isinstance(data.get("results"), list):
-            raise SystemExit(f"{path}: no 'results' list (not a train.bench JSON file)")
+            raise SystemExit(f"{path}: no 'results' list (not a train.tools.bench JSON file)")
         for r in data["results"]:
             missing = [k for k in REQUIRED if k not in r]
             if missing:
@@ -80,7 +80,7 @@ def plot(merged: dict[str, Any], out: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("inputs", nargs="+", help="train.bench --json-out files")
+    parser.add_argument("inputs", nargs="+", help="train.tools.bench --json-out files")
     parser.add_argument("--out", required=True, help="the PNG to write")
     parser.add_argument("--json-out", default=None, help="also write the merged results")
     args = parser.parse_args(argv)

@@ -33,7 +33,7 @@ os.environ.setdefault(
     os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), ".cache", "jax"),
 )
 # only the programs that took a second to compile (the command lines write every one,
-# train/compilation_cache.py; the suite's thousands of small ones would crowd the cache)
+# train/loop/compilation_cache.py; the suite's thousands of small ones would crowd the cache)
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1.0")
 from mecanum_jax.sim.render import ensure_gl_backend  # imports no MuJoCo
 
@@ -156,7 +156,7 @@ def tiny():
 
 @pytest.fixture(scope="session")
 def learner(tiny):
-    from train.ppo import Learner
+    from train.learner.ppo import Learner
 
     return Learner(tiny)
 
@@ -167,7 +167,6 @@ def learner(tiny):
 TINY_RUN_FILES = frozenset(
     {
         "test_aot.py",
-        "test_baseline_cache.py",
         "test_compat.py",
         "test_distributed.py",
         "test_eval.py",
@@ -213,7 +212,7 @@ def full_run(tiny, learner, tmp_path_factory, worker_id):
     that needs it trains it, in the session's shared temporary directory, and the others
     wait for it and read it (it costs a worker a minute or more to train); under
     ``--dist loadfile`` the files that use it share one worker (``TINY_RUN_FILES``)."""
-    from train.run import Run
+    from train.loop.run import Run
 
     if worker_id == "master":  # one process
         run = Run.create(tiny, tmp_path_factory.mktemp("runs") / "full")
@@ -240,7 +239,7 @@ after = dict(vars(jax))
 # submodules that other packages import (jax.extend) are not patches
 changed = sorted(k for k in set(before) | set(after) if before.get(k) is not after.get(k)
                  and not isinstance(after.get(k), types.ModuleType))
-import train, train.ppo
+import train, train.learner.ppo
 from mecanum_jax import compat
 shim = compat.has_native_device_put_replicated() or (
     vars(jax)["device_put_replicated"] is compat.device_put_replicated)

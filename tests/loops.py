@@ -4,7 +4,7 @@ import numpy as np
 
 from mecanum_jax.deploy.policy import NumpyPolicy
 from mecanum_jax.task import MecanumEnv
-from train.export import task_meta
+from train.cli.export import task_meta
 
 
 def network_free(env: MecanumEnv) -> NumpyPolicy:

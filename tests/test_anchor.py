@@ -1,6 +1,6 @@
 """``ppo.anchor``: no correction where the residual's base is exact (the yaw of steady no-yaw
 commands on the nominal robot, and with spins every component of its steady spins and
-stops; mecanum_jax/task/anchor.py, train/losses.py)."""
+stops; mecanum_jax/task/anchor.py, train/learner/losses.py)."""
 
 from __future__ import annotations
 
@@ -16,8 +16,9 @@ from mecanum_jax.kinematics import limits
 from mecanum_jax.task import EnvConfig, FeedbackConfig, MecanumEnv, RandomizationConfig
 from mecanum_jax.task.anchor import YAW, exact_components, is_nominal
 from train.config import TrainConfig, load_train_config, parse_train_config
-from train.losses import AnchorConfig, anchor_loss, ppo_loss_with_terms, state_extras
-from train.state import make_networks
+from train.learner.losses import anchor_loss, ppo_loss_with_terms, state_extras
+from train.learner.state import make_networks
+from train.loss_config import AnchorConfig
 
 HOLD = FeedbackConfig(hold_s=0.4)  # 20 control periods
 

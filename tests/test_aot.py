@@ -1,4 +1,4 @@
-"""The epoch compiled ahead of time from shapes (train/aot.py): the shapes it compiles for
+"""The epoch compiled ahead of time from shapes (train/loop/aot.py): the shapes it compiles for
 are those of the states a learner places."""
 
 from types import SimpleNamespace
@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import jax
 import pytest
 
-from train import aot
+from train.loop import aot
 
 
 def test_abstract_state_has_the_placed_states_shapes_and_dtypes(tiny, learner):
@@ -31,8 +31,8 @@ def test_compiling_together_leaves_the_first_runs_nothing_to_compile(learner, mo
     and the epoch before any of them runs (under Warp, where they run one after the
     other): their first runs then compile nothing, and they were traced in the order every
     such start keeps (Warp's FFI numbers follow it): the reset, the epoch, the evaluation."""
-    from train.coldstart import CompileLog
-    from train.ppo import first_device
+    from train.learner.ppo import first_device
+    from train.tools.coldstart import CompileLog
 
     evaluator = learner.evaluation.evaluator
 
@@ -56,7 +56,7 @@ def test_compiling_together_leaves_the_first_runs_nothing_to_compile(learner, mo
     compiled = [e["name"] for e in log.events if e["event"] == "compile_s"]
     assert "jit(fresh_rollout)" in compiled  # the evaluation's rollout
     assert isinstance(compiled_reset, jax.stages.Compiled)  # the robots' reset
-    assert "jit(_fun)" in compiled  # the epoch (train.parallel.spread's)
+    assert "jit(_fun)" in compiled  # the epoch (train.learner.parallel.spread's)
     with CompileLog() as log:
         ts, env = learner.init(host, compiled_reset)
         learner.evaluate_baseline(first_device(ts))

@@ -18,9 +18,10 @@ import orbax.checkpoint as ocp
 import pytest
 
 from mecanum_jax.task.env import MecanumEnv
-from train import checkpoint, leaves
 from train.config import parse_train_config
-from train.state import state_template
+from train.learner.policy import PROVENANCE, restore_policy
+from train.learner.state import state_template
+from train.store import checkpoint, leaves
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT / "tests" / "data" / "checkpoints"
@@ -47,7 +48,7 @@ def expected():
 
 def raw_train(run_dir: Path) -> dict[str, np.ndarray]:
     """The ``train`` item as stored: ``{key: array}``."""
-    _, items = checkpoint._read_checked(run_dir, EPOCH, ("train", "meta"))
+    _, items = checkpoint.read_checked(run_dir, EPOCH, ("train", "meta"))
     return {k: np.asarray(v) for k, v in items["train"].items()}
 
 
@@ -231,7 +232,7 @@ def test_resuming_a_leaf_index_checkpoint_restores_train_and_env_by_index(tmp_pa
 def test_the_shipped_model_restores():
     """models/o_rectangle restores as a policy, in whichever format it was written (the
     leaf-index format, at the time of writing)."""
-    restored = checkpoint.restore_policy(ROOT / "models" / "o_rectangle")
+    restored = restore_policy(ROOT / "models" / "o_rectangle")
     assert restored.params["params"]
 
 
@@ -241,14 +242,14 @@ def test_a_model_directory_evaluates_its_packaged_epoch(tmp_path):
     epoch is refused by name."""
     model = tmp_path / "o_rectangle"
     shutil.copytree(ROOT / "models" / "o_rectangle", model)
-    packaged = int(json.loads((model / checkpoint.PROVENANCE).read_text())["epoch"])
+    packaged = int(json.loads((model / PROVENANCE).read_text())["epoch"])
     ckpts = model / checkpoint.CHECKPOINT_DIR
     shutil.copytree(ckpts / str(packaged), ckpts / str(packaged + 5))
-    assert checkpoint.restore_policy(model).epoch == packaged
-    assert checkpoint.restore_policy(model, epoch=packaged + 5).epoch == packaged + 5
+    assert restore_policy(model).epoch == packaged
+    assert restore_policy(model, epoch=packaged + 5).epoch == packaged + 5
     shutil.rmtree(ckpts / str(packaged))
     with pytest.raises(checkpoint.CheckpointError, match=f"names epoch {packaged}"):
-        checkpoint.restore_policy(model)
+        restore_policy(model)
 
 
 def test_a_start_does_not_wait_for_orbax():
@@ -257,7 +258,10 @@ def test_a_start_does_not_wait_for_orbax():
     import subprocess
     import sys
 
-    code = "import sys, train.cli, train.coldstart; print('orbax.checkpoint' in sys.modules)"
+    code = (
+        "import sys, train.cli.train, train.tools.coldstart; "
+        "print('orbax.checkpoint' in sys.modules)"
+    )
     out = subprocess.run(
         [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True
     )

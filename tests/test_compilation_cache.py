@@ -1,4 +1,4 @@
-"""The persistent compilation cache the command lines turn on (train/compilation_cache.py)."""
+"""The persistent compilation cache the command lines turn on (train/loop/compilation_cache.py)."""
 
 from pathlib import Path
 
@@ -6,8 +6,10 @@ import jax
 import pytest
 
 from mecanum_jax.config import ConfigError
-from train import cli, compilation_cache, evaluate
-from train.compilation_cache import ENV_VAR, FLAG, MIN_COMPILE_TIME_S, apply, choose, configure
+from train.cli import evaluate
+from train.cli import train as cli
+from train.loop import compilation_cache
+from train.loop.compilation_cache import ENV_VAR, FLAG, MIN_COMPILE_TIME_S, apply, choose, configure
 
 OPTIONS = (
     "jax_enable_compilation_cache",

@@ -20,7 +20,7 @@ from mecanum_jax.deploy.loop import Controller, policy_state
 from mecanum_jax.deploy.plant import Plant, PlantParams, SensorChannel
 from mecanum_jax.sim.physics import Sensors
 from mecanum_jax.task import MecanumEnv
-from train import deploy_sim
+from train.cli import deploy_sim
 from train.config import load_train_config
 
 MODEL = Path(__file__).resolve().parent.parent / "models" / "o_rectangle"
@@ -344,13 +344,14 @@ def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
     155 of 250 when both sides ran MJX's JAX implementation."""
     from mecanum_jax.evaluation import metrics, scenarios
     from mecanum_jax.evaluation import rollout as ev
-    from train import evaluate as cli
+    from train.cli import eval_target
+    from train.cli import evaluate as cli
 
     E, S = 8, 5.0
     args = cli.EvalArgs(str(MODEL), only=("nominal",), episodes=E, seconds=S,
                         references=("analytic",), plots=False)  # fmt: skip
     chosen = scenarios.load_scenarios("default").select(["nominal"], E, S)
-    target = cli.Target(args, chosen)
+    target = eval_target.Target(args, chosen)
     _, traces, _ = cli.evaluate(target, chosen, args)
     dt = target.env.config.control_dt
     jac = np.asarray(target.env.jacobian)

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from mecanum_jax.config import ConfigError
-from train import distill
 from train.config import NetworkConfig, PPOConfig, TrainConfig
-from train.losses import DistillConfig, imitation_loss
+from train.learner import distill
+from train.learner.losses import imitation_loss
+from train.loss_config import DistillConfig
 
 
 def test_bad_distill_settings_name_the_field(tmp_path):
@@ -64,8 +65,8 @@ def test_a_student_with_history_learns_its_teachers_actions(tmp_path, capsys):
     """A tiny teacher, then its student with 5 earlier sensor frames: the run logs the
     teacher, the imitation error falls as the student trains, and the student exports
     with the history its control loop keeps."""
-    from train.cli import main as train_main
-    from train.export import main as export_main
+    from train.cli.export import main as export_main
+    from train.cli.train import main as train_main
 
     teacher = tmp_path / "teacher"
     args = ["--config", "tiny", "--compilation-cache", "off"]
@@ -104,9 +105,9 @@ def test_a_privileged_teachers_action_on_a_students_observation(tmp_path):
     import dataclasses
 
     from mecanum_jax.task.env import MecanumEnv
-    from train import checkpoint
-    from train.cli import main as train_main
+    from train.cli.train import main as train_main
     from train.config import load_train_config
+    from train.learner.policy import restore_policy
 
     teacher = tmp_path / "teacher"
     flags = ["--network.teacher", "True", "--network.zero-init-mean", "False"]
@@ -121,7 +122,7 @@ def test_a_privileged_teachers_action_on_a_students_observation(tmp_path):
     student_env = MecanumEnv(student.env)
     got = distill.load_teacher(student, student_env)
     assert got.privileged
-    restored = checkpoint.restore_policy(teacher)
+    restored = restore_policy(teacher)
     key = jax.random.PRNGKey(7)
     mine = jax.jit(student_env.reset)(key).obs
     own = jax.jit(MecanumEnv(restored.cfg.env).reset)(key).obs

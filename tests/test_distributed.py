@@ -13,8 +13,8 @@ from typing import Any
 import pytest
 
 from mecanum_jax.config import ConfigError
-from train import cli
-from train.distributed import distributed_args, init_distributed
+from train.cli import train as cli
+from train.loop.distributed import distributed_args, init_distributed
 
 FULL = {
     "JAX_COORDINATOR_ADDRESS": "localhost:12355",
@@ -92,7 +92,7 @@ def _free_port() -> int:
 
 
 def _two_processes(*args: str) -> list[str]:
-    """``python -m train.cli --distributed ARGS`` as two processes of one run (2 CPU devices
+    """``python -m train.cli.train --distributed ARGS`` as two processes of one run (2 CPU devices
     each, gloo collectives); their standard outputs."""
     port = _free_port()
     procs = []
@@ -106,7 +106,7 @@ def _two_processes(*args: str) -> list[str]:
             "JAX_PROCESS_ID": str(i),
             "COLUMNS": "200",
         }
-        cmd = [sys.executable, "-m", "train.cli", "--distributed", *args]
+        cmd = [sys.executable, "-m", "train.cli.train", "--distributed", *args]
         procs.append(
             subprocess.Popen(
                 cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True

@@ -24,8 +24,10 @@ from mecanum_jax.evaluation import rollout as evaluation
 from mecanum_jax.kinematics import singularity
 from mecanum_jax.kinematics.modes import SIX_MODES
 from mecanum_jax.task import EnvConfig, MecanumEnv
-from train import checkpoint, export
-from train import evaluate as cli
+from train.cli import evaluate as cli
+from train.cli import export
+from train.learner.policy import check_compatible, load_policy, restore_policy
+from train.store import checkpoint
 
 
 @pytest.fixture(scope="module")
@@ -296,7 +298,7 @@ def test_references_apply_no_action_beside_a_policy(env, small):
 
 def _tiny_restored(full_run):
     run, _ = full_run
-    return checkpoint.restore_policy(run.dir)
+    return restore_policy(run.dir)
 
 
 @pytest.mark.full  # tens of seconds of XLA compilation on 2 cores
@@ -312,7 +314,7 @@ def test_policy_and_baseline_face_the_same_episodes(full_run, small):
     np.testing.assert_array_equal(pol.start, base.start)
     assert not np.array_equal(pol.twist, base.twist)  # the trained policy acts differently
     # the learned policy's actions in the rollout are those of the plain inference function
-    act, _ = checkpoint.load_policy(full_run[0].dir)
+    act, _ = load_policy(full_run[0].dir)
     s = jax.vmap(env.reset_to)(batch.keys, batch.params, batch.latency, batch.noise_std)
     with jax.numpy_rank_promotion("allow"):
         np.testing.assert_allclose(
@@ -384,7 +386,7 @@ def test_export_round_trip_in_numpy_alone(full_run, tmp_path, learner):
     run, _ = full_run
     path = tmp_path / "export" / "policy.npz"
     assert export.main([str(run.dir), str(path)]) == 0
-    act, _ = checkpoint.load_policy(run.dir)
+    act, _ = load_policy(run.dir)
     rng = np.random.default_rng(3)
     obs = {
         k: (3 * rng.normal(size=(256, *shape))).astype(np.float32)
@@ -477,7 +479,7 @@ def test_bad_checkpoints_and_targets(full_run, tmp_path, capsys):
     assert _run_cli([bad / "checkpoints" / str(epoch), "--out", tmp_path / "o6"]) == 2
     assert "is corrupt or incomplete" in capsys.readouterr().err
     with pytest.warns(checkpoint.SkippedCheckpointWarning, match=f"using epoch {epoch - 1}"):
-        restored = checkpoint.restore_policy(bad)
+        restored = restore_policy(bad)
     assert restored.epoch == epoch - 1
     for name in ("o1", "o2", "o3", "o4", "o5", "o6"):
         assert not (tmp_path / name).exists()
@@ -486,7 +488,7 @@ def test_bad_checkpoints_and_targets(full_run, tmp_path, capsys):
 def test_checkpoint_of_another_robot_or_layout_is_refused(full_run, learner):
     _, meta = checkpoint.read_meta(full_run[0].dir)
     env = learner.env
-    checkpoint.check_compatible(meta, env, "ok")  # the real one passes
+    check_compatible(meta, env, "ok")  # the real one passes
     cases = [
         ({"robot": "x_square"}, "trained on robot 'x_square', expected 'o_rectangle'"),
         ({"robot_fingerprint": "0" * 16}, "has changed since training"),
@@ -495,7 +497,7 @@ def test_checkpoint_of_another_robot_or_layout_is_refused(full_run, learner):
     ]
     for change, message in cases:
         with pytest.raises(checkpoint.CheckpointError) as err:
-            checkpoint.check_compatible({**meta, **change}, env, "ckpt")
+            check_compatible({**meta, **change}, env, "ckpt")
         assert message in str(err.value)
 
 
@@ -642,7 +644,7 @@ def test_onnx_export_matches_the_jax_policy_and_the_control_loop(full_run, tmp_p
     path = tmp_path / "policy.onnx"
     assert export.main([str(run.dir), str(path), "--format", "onnx"]) == 0
     assert export.main([str(run.dir), str(tmp_path / "p.npz")]) == 0
-    act, _ = checkpoint.load_policy(run.dir)
+    act, _ = load_policy(run.dir)
     rng = np.random.default_rng(5)
     obs = {
         k: (3 * rng.normal(size=(128, *shape))).astype(np.float32)
@@ -676,7 +678,7 @@ def test_a_warp_task_is_evaluated_under_jax_on_the_cpu(monkeypatch):
     """Without --physics-impl, a task trained under Warp evaluates under MJX's JAX
     implementation on the CPU (30x faster there) and where the extra is absent; elsewhere,
     and for a JAX task, it keeps its own."""
-    from train.evaluate import default_impl
+    from train.cli.eval_target import default_impl
 
     assert jax.default_backend() == "cpu"
     assert default_impl("warp") == "jax"

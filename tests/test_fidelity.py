@@ -17,9 +17,9 @@ from mecanum_jax.sim.description import builtin_description
 from mecanum_jax.sim.physics import RobotParams
 from mecanum_jax.task import EnvConfig, MecanumEnv
 from mecanum_jax.task import fidelity as fid
-from train import evaluate as cli
+from train.cli import evaluate as cli
 from train.config import load_train_config, parse_train_config
-from train.periodic import PeriodicEvaluation
+from train.learner.periodic import PeriodicEvaluation
 
 SPIN = (-10.0, -10.0, 10.0, 10.0)
 MODEL_FIELDS = (

@@ -8,9 +8,10 @@ import numpy as np
 import orbax.checkpoint as ocp
 import pytest
 
-from train import checkpoint, leaves
-from train.cli import main as train_main
-from train.progress import count as _si
+from train.cli.train import main as train_main
+from train.learner.policy import restore_policy
+from train.loop.progress import count as _si
+from train.store import checkpoint, leaves
 
 
 def test_importing_the_task_prints_nothing(fresh_imports):
@@ -60,7 +61,7 @@ def _truncate(run_dir):
 
 def _bit_rot(run_dir):
     """Decodes cleanly, but one leaf no longer holds what its checksum was taken of."""
-    _, items = checkpoint._read_checked(run_dir, 3, ("train", "env", "meta"))
+    _, items = checkpoint.read_checked(run_dir, 3, ("train", "env", "meta"))
     train = {k: np.array(v) for k, v in items["train"].items()}
     name = next(k for k, v in train.items() if k != leaves.CHECKSUMS and v.dtype == np.float32)
     train[name].reshape(-1)[0] += np.float32(1.0)
@@ -122,7 +123,7 @@ def test_error_messages_print_their_brackets():
     the brackets as markup (and drop them, or fail on ``[/x]``)."""
     from rich.console import Console
 
-    from train.progress import print_error
+    from train.loop.progress import print_error
 
     console = Console(record=True, width=200, color_system=None)
     message = "2 missing: .policy['params'][bold] and [/x] .nu"
@@ -139,7 +140,7 @@ def test_an_empty_newest_checkpoint_is_passed_over_with_a_warning(full_run, tmp_
     (copy / "checkpoints" / "4").mkdir()
     assert checkpoint.latest_epoch(copy) == 4
     with pytest.warns(checkpoint.SkippedCheckpointWarning, match=r"checkpoints/4'.*using epoch 3"):
-        restored = checkpoint.restore_policy(copy)
+        restored = restore_policy(copy)
     assert restored.epoch == 3
     with pytest.raises(checkpoint.CheckpointError, match=r"checkpoints/4' \("):
-        checkpoint.restore_policy(copy, epoch=4)  # an epoch asked for by name is not replaced
+        restore_policy(copy, epoch=4)  # an epoch asked for by name is not replaced

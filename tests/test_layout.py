@@ -1,4 +1,5 @@
-"""The library's sub-packages follow the pipeline: each imports only those before it."""
+"""The library's sub-packages follow the pipeline, and the trainer's rooms their order: each
+imports only those before it."""
 
 import ast
 from pathlib import Path
@@ -7,10 +8,17 @@ import pytest
 
 LIBRARY = Path(__file__).resolve().parent.parent / "mecanum_jax"
 ORDER = ("kinematics", "sim", "task", "evaluation", "deploy")
+TRAINER = LIBRARY.parent / "train"
+ROOMS = ("store", "learner", "loop")
+"""The trainer's rooms from the ground up; ``cli`` and ``tools`` stand on them side by side."""
+TOP_ROOMS = ("cli", "tools")
 
 
-def imported_packages(path: Path) -> set[str]:
-    """The ``mecanum_jax`` sub-packages a module imports (at any depth, type-only included)."""
+def imported_packages(
+    path: Path, top: str = "mecanum_jax", packages: tuple[str, ...] = ORDER
+) -> set[str]:
+    """The ``top`` sub-packages among ``packages`` a module imports (at any depth, type-only
+    included)."""
     found = set()
     for node in ast.walk(ast.parse(path.read_text())):
         names = []
@@ -20,7 +28,7 @@ def imported_packages(path: Path) -> set[str]:
             names = [a.name for a in node.names]
         for name in names:
             parts = name.split(".")
-            if parts[0] == "mecanum_jax" and len(parts) > 1 and parts[1] in ORDER:
+            if parts[0] == top and len(parts) > 1 and parts[1] in packages:
                 found.add(parts[1])
     return found
 
@@ -44,6 +52,24 @@ def test_shared_modules_import_no_sub_package():
         "precision.py",
     ):
         assert not imported_packages(LIBRARY / name), name
+
+
+@pytest.mark.parametrize("room", ROOMS + TOP_ROOMS)
+def test_trainer_room_imports_only_lower_ones(room):
+    """store <- learner <- loop <- cli, tools: no room imports one above it, and the two top
+    rooms do not import each other."""
+    below = ROOMS if room in TOP_ROOMS else ROOMS[: ROOMS.index(room)]
+    paths = sorted((TRAINER / room).glob("*.py"))
+    assert paths, room
+    for path in paths:
+        higher = imported_packages(path, "train", ROOMS + TOP_ROOMS) - {room, *below}
+        assert not higher, f"{path.relative_to(TRAINER)} imports {sorted(higher)}"
+
+
+def test_trainer_shared_modules_import_no_room():
+    """The trainer's modules outside its rooms (its config) sit below every room."""
+    for path in sorted(TRAINER.glob("*.py")):
+        assert not imported_packages(path, "train", ROOMS + TOP_ROOMS), path.name
 
 
 def test_the_check_sees_a_violation(tmp_path):

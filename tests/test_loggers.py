@@ -1,4 +1,4 @@
-"""TensorBoard's event files (train/loggers.py): every logged number reaches them, and
+"""TensorBoard's event files (train/loop/loggers.py): every logged number reaches them, and
 logging never waits for tensorboardX's writer thread."""
 
 import struct
@@ -7,7 +7,7 @@ import pytest
 from tensorboardX import SummaryWriter
 from tensorboardX.proto import event_pb2
 
-from train.loggers import TensorBoardLogger
+from train.loop.loggers import TensorBoardLogger
 
 
 def _scalars(folder):

@@ -1,4 +1,4 @@
-"""The CAPS-style smoothness terms (train/losses.py): zero for a constant policy,
+"""The CAPS-style smoothness terms (train/learner/losses.py): zero for a constant policy,
 positive for one that moves with its input, on Brax's own policy network."""
 
 from __future__ import annotations
@@ -12,8 +12,9 @@ from brax.training.acme import running_statistics
 
 from mecanum_jax.config import ConfigError
 from train.config import NetworkConfig, TrainConfig
-from train.losses import SmoothnessConfig, smoothness_loss
-from train.state import make_networks, policy_obs_key
+from train.learner.losses import smoothness_loss
+from train.learner.state import make_networks, policy_obs_key
+from train.loss_config import SmoothnessConfig
 
 OBS = {"state": 20, "privileged_state": 30}
 
@@ -35,7 +36,7 @@ def _policy(constant: bool, teacher: bool = False):
     dist = networks.parametric_action_distribution
 
     def mean_action(obs):
-        with jax.numpy_rank_promotion("allow"):  # as the learner runs it (train/state.py)
+        with jax.numpy_rank_promotion("allow"):  # as the learner runs it (train/learner/state.py)
             return dist.mode(networks.policy_network.apply(normalizer, params, obs))
 
     return mean_action

@@ -1,4 +1,4 @@
-"""train/parallel.py: which devices a run takes, and how its program spreads over them."""
+"""train/learner/parallel.py: which devices a run takes, and how its program spreads over them."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import types
 import jax
 import pytest
 
-from train import parallel
 from train.config import load_train_config
+from train.learner import parallel
 
 
 def _gpus(n: int) -> list[types.SimpleNamespace]:

@@ -411,7 +411,7 @@ def test_warp_without_its_extra_is_refused_naming_the_field(capsys, tmp_path, mo
     import importlib.util
 
     from mecanum_jax.task import EnvConfig
-    from train.cli import main
+    from train.cli.train import main
 
     find_spec = importlib.util.find_spec  # as where the extra is not installed
     monkeypatch.setattr(

@@ -80,16 +80,16 @@ def test_set_matmul_precision_round_trip_and_bad_value():
 
 def test_mecanum_eval_sets_the_configs_precision_before_tracing(monkeypatch, tmp_path):
     """The evaluation's environment and rollouts are built under the run's precision."""
-    from train import evaluate
+    from train.cli import eval_target, evaluate
 
     seen: dict[str, str] = {}
-    real = evaluate.MecanumEnv
+    real = eval_target.MecanumEnv
 
     def recording_env(*args: Any, **kwargs: Any) -> Any:
         seen["env"] = matmul_precision()
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(evaluate, "MecanumEnv", recording_env)
+    monkeypatch.setattr(eval_target, "MecanumEnv", recording_env)
     before = matmul_precision()
     set_matmul_precision("default")
     try:
@@ -108,7 +108,7 @@ def test_mecanum_eval_sets_the_configs_precision_before_tracing(monkeypatch, tmp
 
 
 def _grad_products(name: str) -> list[Any]:
-    from train.losses import at_precision
+    from train.learner.losses import at_precision
 
     def loss(w: jax.Array, x: jax.Array) -> jax.Array:
         return jnp.sum(jnp.tanh(x @ w) @ w)
@@ -151,8 +151,8 @@ def test_the_learner_updates_at_its_update_precision_and_rolls_out_at_the_runs(t
 
     import numpy as np
 
-    from train.parallel import AXIS
-    from train.ppo import Learner
+    from train.learner.parallel import AXIS
+    from train.learner.ppo import Learner
 
     def products(cfg: Any) -> tuple[list[Any], list[Any]]:
         learner = Learner(cfg)
@@ -189,7 +189,7 @@ def test_the_learner_updates_at_its_update_precision_and_rolls_out_at_the_runs(t
 
 
 def test_the_throughput_table_names_the_updates_precision_where_it_differs():
-    from train.bench import _precision
+    from train.tools.bench import _precision
 
     assert _precision({"matmul_precision": "highest", "update_precision": "run"}) == "highest"
     assert _precision({"matmul_precision": "highest", "update_precision": "highest"}) == "highest"

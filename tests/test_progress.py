@@ -1,5 +1,5 @@
-"""Plain progress lines where the log stream is not a terminal (train.progress), and what a
-run learned at its end (train.curve).
+"""Plain progress lines where the log stream is not a terminal (train.loop.progress), and what a
+run learned at its end (train.loop.curve).
 
 The fast tests drive the trainer in-process on a console writing to a string (not a
 terminal) or forced to be a terminal; the ``full`` ones run ``mecanum-train`` and
@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from train import curve, progress
-from train.run import Run
+from train.loop import curve, progress
+from train.loop.run import Run
 
 ROOT = Path(__file__).resolve().parent.parent
 LINE = re.compile(r"^\[tiny\] \S+ \| env steps \S+/960 \| .* \| ETA ", re.M)
@@ -225,7 +225,15 @@ def _redirected(args, log: Path, **env):
 @pytest.mark.full  # compiles a fresh learner and the rollouts: minutes on 2 cores
 def test_redirected_train_and_eval_print_progress_lines(tmp_path):
     run = tmp_path / "run"
-    argv = ["train.cli", "--config", "tiny", "--run-dir", str(run), "--run.progress-every-s", "0.5"]
+    argv = [
+        "train.cli.train",
+        "--config",
+        "tiny",
+        "--run-dir",
+        str(run),
+        "--run.progress-every-s",
+        "0.5",
+    ]
     code, text = _redirected(argv, tmp_path / "train.log", TTY_COMPATIBLE="0")
     assert code == 0, text
     assert len(LINE.findall(text)) >= 4, text  # the first compilation alone takes seconds
@@ -235,7 +243,16 @@ def test_redirected_train_and_eval_print_progress_lines(tmp_path):
     assert re.search(r"^ +last +3 +960 ", text, re.M)
     assert (run / curve.PLOT_NAME).stat().st_size > 10_000
     assert "learning curve: " in text
-    argv = ["train.evaluate", "baseline", "--only", "nominal", "--episodes", "2", "--seconds", "1"]
+    argv = [
+        "train.cli.evaluate",
+        "baseline",
+        "--only",
+        "nominal",
+        "--episodes",
+        "2",
+        "--seconds",
+        "1",
+    ]
     argv += ["--progress-every-s", "0.5", "--no-plots", "--out", str(tmp_path / "ev")]
     code, text = _redirected(argv, tmp_path / "eval.log", TTY_COMPATIBLE="0")
     assert code == 0, text

@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -12,8 +13,8 @@ from mecanum_jax.evaluation import metrics, scenarios
 from mecanum_jax.evaluation import rollout as evaluation
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.task import REFERENCES, EnvConfig, MecanumEnv
-from train import checkpoint
-from train.evaluate import main as eval_main
+from train.cli.evaluate import main as eval_main
+from train.learner.policy import PROVENANCE, restore_policy
 
 pytestmark = pytest.mark.full
 
@@ -65,9 +66,9 @@ def test_feedback_removes_the_steady_yaw_error_of_a_slipping_spin(tmp_path):
 
 
 def test_shipped_model_loads_evaluates_and_exports(tmp_path):
-    prov = json.loads((checkpoint.Path(MODEL) / checkpoint.PROVENANCE).read_text())
+    prov = json.loads((Path(MODEL) / PROVENANCE).read_text())
     assert {"command", "commit", "device", "env_steps", "walltime_s"} <= set(prov)
-    restored = checkpoint.restore_policy(MODEL)
+    restored = restore_policy(MODEL)
     out = tmp_path / "ev"
     argv = [MODEL, "--only", "nominal", "--episodes", "2", "--seconds", "1", "--out", str(out)]
     argv += ["--no-plots", "--references", "analytic"]
@@ -78,7 +79,7 @@ def test_shipped_model_loads_evaluates_and_exports(tmp_path):
     # the NumPy export shipped beside it is this policy
     from mecanum_jax.deploy import policy as deploy
 
-    policy = deploy.load(checkpoint.Path(MODEL) / "policy.npz")
+    policy = deploy.load(Path(MODEL) / "policy.npz")
     env = MecanumEnv(dataclasses.replace(restored.cfg.env, physics_impl="jax"))
     s = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 16))
     params = (restored.normalizer, restored.params)
@@ -86,7 +87,7 @@ def test_shipped_model_loads_evaluates_and_exports(tmp_path):
     try:
         import onnxruntime as ort
 
-        onnx_path = str(checkpoint.Path(MODEL) / "policy.onnx")
+        onnx_path = str(Path(MODEL) / "policy.onnx")
         session = ort.InferenceSession(onnx_path, providers=["CPUExecutionProvider"])
     except ImportError:
         ort = None

@@ -1,7 +1,7 @@
 """mecanum-eval's scorecard: a win or a loss needs the interval on one side of 1 and a
 mean difference above the metric's margin; anything else is a tie."""
 
-from train.eval_output import score, scorecard_table
+from train.cli.eval_output import score, scorecard_table
 
 
 def _results(policy_ss_wz, verdict):

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from train import eval_args, evaluate
+from train.cli import eval_args, evaluate
 
 ROOT = Path(__file__).resolve().parent.parent
 H100 = "GPU 0: NVIDIA H100 80GB HBM3 (UUID: GPU-0f1e2d3c)"
@@ -52,11 +52,11 @@ def test_a_gpu_gets_the_cuda_environment_and_the_gpu_run(tmp_path):
     assert plan["device"] == "NVIDIA H100 80GB HBM3"
     assert plan["sync"] == ".tools/bin/uv sync --frozen --quiet --extra cuda --extra warp"
     train = plan["train"].split()
-    assert train[:3] == [".venv/bin/python", "-m", "train.cli"]
+    assert train[0] == ".venv/bin/mecanum-train"
     assert " --config gpu --env.physics-impl warp --max-minutes " in plan["train"]
     run = train[train.index("--run-dir") + 1]
     assert run.startswith("runs/gpu-")
-    assert plan["evaluate"].split()[3] == run  # the run just trained is evaluated
+    assert plan["evaluate"].split()[:2] == [".venv/bin/mecanum-eval", run]  # the run just trained
 
 
 def test_without_a_gpu_the_cpu_path_is_as_before(tmp_path):
@@ -64,11 +64,12 @@ def test_without_a_gpu_the_cpu_path_is_as_before(tmp_path):
     assert plan["device"].startswith("cpu")
     assert plan["sync"] == ".tools/bin/uv sync --frozen --quiet"  # no extra
     train = plan["train"].split()
-    assert train[3] == "--run-dir"
-    assert train[4].startswith("runs/quick-")
-    assert train[5:] == ["--ppo.num-envs", "64"]  # the quick config, the user's flags
-    assert plan["evaluate"].split()[3:] == [
-        train[4], "--episodes", "8", "--references", "analytic", "--no-plots"
+    assert train[:2] == [".venv/bin/mecanum-train", "--run-dir"]
+    assert train[2].startswith("runs/quick-")
+    assert train[3:] == ["--ppo.num-envs", "64"]  # the quick config, the user's flags
+    assert plan["evaluate"].split() == [
+        ".venv/bin/mecanum-eval", train[2], "--episodes", "8", "--references", "analytic",
+        "--no-plots",
     ]  # fmt: skip
 
 

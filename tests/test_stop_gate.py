@@ -13,7 +13,7 @@ import pytest
 from mecanum_jax.config import ConfigError, from_mapping
 from mecanum_jax.deploy.policy import NumpyPolicy
 from mecanum_jax.task import EnvConfig, MecanumEnv, RandomizationConfig
-from train.export import task_meta
+from train.cli.export import task_meta
 
 FILTER = 0.5
 BIAS = np.asarray([0.8, -0.6, 0.5], np.float32)  # the constant network's pre-tanh output

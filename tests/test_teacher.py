@@ -7,9 +7,11 @@ import jax
 import pytest
 
 from mecanum_jax.task import EnvConfig, MecanumEnv
-from train import checkpoint, export
+from train.cli import export
 from train.config import NetworkConfig, TrainConfig
-from train.state import make_networks
+from train.learner.policy import restore_policy
+from train.learner.state import make_networks
+from train.store import checkpoint
 
 
 @pytest.mark.parametrize(("teacher", "key"), [(False, "state"), (True, "privileged_state")])
@@ -36,13 +38,13 @@ def test_a_teacher_is_never_exported(tmp_path):
 
 @pytest.mark.full  # a tiny training run and an evaluation rollout: a minute on 2 cores
 def test_a_teacher_trains_evaluates_and_refuses_export(tiny, tmp_path, capsys):
-    from train.cli import main as train_main
-    from train.evaluate import main as eval_main
-    from train.export import main as export_main
+    from train.cli.evaluate import main as eval_main
+    from train.cli.export import main as export_main
+    from train.cli.train import main as train_main
 
     run = tmp_path / "teacher"
     assert train_main(["--config", "tiny", "--network.teacher", "True", "--run-dir", str(run)]) == 0
-    restored = checkpoint.restore_policy(run)
+    restored = restore_policy(run)
     assert restored.cfg.network.teacher
     out = tmp_path / "eval"
     args = [str(run), "--only", "nominal", "--episodes", "2", "--seconds", "2", "--no-plots"]
@@ -63,4 +65,4 @@ def test_a_teacher_trains_evaluates_and_refuses_export(tiny, tmp_path, capsys):
     assert export_main([str(run), str(model), "--model"]) == 0
     assert not (model / "policy.npz").exists()
     assert json.loads((model / "provenance.json").read_text())["teacher"] is True
-    assert checkpoint.restore_policy(model).cfg.network.teacher
+    assert restore_policy(model).cfg.network.teacher

@@ -12,6 +12,7 @@ import itertools
 import json
 import textwrap
 import tomllib
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -22,7 +23,7 @@ from brax.training.agents.ppo.losses import PPONetworkParams
 from mecanum_jax.config import ConfigError
 from mecanum_jax.evaluation.metrics import Part
 from mecanum_jax.task import EnvConfig
-from train import checkpoint, cli
+from train.cli import train as cli
 from train.config import (
     TRAIN_CONFIG_DIR,
     PPOConfig,
@@ -30,10 +31,12 @@ from train.config import (
     load_train_config,
     parse_train_config,
 )
-from train.periodic import COMPARED, Result, beats, compare
-from train.ppo import Learner, to_host
-from train.run import Run, RunDirError, TrainingDiverged
-from train.state import gradient_clip, make_optimizer
+from train.learner.periodic import COMPARED, Result, beats, compare
+from train.learner.policy import load_policy, restore_policy
+from train.learner.ppo import Learner, to_host
+from train.learner.state import gradient_clip, make_optimizer
+from train.loop.run import Run, RunDirError, TrainingDiverged
+from train.store import checkpoint, leaves
 
 
 def _final_train_state(run, learner):
@@ -226,7 +229,7 @@ def test_sharded_parallel_trains_like_pmap(full_run, tiny, learner, tmp_path):
 @pytest.mark.full
 def test_split_parallel_trains_like_pmap(full_run, tiny, learner, tmp_path):
     """``run.parallel = "split"`` (each device's rollouts in a program of its own, the
-    update over the mesh: train/split_epoch.py) computes Brax's pmap path's epoch, with
+    update over the mesh: train/learner/split_epoch.py) computes Brax's pmap path's epoch, with
     each device's robots stepped on that device, and a whole run goes through it."""
     cfg = dataclasses.replace(tiny, run=dataclasses.replace(tiny.run, parallel="split"))
     split = Learner(cfg)
@@ -314,7 +317,7 @@ def test_resume_refuses_changed_config(full_run, tiny):
 
 def test_policy_loads_into_plain_inference_function(full_run, learner):
     run, _ = full_run
-    act, meta = checkpoint.load_policy(run.dir)
+    act, meta = load_policy(run.dir)
     assert meta["epoch"] == 3
     assert meta["robot"] == "o_rectangle"
     assert meta["observation_layout"][0] == ["command", 3]
@@ -331,10 +334,10 @@ def test_policy_loads_into_plain_inference_function(full_run, learner):
 
 def test_load_policy_errors(tmp_path):
     with pytest.raises(checkpoint.CheckpointError, match="no such directory"):
-        checkpoint.load_policy(tmp_path / "missing")
+        load_policy(tmp_path / "missing")
     (tmp_path / "empty").mkdir()
     with pytest.raises(checkpoint.CheckpointError, match="no checkpoints"):
-        checkpoint.load_policy(tmp_path / "empty")
+        load_policy(tmp_path / "empty")
 
 
 def test_evaluation_is_paired_and_held_out(learner):
@@ -558,13 +561,13 @@ def test_restoring_a_policy_builds_no_learner(full_run, monkeypatch):
         raise AssertionError("restore_policy built a Learner")
 
     monkeypatch.setattr(Learner, "__init__", no_learner)
-    restored = checkpoint.restore_policy(run.dir)
+    restored = restore_policy(run.dir)
     assert restored.epoch == 3
     assert np.all(np.isfinite(np.asarray(jax.tree.leaves(restored.params)[0])))
 
 
 def test_bench_variants_take_the_trainers_flags(capsys):
-    from train import bench
+    from train.tools import bench
 
     with pytest.raises(SystemExit):
         bench.main(["--config", "tiny", "--variant", "x --ppo.num-envz 3"])
@@ -592,7 +595,7 @@ def test_checkpoints_hold_only_numpy_arrays(learner):
     rebuild their leaves as jax arrays, so the packing converts leaf by leaf."""
     state, env_state = learner.init()
     for tree in (to_host(state), to_host(env_state)):
-        packed = checkpoint.pack(tree)
+        packed = leaves.pack(tree)
         assert packed
         assert all(isinstance(v, np.ndarray) for v in packed.values())
 
@@ -603,7 +606,7 @@ def test_the_epoch_a_time_limit_stops_at_is_evaluated_and_logged(
     """Between periodic evaluations (here: none but the final one), a run stopped by its
     time limit evaluates the epoch it stops at, and logs it in metrics.jsonl as the
     summary has it."""
-    monkeypatch.setattr("train.run._Loop.eval_due", lambda self, final: final)
+    monkeypatch.setattr("train.loop.session.Session.eval_due", lambda self, final: final)
     run = Run.create(tiny, tmp_path / "limited")
     summary = run.train(learner=learner, time_limit_s=0.0)
     lines = [json.loads(x) for x in (run.dir / "metrics.jsonl").read_text().splitlines()]
@@ -631,10 +634,10 @@ def test_the_epoch_a_time_limit_stops_at_is_evaluated_and_logged(
 def test_first_runs_alone_under_warp(parallel, impl, alone):
     """Under MuJoCo Warp (and on the split path) the baseline's first evaluation finishes
     before the first epoch starts: a program's first run captures Warp's CUDA graphs, and
-    another thread's GPU work meanwhile breaks the capture (train/run.py)."""
+    another thread's GPU work meanwhile breaks the capture (train/loop/run.py)."""
     from types import SimpleNamespace
 
-    from train.aot import first_runs_alone
+    from train.loop.aot import first_runs_alone
 
     learner = SimpleNamespace(
         parallel=parallel, env=SimpleNamespace(robot=SimpleNamespace(impl=impl))
@@ -647,10 +650,10 @@ def test_each_session_evaluates_its_first_epoch():
     every ``run.eval_every`` epochs and the last one (a resumed session's first too)."""
     from types import SimpleNamespace
 
-    from train.run import _Loop
+    from train.loop.session import Session
 
-    run = SimpleNamespace(cfg=SimpleNamespace(run=SimpleNamespace(eval_every=8)))
-    loop = _Loop(run, None, 0.0, None, None)  # type: ignore[arg-type]
+    cfg = SimpleNamespace(run=SimpleNamespace(eval_every=8))
+    loop = Session(cfg, Path(), True, None, 0.0, None, None)  # type: ignore[arg-type]
 
     def evaluated(epochs: range) -> list[int]:
         out = []
@@ -666,7 +669,7 @@ def test_each_session_evaluates_its_first_epoch():
 
 def test_the_fresh_state_program_is_fresh_state_for_any_valid_seed(learner):
     """Seeds past int32 (``run.seeds`` allows up to 2**32 - 1) give the eager state's keys."""
-    from train.state import fresh_state, fresh_state_program
+    from train.learner.state import fresh_state, fresh_state_program
 
     program = fresh_state_program(learner.cfg, learner.env, learner.networks, learner.optimizer)
     for seed in (3, 2**31, 2**32 - 1):

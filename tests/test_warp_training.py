@@ -21,7 +21,7 @@ pytestmark = pytest.mark.full  # Warp compiles its kernels for the CPU on first 
 
 def _train(*args: str) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
-    cmd = [sys.executable, "-m", "train.cli", "--compilation-cache", "off", *args]
+    cmd = [sys.executable, "-m", "train.cli.train", "--compilation-cache", "off", *args]
     return subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=900)
 
 
@@ -48,7 +48,7 @@ def test_warp_training_stops_and_resumes(tmp_path):
 SHARED_CHECK = """
 import jax, numpy as np
 from train.config import apply_flags, load_train_config
-from train.ppo import Learner
+from train.learner.ppo import Learner
 flags = ["--env.physics-impl", "warp", "--ppo.num-envs", "16", "--ppo.batch-size", "16"]
 learner = Learner(apply_flags(load_train_config("tiny"), flags, "check"))
 fresh = learner._shared  # built from shapes, before any reset

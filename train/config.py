@@ -9,6 +9,7 @@ The resolved configuration is saved as ``config.json`` in each run directory.
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import json
 import math
 from pathlib import Path
@@ -25,8 +26,7 @@ from mecanum_jax.config import (
 )
 from mecanum_jax.task import EnvConfig
 from mecanum_jax.task.fidelity import check_task
-from train.loggers import check_wandb
-from train.losses import AnchorConfig, DistillConfig, SmoothnessConfig
+from train.loss_config import AnchorConfig, DistillConfig, SmoothnessConfig
 
 TRAIN_CONFIG_DIR = CONFIG_DIR / "train"
 
@@ -97,16 +97,16 @@ class PPOConfig:
     policy_warmup_steps: int = 0
     """Ramp the policy's updates from zero over this many env steps (>= 0; 0: off)."""
     update_precision: Literal["run", "default", "high", "highest"] = "run"
-    """Matmul precision of the update's forward and backward passes (train/losses.py
+    """Matmul precision of the update's forward and backward passes (train/learner/losses.py
     ``at_precision``): ``run`` keeps ``run.matmul_precision``; ``default`` lets an
     NVIDIA GPU use TF32 there. Rollouts and evaluations keep the run's precision."""
     smoothness: SmoothnessConfig = SmoothnessConfig()
-    """CAPS-style smoothness terms in the policy loss (train/losses.py; off by default)."""
+    """CAPS-style smoothness terms in the policy loss (train/learner/losses.py; off by default)."""
     distill: DistillConfig = DistillConfig()
-    """A privileged teacher the policy imitates on its own rollouts (train/distill.py;
+    """A privileged teacher the policy imitates on its own rollouts (train/learner/distill.py;
     off by default)."""
     anchor: AnchorConfig = AnchorConfig()
-    """No yaw correction where the base controller is exact (train/losses.py; off by
+    """No yaw correction where the base controller is exact (train/learner/losses.py; off by
     default; needs env.residual_space = "twist")."""
 
 
@@ -122,7 +122,8 @@ class RunConfig:
     picks ``"sharded"`` for several GPUs or several processes (``--distributed``),
     ``"pmap"`` otherwise, except ``"split"`` for MuJoCo Warp on several GPUs of one
     process: each device's rollouts in a program of its own and only the update over the
-    mesh, since the mesh cannot split Warp's step (train/parallel.py, train/split_epoch.py).
+    mesh, since the mesh cannot split Warp's step (train/learner/parallel.py,
+    train/learner/split_epoch.py).
     ``epoch_iterations`` training iterations run per compiled call; logging, the NaN
     check and Ctrl-C checkpoints happen between calls.
     """
@@ -148,7 +149,7 @@ class RunConfig:
     """Control steps per evaluation episode (>= 1)."""
     max_devices: int = 0
     """Use at most this many local devices (>= 0; 0: all, but one GPU under MuJoCo Warp on
-    the "sharded" path: train/parallel.py)."""
+    the "sharded" path: train/learner/parallel.py)."""
     matmul_precision: Literal["default", "high", "highest"] = "highest"
     """jax's default matmul precision for the run."""
     parallel: Literal["auto", "pmap", "sharded", "split"] = "auto"
@@ -158,10 +159,6 @@ class RunConfig:
     progress_every_s: float = 30.0
     """Where the log stream is not a terminal (``> log 2>&1``, nohup, SLURM): a plain
     progress line every this many seconds, and one at each evaluation (> 0)."""
-    baseline_cache: bool = True
-    """Keep the analytic baseline's evaluation on disk, and read it back at a start with the
-    same task, evaluation settings, code, packages and device (train/baseline_cache.py; in
-    the compilation cache's directory, so off with ``--compilation-cache off`` too)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -305,13 +302,26 @@ def _positive_finite(v: float) -> bool:
     return 0 < v < math.inf
 
 
+def check_wandb(project: str) -> None:
+    """Fail before training when ``run.wandb_project`` is set and wandb is missing."""
+    if project and importlib.util.find_spec("wandb") is None:
+        raise ConfigError(
+            f"run.wandb_project = {project!r}: needs the wandb package (pip install wandb); "
+            "leave it empty to log to metrics.jsonl and TensorBoard only"
+        )
+
+
 def _drop_retired_keys(data: Any) -> Any:
     """Saved configs may hold ``env.reward.error_cap = 0`` (a retired option that was off);
-    drop it. Any other value is kept, and rejected as an unknown key."""
+    drop it. Any other value is kept, and rejected as an unknown key. ``run.baseline_cache``
+    (a retired cache of the baseline's evaluation, either value) is dropped."""
     reward = data.get("env", {}).get("reward") if isinstance(data, dict) else None
     if isinstance(reward, dict) and reward.get("error_cap", None) == 0:
         reward = {k: v for k, v in reward.items() if k != "error_cap"}
         data = {**data, "env": {**data["env"], "reward": reward}}
+    run = data.get("run") if isinstance(data, dict) else None
+    if isinstance(run, dict) and "baseline_cache" in run:
+        data = {**data, "run": {k: v for k, v in run.items() if k != "baseline_cache"}}
     return data
 
 

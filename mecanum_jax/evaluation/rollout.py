@@ -197,10 +197,10 @@ class Evaluator:
         """Trace and lower the programs :meth:`run_many` would run for ``jobs``, running
         nothing, and return them (``jax.stages.Lowered``, one per distinct chunk shape); a
         later :meth:`run_many` of the same shapes reuses the trace, and the compilation of
-        a returned program (train/aot.py). MuJoCo Warp numbers its FFI calls in the order a
-        process traces them, and the persistent compilation cache's keys hold those
-        numbers, so a start that skips a program another start ran first must still trace
-        it at that point to find the others' compiled programs (train/baseline_cache.py)."""
+        a returned program (train/loop/aot.py). MuJoCo Warp numbers its FFI calls in the
+        order a process traces them, and the persistent compilation cache's keys hold those
+        numbers, so a start must trace its programs in the order of another to find the
+        other's compiled programs."""
         gains = self._gains(None)
         lowered: dict[Any, Any] = {}
         for _, part, flags, _ in self._chunks(jobs):

@@ -67,7 +67,7 @@ from mecanum_jax.task import CommandConfig, EnvConfig, MecanumEnv, NoiseConfig, 
 
 EVAL_DIR = CONFIG_DIR / "eval"
 # Domain tags of evaluation rng streams: scenario files, and the trainer's periodic
-# evaluation (training uses others; see train.ppo), so no two ever replay each other.
+# evaluation (training uses others; see train.learner.ppo), so no two ever replay each other.
 SCENARIO_STREAM = 0x5CE7
 TASK_STREAM = 0x7A5C
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")

@@ -9,7 +9,7 @@ has no reference counts: the ``__del__`` of **any** wrapper of that stream *unre
 it. A wrapper from an earlier call that a reference cycle kept alive, collected by the
 garbage collector between another call's registration and its capture, so erases the
 entry the live call needs, and that call fails with ``Warp error: unknown stream``. That
-happened to a second ``train.coldstart`` process on a GPU machine, to an epoch compiled
+happened to a second ``train.tools.coldstart`` process on a GPU machine, to an epoch compiled
 on another thread, and with JAX's persistent compilation cache on (docs/benchmarks.md):
 each changes when the collector runs, not what Warp does.
 

@@ -1,5 +1,5 @@
 """Where the residual's base controller is already exact: the states and twist components on
-which a training-time penalty (``ppo.anchor`` in train/losses.py) asks the policy's
+which a training-time penalty (``ppo.anchor`` in train/learner/losses.py) asks the policy's
 correction to be zero.
 
 On the nominal robot (the description's friction, no payload, nominal radii, motors and

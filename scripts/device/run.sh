@@ -65,12 +65,11 @@
 #                           split2gpu_64k (each GPU its own rollout program), each with FLAGS
 #                           too (e.g. -- --env.physics-impl warp, with --warp)
 #   experiment SCRIPT ARGS...      python experiments/SCRIPT ARGS
-#   profile [--trace] ARGS...      where one epoch's time goes (python -m train.profile, gpu
+#   profile [--trace] ARGS...      where one epoch's time goes (python -m train.tools.profile, gpu
 #                           config + ARGS): $OUT/profile.json; --trace also sends a
 #                           jax.profiler trace of one epoch as $OUT/profile_trace.tgz.partNN
-#   coldstart ARGS...       start to first evaluation (python -m train.coldstart, gpu config +
-#                           ARGS), twice: empty compilation cache (the baseline's cache
-#                           inside it too), then warm;
+#   coldstart ARGS...       start to first evaluation (python -m train.tools.coldstart, gpu config +
+#                           ARGS), twice: empty compilation cache, then warm;
 #                           $OUT/coldstart_cold.json and coldstart_warm.json
 #                           (COLDSTART_TAG=T: coldstart_T_cold.json ...; e.g. the same call
 #                           with --compile-together off, then on; COLDSTART_TREE=DIR: the
@@ -121,7 +120,7 @@ PY
 
 train() {  # RUN_DIR MINUTES [flags]: the gpu config, one checkpoint kept
   local dir=$1 min=$2; shift 2
-  python3 -m train.cli --config gpu --run-dir "$dir" --max-minutes "$min" \
+  python3 -m train.cli.train --config gpu --run-dir "$dir" --max-minutes "$min" \
     --run.max-checkpoints 1 --run.checkpoint-every 1000 "$@"
 }
 
@@ -132,7 +131,7 @@ throttle() {  # N: wait until fewer than N background jobs run
 evaluate() {  # MODEL SCENARIOS OUT_DIR [flags]
   local model=$1 set=$2 dir=$3; shift 3
   rm -rf "$dir"  # scratch of an earlier call on this warm machine
-  /usr/bin/time -f "wall %e s" python3 -m train.evaluate "$model" --scenarios "$set" --out "$dir" "$@"
+  /usr/bin/time -f "wall %e s" python3 -m train.cli.evaluate "$model" --scenarios "$set" --out "$dir" "$@"
 }
 
 package() {  # RUN_DIR MODEL_DIR MINUTES "flags" [SEED]: the run's policy (of training seed
@@ -143,7 +142,7 @@ package() {  # RUN_DIR MODEL_DIR MINUTES "flags" [SEED]: the run's policy (of tr
   rm -rf "$2"
   python3 - "$1" "$2" "$3" "$4" "$commit" "$device" "$seed" <<'PY'
 import json, sys
-from train.export import export_main
+from train.cli.export import export_main
 run, model, minutes, extra, commit, device, seed = sys.argv[1:8]
 s = json.load(open(f"{run}/summary.json"))
 command = f"mecanum-train --config gpu --max-minutes {minutes} {extra}".strip()
@@ -237,7 +236,7 @@ multi_gpu() {  # EPOCHS [VARIANT...] [-- FLAGS...]: one process per variant, so 
     [mp2gpu]="--run.parallel sharded"
     [pmap2gpu]="--run.parallel pmap"  # Brax's path: crashes XLA's compiler with MJX on GPUs
     [sh1gpu_64k]="--run.parallel sharded --run.max-devices 1 --ppo.num-envs 65536 --ppo.batch-size 8192"
-    [split2gpu]="--run.parallel split --run.max-devices 2"  # rollouts per GPU (train/split_epoch.py)
+    [split2gpu]="--run.parallel split --run.max-devices 2"  # rollouts per GPU (train/learner/split_epoch.py)
     [split2gpu_64k]="--run.parallel split --run.max-devices 2 --ppo.num-envs 65536 --ppo.batch-size 8192"
   )
   local v i
@@ -246,7 +245,7 @@ multi_gpu() {  # EPOCHS [VARIANT...] [-- FLAGS...]: one process per variant, so 
     if [ "$v" = mp2gpu ]; then  # two processes, one GPU each, joined through jax.distributed
       for i in 0 1; do
         JAX_COORDINATOR_ADDRESS=localhost:12355 JAX_NUM_PROCESSES=2 JAX_PROCESS_ID=$i \
-          JAX_LOCAL_DEVICE_IDS=$i python3 -m train.bench --config gpu --epochs "$epochs" \
+          JAX_LOCAL_DEVICE_IDS=$i python3 -m train.tools.bench --config gpu --epochs "$epochs" \
           --variant "$v ${spec[$v]} $extra" --json-out "$O/gpu2_$v.json" --distributed \
           > "$O/${v}_p$i.log" 2>&1 &
       done
@@ -254,7 +253,7 @@ multi_gpu() {  # EPOCHS [VARIANT...] [-- FLAGS...]: one process per variant, so 
       grep -hE "│ $v|Error" "$O/${v}"_p*.log | head -4
     else
       # shellcheck disable=SC2086
-      python3 -m train.bench --config gpu --epochs "$epochs" --variant "$v ${spec[$v]} $extra" \
+      python3 -m train.tools.bench --config gpu --epochs "$epochs" --variant "$v ${spec[$v]} $extra" \
         --json-out "$O/gpu2_$v.json" > "$O/$v.log" 2>&1
       grep -hE "│ $v|Error" "$O/$v.log" | head -3
     fi
@@ -316,10 +315,10 @@ reference_table() {  # MODEL...: the evaluation table in the reference roller mo
   cp /tmp/ref-agree-gpu/report.json "$O/reference_agree_gpu.json"
 }
 
-profile() {  # [--trace] [flags]: the epoch's parts (train/profile.py)
+profile() {  # [--trace] [flags]: the epoch's parts (train/tools/profile.py)
   local trace=()
   if [ "${1:-}" = --trace ]; then shift; rm -rf /tmp/profile-trace; trace=(--trace-dir /tmp/profile-trace); fi
-  python3 -m train.profile --config gpu --json-out "$O/profile.json" ${trace[@]+"${trace[@]}"} "$@" 2>&1 | quiet | tail -45
+  python3 -m train.tools.profile --config gpu --json-out "$O/profile.json" ${trace[@]+"${trace[@]}"} "$@" 2>&1 | quiet | tail -45
   [ ${#trace[@]} -gt 0 ] || return 0
   tar czf /tmp/profile_trace.tgz -C /tmp profile-trace
   local size; size=$(stat -c %s /tmp/profile_trace.tgz)
@@ -336,20 +335,20 @@ coldstart() {  # [flags]: an empty compilation cache, then the same start with i
   rm -rf /tmp/coldstart-cache
   for pass in cold warm; do
     echo "== $pass compilation cache ${COLDSTART_TAG:-} (sources: $tree)"
-    (cd "$tree" && PYTHONPATH=/tmp/site:$tree python3 -m train.coldstart --config gpu \
+    (cd "$tree" && PYTHONPATH=/tmp/site:$tree python3 -m train.tools.coldstart --config gpu \
       --compilation-cache /tmp/coldstart-cache \
       --json-out "$O/coldstart_${COLDSTART_TAG:+${COLDSTART_TAG}_}$pass.json" "$@") 2>&1 \
       | quiet | tail -42
   done
 }
 
-scaling() {  # [N...] [flags]: one train.bench process per robot count
+scaling() {  # [N...] [flags]: one train.tools.bench process per robot count
   local sizes=() n
   while [ $# -gt 0 ] && [[ $1 =~ ^[0-9]+$ ]]; do sizes+=("$1"); shift; done
   [ ${#sizes[@]} -gt 0 ] || sizes=(1024 4096 16384 32768 65536)
   rm -rf /tmp/scaling; mkdir -p /tmp/scaling
   for n in "${sizes[@]}"; do
-    python3 -m train.bench --config gpu --epochs 2 --json-out "/tmp/scaling/e$n.json" \
+    python3 -m train.tools.bench --config gpu --epochs 2 --json-out "/tmp/scaling/e$n.json" \
       --variant "e$n --ppo.num-envs $n --ppo.batch-size $((n / 8)) $*" > "/tmp/scaling/e$n.log" 2>&1
     grep -hiE "│ e$n |error" "/tmp/scaling/e$n.log" | head -3
   done
@@ -363,7 +362,7 @@ if [ "$WARP" = 1 ]; then warp_install || exit 3; fi
 case "$TASK" in
   bench) python3 -m mecanum_jax.bench "$@" 2>&1 | quiet ;;
   validate) python3 -m mecanum_jax.sim.validation "$@" 2>&1 | quiet | tail -40 ;;
-  train-bench) python3 -m train.bench --config gpu --epochs 3 "$@" 2>&1 | quiet | tail -14 ;;
+  train-bench) python3 -m train.tools.bench --config gpu --epochs 3 "$@" 2>&1 | quiet | tail -14 ;;
   train)
     min=$1; shift
     rm -rf /tmp/gpu

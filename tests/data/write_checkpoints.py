@@ -6,9 +6,9 @@ The state is configs/train/tiny.toml's after one epoch (seed 0, one CPU device):
 optimizer moments are non-zero, so no two of its same-shape leaves are alike. It is
 written, as a model directory holds it (``train`` and ``meta``, no environment state), as
 
-- ``named/``: the current format (leaves by name, with checksums; ``train.leaves.pack``);
+- ``named/``: the current format (leaves by name, with checksums; ``train.store.leaves.pack``);
 - ``index/``: the leaf-index format of earlier versions (``{"00000": leaf 0, ...}``), as
-  ``train.checkpoint`` wrote it until named leaves replaced it;
+  ``train.store.checkpoint`` wrote it until named leaves replaced it;
 - ``expected.npz``: every leaf by name, what both must restore to, bit for bit.
 
 The committed files are never rewritten: tests/test_checkpoint_format.py checks that the
@@ -31,7 +31,7 @@ HERE = Path(__file__).resolve().parent / "checkpoints"
 
 
 def index_pack(tree: Any) -> dict[str, np.ndarray]:
-    """The leaf-index format, as ``train.checkpoint.pack`` wrote it before."""
+    """The leaf-index format, as ``train.store.checkpoint.pack`` wrote it before."""
     leaves = jax.tree.leaves(tree)
     return {f"{i:05d}": np.asarray(x) for i, x in enumerate(leaves) if math.prod(np.shape(x))}
 
@@ -51,8 +51,8 @@ def write(folder: Path, train: dict[str, np.ndarray], meta: dict[str, Any]) -> N
 def main() -> int:
     sys.path.insert(0, str(HERE.parent.parent.parent))
     from train.config import load_train_config
-    from train.leaves import named_leaves, pack
-    from train.ppo import Learner, to_host
+    from train.learner.ppo import Learner, to_host
+    from train.store.leaves import named_leaves, pack
 
     if HERE.exists():
         print(f"{HERE} exists: the committed fixtures are never rewritten", file=sys.stderr)

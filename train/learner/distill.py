@@ -1,5 +1,5 @@
 """The teacher of ``ppo.distill``: a trained policy's action on a student's observations,
-the target of the imitation term (train/losses.py).
+the target of the imitation term (train/learner/losses.py).
 
 A privileged teacher (``network.teacher = true``) reads ``obs["privileged_state"]``: the
 sensors and the truth no robot measures (friction, payload, radii, motor gains, latency).
@@ -30,9 +30,9 @@ import numpy as np
 from mecanum_jax.config import ConfigError
 from mecanum_jax.task import observations as obs_
 from mecanum_jax.task.env import MecanumEnv
-from train import checkpoint
 from train.config import TrainConfig, config_diff
-from train.leaves import CheckpointError
+from train.learner.policy import restore_policy
+from train.store.leaves import CheckpointError
 
 WHERE = "ppo.distill.teacher"
 FREE = ("env.obs_history", "env.physics_impl")
@@ -84,7 +84,7 @@ def load_teacher(cfg: TrainConfig, env: MecanumEnv) -> Teacher:
     task; a :class:`ConfigError` naming the field if it cannot teach this run."""
     path = cfg.ppo.distill.teacher
     try:
-        restored = checkpoint.restore_policy(path)
+        restored = restore_policy(path)
     except CheckpointError as err:
         raise ConfigError(f"{WHERE} = {path!r}: {err}") from None
     tcfg = restored.cfg

@@ -1,6 +1,6 @@
 """What ``mecanum-eval`` shows and draws: its console tables and its plots.
 
-``results`` is the report's ``scenarios`` mapping (:func:`train.evaluate.evaluate`): per
+``results`` is the report's ``scenarios`` mapping (:func:`train.cli.evaluate.evaluate`): per
 scenario, each controller's summary and the paired comparisons.
 """
 

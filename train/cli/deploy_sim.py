@@ -40,8 +40,8 @@ from mecanum_jax.deploy.plant import Plant, PlantParams, SensorChannel
 from mecanum_jax.deploy.policy import ExportError
 from mecanum_jax.evaluation import metrics
 from mecanum_jax.evaluation import rollout as ev
-from train import eval_output
-from train.progress import print_error
+from train.cli import eval_output
+from train.loop.progress import print_error
 
 console = Console(stderr=True)
 DEFAULT_MODEL = "models/o_rectangle"

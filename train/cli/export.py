@@ -12,7 +12,7 @@ control loop's constants; ``mecanum_policy.py`` (NumPy inference,
 ``mecanum_jax.deploy.policy``) is copied beside it. ``--format onnx`` writes one ONNX graph
 from raw observations to actions and wheel-rate setpoints (``mecanum_jax.deploy.onnx``).
 ``--model`` packs one checkpoint as a model directory that ``mecanum-eval`` and
-``mecanum-export`` read like a run directory (:func:`train.checkpoint.package_model`).
+``mecanum-export`` read like a run directory (:func:`train.learner.policy.package_model`).
 ``mecanum-eval ... --export`` writes the same ``policy.npz`` beside its report.
 
 An existing output is never overwritten. Exit code 2: bad input (arguments, checkpoint).
@@ -36,8 +36,9 @@ from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.sim.description import fingerprint
 from mecanum_jax.sim.physics import GRAVITY
 from mecanum_jax.task import MecanumEnv
-from train import checkpoint
-from train.progress import print_error
+from train.learner.policy import RestoredPolicy, package_model, restore_policy, split_target
+from train.loop.progress import print_error
+from train.store import checkpoint
 
 console = Console(stderr=True)
 
@@ -90,8 +91,8 @@ def main(argv: list[str] | None = None) -> int:
             if not sep or not key:
                 raise ConfigError(f"--provenance {item!r}: expected KEY=VALUE")
             extra[key] = value
-        run_dir, epoch = checkpoint.split_target(args.run)
-        restored = checkpoint.restore_policy(run_dir, args.seed, epoch or args.epoch)
+        run_dir, epoch = split_target(args.run)
+        restored = restore_policy(run_dir, args.seed, epoch or args.epoch)
         if not args.model:  # a teacher's model directory holds its checkpoint, no export
             check_exportable(restored)
     except (ConfigError, checkpoint.CheckpointError) as err:
@@ -99,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.model:
         teacher = restored.cfg.network.teacher
-        out = checkpoint.package_model(restored, Path(args.out), {"teacher": teacher, **extra})
+        out = package_model(restored, Path(args.out), {"teacher": teacher, **extra})
         if not teacher:
             export_policy(restored, out / "policy.npz")
         console.log(f"wrote model directory {out}" + (" (a teacher: no export)" if teacher else ""))
@@ -121,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def check_exportable(restored: checkpoint.RestoredPolicy) -> None:
+def check_exportable(restored: RestoredPolicy) -> None:
     """Raise :class:`CheckpointError` for a policy no robot could run: a teacher."""
     if restored.cfg.network.teacher:
         raise checkpoint.CheckpointError(
@@ -131,7 +132,7 @@ def check_exportable(restored: checkpoint.RestoredPolicy) -> None:
         )
 
 
-def export_policy(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
+def export_policy(restored: RestoredPolicy, path: Path) -> Path:
     """Write ``policy.npz`` (weights, normalizer, control-loop constants) and copy the
     NumPy inference module beside it as ``mecanum_policy.py``."""
     path = deploy.save(path, *_policy_arrays(restored))
@@ -140,7 +141,7 @@ def export_policy(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
     return path
 
 
-def export_onnx(restored: checkpoint.RestoredPolicy, path: Path) -> Path:
+def export_onnx(restored: RestoredPolicy, path: Path) -> Path:
     """Write the policy and its control loop as one ONNX graph (``mecanum_jax.deploy.onnx``)."""
     from mecanum_jax.deploy import onnx as onnx_export
 
@@ -177,7 +178,7 @@ def task_meta(env: MecanumEnv) -> dict[str, Any]:
 
 
 def _policy_arrays(
-    restored: checkpoint.RestoredPolicy,
+    restored: RestoredPolicy,
 ) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray, np.ndarray, dict[str, Any]]:
     """The exported policy's layers, normalizer mean and std, and metadata."""
     check_exportable(restored)

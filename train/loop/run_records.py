@@ -1,5 +1,5 @@
 """What a training run writes and shows: atomic JSON, the per-seed rows of metrics.jsonl,
-summary.json, and the progress display's figures (train.run drives them)."""
+summary.json, and the progress display's figures (train.loop.run drives them)."""
 
 from __future__ import annotations
 
@@ -16,9 +16,9 @@ import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-from train.periodic import Result
-from train.progress import TrainLines, evaluation_text, wants_lines
-from train.progress import count as _si
+from train.learner.periodic import Result
+from train.loop.progress import TrainLines, evaluation_text, wants_lines
+from train.loop.progress import count as _si
 
 
 def jsonable(x: Any) -> Any:
@@ -160,7 +160,7 @@ def flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
 
 class TrainProgress:
     """The progress line: steps, env steps/s, time left, the last evaluation's figures; on
-    a terminal rich's live display, elsewhere plain lines (train.progress)."""
+    a terminal rich's live display, elsewhere plain lines (train.loop.progress)."""
 
     def __init__(
         self,

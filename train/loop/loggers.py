@@ -7,11 +7,8 @@ env-step count; a user can add their own through ``Run(..., loggers=[...])``.
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 from pathlib import Path
 from typing import Any, Protocol
-
-from mecanum_jax.config import ConfigError
 
 
 class MetricLogger(Protocol):
@@ -55,15 +52,6 @@ class TensorBoardLogger:
             writer.close()
 
 
-def check_wandb(project: str) -> None:
-    """Fail before training when ``run.wandb_project`` is set and wandb is missing."""
-    if project and importlib.util.find_spec("wandb") is None:
-        raise ConfigError(
-            f"run.wandb_project = {project!r}: needs the wandb package (pip install wandb); "
-            "leave it empty to log to metrics.jsonl and TensorBoard only"
-        )
-
-
 class WandbLogger:
     """One W&B run per run directory (its id derived from the directory, so a resumed run
     continues the same W&B run); each seed's metrics under ``seed_<s>/``."""
@@ -89,4 +77,4 @@ class WandbLogger:
         self._run.finish()
 
 
-__all__ = ["MetricLogger", "TensorBoardLogger", "WandbLogger", "check_wandb"]
+__all__ = ["MetricLogger", "TensorBoardLogger", "WandbLogger"]

@@ -1,8 +1,8 @@
 """The learner's state and what shapes it: :class:`TrainingState`, the networks, the
 optimizer, and a seed's fresh state.
 
-The learner (:mod:`train.ppo`) updates this state and the checkpoints
-(:mod:`train.checkpoint`) save and restore it; both import it from here, so neither
+The learner (:mod:`train.learner.ppo`) updates this state and the checkpoints
+(:mod:`train.store.checkpoint`) save and restore it; both import it from here, so neither
 imports the other.
 """
 

@@ -13,13 +13,13 @@ needs only the *shapes* of the states it will be given, and those follow from th
 config, so its compilation can start before the reset has run:
 :func:`compile_epoch_ahead` lowers and compiles it on a worker thread (XLA compiles with
 Python's lock released) while the caller resets the robots, and the caller waits on the
-returned future before the first epoch. ``python -m train.coldstart --ahead`` measures
+returned future before the first epoch. ``python -m train.tools.coldstart --ahead`` measures
 it; ``mecanum-train`` does not use it yet: on the 2-core CPU it saved a few seconds of a
 tiny cold start, and a run that also started the baseline's evaluation before the reset
 (three compilations on two cores) took 8% longer (docs/benchmarks.md); on an H200 under
 Warp it saved about 5 s of a cold start but broke a warm one (:func:`compile_epoch_ahead`),
 and under MJX's JAX physics on a GPU it has not been measured. The states
-:meth:`~train.ppo.Learner.place` lays out (and a restored checkpoint's, which it places the
+:meth:`~train.learner.ppo.Learner.place` lays out (and a restored checkpoint's, which it places the
 same way) carry exactly those shapes, dtypes and shardings, so the compiled program takes
 them without recompiling."""
 
@@ -30,16 +30,15 @@ from typing import Any
 
 import jax
 
-from train import baseline_cache
-from train.ppo import Learner, first_device
-from train.state import fresh_state
+from train.learner.ppo import Learner, first_device
+from train.learner.state import fresh_state
 
 
 def abstract_state(learner: Learner) -> tuple[Any, Any]:
     """The training and environment state :meth:`Learner.init` returns, as
     ``jax.ShapeDtypeStruct`` leaves laid out as :meth:`Learner.place` lays them out
     (concrete dtypes; the device mesh's sharding on the ``sharded`` path), from shapes
-    alone: one seed's fresh state (``jax.eval_shape`` of ``train.state.fresh_state``) and
+    alone: one seed's fresh state (``jax.eval_shape`` of ``train.learner.state.fresh_state``) and
     the learner's environment template, each with the devices' and the seeds' axes in
     front. Runs nothing, the reset included."""
     if learner.n_processes > 1:
@@ -65,7 +64,7 @@ def compile_epoch_ahead(learner: Learner) -> Future[None]:
     compiled program (and raises what the compilation raised).
 
     Refused under MJX's Warp implementation. With Warp's stream table pinned
-    (:mod:`mecanum_jax.sim.warp_streams`) two cold starts of ``train.coldstart --ahead``
+    (:mod:`mecanum_jax.sim.warp_streams`) two cold starts of ``train.tools.coldstart --ahead``
     ran, but ``mecanum-train`` compiling ahead from a warm compilation cache failed in the
     robots' reset with ``Warp CUDA error 904: capturing stream has unjoined work`` (H200,
     2026-11-27): the worker's tracing of Warp's calls overlapped a graph capture on the
@@ -87,7 +86,7 @@ def first_runs_alone(learner: Learner) -> bool:
     """Whether the baseline's first evaluation must finish before the first epoch starts.
     Under MuJoCo Warp a GPU program's first run loads it and Warp captures its CUDA graphs,
     and GPU work from another thread meanwhile breaks the capture: on the ``split`` path
-    (CUDA_ERROR_STREAM_CAPTURE_UNSUPPORTED, train/split_epoch.py) and with the epoch loaded
+    (CUDA_ERROR_STREAM_CAPTURE_UNSUPPORTED, train/learner/split_epoch.py) and with the epoch loaded
     on another thread during the reset (Warp CUDA error 904, docs/benchmarks.md). With the
     persistent cache, programs load in a second, so the two first runs would overlap."""
     return learner.parallel == "split" or learner.env.robot.impl == "warp"
@@ -107,7 +106,7 @@ def compile_together(learner: Learner) -> tuple[tuple[Any, Any], Any]:
     compiled the two at once got an epoch 14% slower, likely from their autotuning timing
     kernels on one GPU at once; none of seven that compiled it beside the evaluation
     alone did: docs/benchmarks.md), and the evaluation here meanwhile.
-    Returns ``(host, reset)`` for :meth:`~train.ppo.Learner.init`: the fresh host state
+    Returns ``(host, reset)`` for :meth:`~train.learner.ppo.Learner.init`: the fresh host state
     and the compiled reset.
 
     For a start whose first runs go one after the other (``first_runs_alone``: under
@@ -115,13 +114,13 @@ def compile_together(learner: Learner) -> tuple[tuple[Any, Any], Any]:
     breaks): the runs stay in order, their compilations overlap, since no Warp program
     runs while they do. The reset and the epoch are lowered from shapes
     (:func:`env_keys_shape`, :func:`abstract_state`; Warp's batch-wide buffers are zeros
-    of known shape, ``train.leaves.fresh_batch_wide``); the fresh state is made and the
+    of known shape, ``train.store.leaves.fresh_batch_wide``); the fresh state is made and the
     evaluation's episodes drawn on the CPU (``mecanum_jax.host``) while the epoch
     compiles. The order of tracing is the one every such start keeps, cold or warm (Warp
     numbers its FFI calls in trace order, and the persistent cache's keys hold the
-    numbers: train/baseline_cache.py). The evaluation's later calls find their compiled programs
-    in jit's cache; the epoch's is the learner's
-    (:meth:`~train.ppo.Learner.compile_epoch`)."""
+    numbers). The evaluation's later calls find their compiled programs in jit's cache;
+    the epoch's is the learner's
+    (:meth:`~train.learner.ppo.Learner.compile_epoch`)."""
     if not can_compile_together(learner):
         raise ValueError("compile_together: one process, and not run.parallel = 'split'")
     reset = learner.reset_program.lower(env_keys_shape(learner))
@@ -132,10 +131,18 @@ def compile_together(learner: Learner) -> tuple[tuple[Any, Any], Any]:
         compiled_reset = reset_job.result()  # the two autotune on the GPU one at a time
         epoch_job = pool.submit(learner.compile_epoch, ts, env_state, epoch)
         host = learner.init_training()
-        for lowered in baseline_cache.trace_in_place(learner, first_device(host[0])):
+        for lowered in trace_baseline(learner, first_device(host[0])):
             lowered.compile()
         epoch_job.result()
     return host, compiled_reset
+
+
+def trace_baseline(learner: Learner, ts_first_device: Any) -> list[Any]:
+    """Trace and lower the programs of the baseline's evaluation
+    (:meth:`~train.learner.ppo.Learner.evaluate_baseline`), running nothing; the lowered
+    programs (``PeriodicEvaluation.trace``)."""
+    params = (ts_first_device.normalizer_params, ts_first_device.params.policy)
+    return learner.evaluation.trace("analytic", jax.tree.map(lambda x: x[0], params))
 
 
 def env_keys_shape(learner: Learner) -> jax.ShapeDtypeStruct:
@@ -152,4 +159,5 @@ __all__ = [
     "compile_together",
     "env_keys_shape",
     "first_runs_alone",
+    "trace_baseline",
 ]

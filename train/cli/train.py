@@ -28,12 +28,13 @@ from rich.table import Table
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.sim.description import require_impl
-from train import checkpoint, compilation_cache, curve
 from train.config import TrainConfig, apply_flags, load_train_config
-from train.distributed import init_distributed
-from train.progress import print_error
-from train.run import Run, RunDirError, TrainingDiverged
-from train.run_records import write_json
+from train.loop import compilation_cache, curve
+from train.loop.distributed import init_distributed
+from train.loop.progress import print_error
+from train.loop.run import Run, RunDirError, TrainingDiverged
+from train.loop.run_records import write_json
+from train.store import checkpoint
 
 console = Console(stderr=True)
 
@@ -60,7 +61,7 @@ def _f(x: Any) -> str:
 
 def results_table(summary: dict[str, Any], title: str) -> Table:
     """Policy against baseline per scenario and seed (final evaluation): steady-state error
-    against the nearest feasible twist (train.periodic)."""
+    against the nearest feasible twist (train.learner.periodic)."""
     table = Table(title=title)
     for col in ("seed", "scenario", "ss v (m/s)", "base", "ss ω (rad/s)", "base", "beat at"):
         table.add_column(col)
@@ -96,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         "Train PPO on the mecanum tracking task. Options besides the config fields: "
         "--config PATH|NAME (default: quick), --run-dir DIR (default: runs/<name>-<time>), "
         "--resume DIR, --max-minutes M (stop resumably after M minutes), "
-        "--distributed (multi-process through jax.distributed; see train/distributed.py)."
+        "--distributed (multi-process through jax.distributed; see train/loop/distributed.py)."
     )
     try:
         # before anything touches JAX (loading a config may): jax.distributed requires it

@@ -8,7 +8,7 @@ The program is ``fn`` of one seed's states, vmapped over the seeds; its collecti
   mesh of all processes' devices; XLA's SPMD partitioner splits the program. With jax
   0.11.2 on 2 GPUs it compiles where ``pmap`` of an MJX step crashes XLA's compiler.
 - ``"split"``: each device rolls out its robots in a program of its own, and only the
-  update is one program over the mesh (train/split_epoch.py). One process.
+  update is one program over the mesh (train/learner/split_epoch.py). One process.
 
 The partitioner cannot split a custom call it knows nothing of, such as the FFI call of
 MuJoCo Warp's step: on the ``"sharded"`` path it gathers the whole batch onto every

@@ -220,7 +220,7 @@ def fresh_batch_wide(template: Any, at: Collection[int]) -> dict[int, np.ndarray
     (``nacon``, ``ncollision``), which each physics step zeroes and refills, and which a
     reset leaves at zero (tests/test_warp_training.py checks it against a reset). Built
     from shapes alone, they let the epoch be compiled before the robots' first reset has
-    run (train.aot)."""
+    run (train.loop.aot)."""
     flat = jax.tree.leaves(template)
     return {i: np.zeros(flat[i].shape, flat[i].dtype) for i in sorted(at)}
 

@@ -1,13 +1,12 @@
 """Cold start of training: from process start to the first evaluation, phase by phase.
 
 Runs what ``mecanum-train`` runs before its first evaluation, in its order: imports, the
-config, the model and environment build (:class:`train.ppo.Learner`); where the baseline
-runs first (``train.aot.first_runs_alone``, as under Warp) the reset, the epoch and the
-evaluation compiled together before any of them runs (``train.aot.compile_together``,
+config, the model and environment build (:class:`train.learner.ppo.Learner`); where the baseline
+runs first (``train.loop.aot.first_runs_alone``, as under Warp) the reset, the epoch and the
+evaluation compiled together before any of them runs (``train.loop.aot.compile_together``,
 unless ``--compile-together off``); the robots' reset (``--ahead``: with the epoch
-compiling alongside from shapes, ``train.aot``, a candidate for machines with many cores;
-docs/benchmarks.md); the evaluation of the analytic baseline (read back where an earlier
-start stored it, ``train.baseline_cache``, unless ``--baseline-cache off``; first where
+compiling alongside from shapes, ``train.loop.aot``, a candidate for machines with many cores;
+docs/benchmarks.md); the evaluation of the analytic baseline (first where
 the baseline runs first; elsewhere ``mecanum-train`` overlaps it with the first epoch, and
 here it is timed after that epoch, alone); the first epoch; the policy's evaluation
 (``mecanum-train`` evaluates each session's first epoch); and then a second epoch
@@ -15,11 +14,11 @@ here it is timed after that epoch, alone); the first epoch; the policy's evaluat
 
 Every program JAX compiles is listed from ``jax.monitoring``'s events: its tracing,
 lowering and XLA compilation times, whether the persistent compilation cache served it
-(``train.compilation_cache``; a second start reads from a warm cache), and the phase it
+(``train.loop.compilation_cache``; a second start reads from a warm cache), and the phase it
 compiled in. A name compiled more than once is a recompilation (or another program from
 the same function)::
 
-    python -m train.coldstart --config gpu --json-out coldstart.json [mecanum-train flags]
+    python -m train.tools.coldstart --config gpu --json-out coldstart.json [mecanum-train flags]
 
 Times are measured from process start (Linux ``/proc``; elsewhere from this module's
 import). Prints two tables and writes JSON (``--json-out``).
@@ -174,7 +173,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
     with clock.phase("imports: trainer (MJX, Brax, Flax, optax)"):
         import jax
 
-        from train import compilation_cache
+        from train.loop import compilation_cache
 
         argv = compilation_cache.configure(argv)
         import numpy as np
@@ -182,20 +181,16 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         from mecanum_jax.config import ConfigError
         from mecanum_jax.precision import set_matmul_precision
         from train.config import apply_flags, load_train_config
-        from train.ppo import Learner, first_device
+        from train.learner.ppo import Learner, first_device
     cache_dir = compilation_cache.in_force()
     with clock.phase("config (load, flags, validation)"):
-        parser = argparse.ArgumentParser(prog="python -m train.coldstart", description=__doc__)
+        parser = argparse.ArgumentParser(
+            prog="python -m train.tools.coldstart", description=__doc__
+        )
         parser.add_argument("--config", default="gpu")
         parser.add_argument("--json-out", default=None)
         parser.add_argument(
             "--ahead", action="store_true", help="compile the epoch while the robots reset"
-        )
-        parser.add_argument(
-            "--baseline-cache",
-            choices=("on", "off"),
-            default="on",
-            help="read the baseline's evaluation from its cache (train.baseline_cache)",
         )
         parser.add_argument(
             "--compile-together",
@@ -203,7 +198,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             default="on",
             help="where the baseline runs first: compile the reset, the epoch and the "
             "evaluation at once before any runs, as mecanum-train does "
-            "(train.aot.compile_together)",
+            "(train.loop.aot.compile_together)",
         )
         args, flags = parser.parse_known_args(argv)
         try:
@@ -216,7 +211,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         set_matmul_precision(cfg.run.matmul_precision)
     with clock.phase("model and environment build"):
         learner = Learner(cfg)
-    from train.aot import (
+    from train.loop.aot import (
         can_compile_together,
         compile_epoch_ahead,
         compile_together,
@@ -247,18 +242,9 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             ts, env, metrics = learner.epoch(ts, env)
             extra["finite"] = bool(np.all(np.asarray(jax.device_get(metrics["finite"])) > 0))
 
-    from train import baseline_cache
-
-    use_cache = args.baseline_cache == "on" and cfg.run.baseline_cache
-    origin = ""
-
     def baseline() -> None:
-        nonlocal origin
-        with clock.phase("first evaluation: baseline") as extra:
-            _, origin = baseline_cache.baseline(
-                learner, first_device(ts), use_cache, baseline_first and not together
-            )
-            extra["baseline"] = origin
+        with clock.phase("first evaluation: baseline"):
+            learner.evaluate_baseline(first_device(ts))
 
     if baseline_first:
         baseline()
@@ -268,7 +254,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
     with clock.phase("first evaluation: policy"):
         learner.evaluate(first_device(ts))
     epoch("second epoch")
-    from train.run_records import machine_record
+    from train.loop.run_records import machine_record
 
     return {
         **machine_record(cfg, learner.env.robot.impl),
@@ -279,7 +265,6 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             "on": cache_dir is not None,
             "dir": None if cache_dir is None else str(cache_dir),
         },
-        "baseline": origin,  # "cache", "computed" (and stored) or "off"
         "from_process_start": AGE_AT_MODULE is not None,
         "json_out": args.json_out,
         "epoch_compiled_ahead": args.ahead,
@@ -320,7 +305,7 @@ def _tables(report: dict[str, Any], top: int) -> list[Any]:
     phases = Table(
         title=f"Cold start of {report['config']} on {report['device']} "
         f"({report['physics_impl']} physics, {report['robots']} robots, "
-        f"cache {report['cache']['dir'] or 'off'}, baseline {report['baseline']})"
+        f"cache {report['cache']['dir'] or 'off'})"
     )
     for col in ("phase", "s", "at s (from process start)"):
         phases.add_column(col, justify="left" if col == "phase" else "right")
@@ -350,7 +335,7 @@ def main(argv: list[str] | None = None, top: int = 15) -> int:
     report = summarize(result, log.programs())
     from rich.console import Console
 
-    from train.run_records import write_json
+    from train.loop.run_records import write_json
 
     console = Console(width=None if sys.stdout.isatty() else 140)
     for t in _tables(report, top):

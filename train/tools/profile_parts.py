@@ -1,9 +1,9 @@
-"""The parts of a training epoch as programs of their own, for :mod:`train.profile`.
+"""The parts of a training epoch as programs of their own, for :mod:`train.tools.profile`.
 
 Each program runs one part for the whole epoch's control steps (its ``epoch_iterations``
 rollouts, from the epoch's starting state, so that the robots go through the same part of
 their episodes as in the epoch) or, for the update, for one iteration. They run on the
-learner's own shapes and devices (:meth:`train.ppo.Learner.program`: vmapped over seeds,
+learner's own shapes and devices (:meth:`train.learner.ppo.Learner.program`: vmapped over seeds,
 parallel over the devices as the epoch is), and are built from the learner's own pieces
 (``Learner.collect``, ``Learner.update``, the environment, the robot) so that they compute
 what the epoch does:
@@ -44,8 +44,8 @@ from brax.training.acme import running_statistics
 from brax.training.agents.ppo import losses as ppo_losses
 
 from mecanum_jax.sim.physics import chunked_vmap
-from train.parallel import AXIS
-from train.ppo import Learner, TrainingState, allow_rank_promotion
+from train.learner.parallel import AXIS
+from train.learner.ppo import Learner, TrainingState, allow_rank_promotion
 
 
 def zero_policy(policy: Callable[..., Any]) -> Callable[..., Any]:

@@ -19,7 +19,7 @@ the student's own rollouts visit, so the student learns the teacher's action whe
 goes, as DAgger does (Ross et al., AISTATS 2011; the teacher-student scheme of RMA,
 Kumar et al., RSS 2021), beside the PPO terms ("kickstarting", Schmitt et al. 2018).
 Its weight and the teacher are :class:`DistillConfig`; the teacher's action comes from
-``train.distill``. Reported as ``imitation``.
+``train.learner.distill``. Reported as ``imitation``.
 
 :func:`anchor_loss` asks the components of a twist-space residual to be zero where its base
 is already exact (:func:`mecanum_jax.task.anchor.exact_components`: the yaw part on steady
@@ -32,7 +32,6 @@ correction on spins. Its weight is :class:`AnchorConfig`; reported as ``anchor``
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
@@ -41,80 +40,12 @@ import jax
 import jax.numpy as jnp
 from brax.training.agents.ppo import losses as ppo_losses
 
-from mecanum_jax.config import require
 from mecanum_jax.precision import matmul_precision_scope
 from mecanum_jax.task.anchor import exact_components
+from train.loss_config import AnchorConfig, SmoothnessConfig
 
 if TYPE_CHECKING:
     from mecanum_jax.task.protocol import TaskEnv
-
-
-@dataclasses.dataclass(frozen=True)
-class SmoothnessConfig:
-    """Weights of the CAPS-style terms (0: off) and the spatial perturbation's scale."""
-
-    temporal: float = 0.0
-    """Weight of ``‖μ(s_t) − μ(s_{t+1})‖²`` (>= 0; 0: off)."""
-    spatial: float = 0.0
-    """Weight of ``‖μ(s) − μ(s + ε)‖²`` (>= 0; 0: off)."""
-    sigma: float = 0.02
-    """Standard deviation of ε, in the policy observation's scaled units (> 0)."""
-
-    def validate(self, where: str = "ppo.smoothness") -> None:
-        """Check values; raise :class:`ConfigError` naming the field."""
-        require(self, where, ("temporal", "spatial"), lambda v: v >= 0, "must be >= 0 (0: off)")
-        require(self, where, ("sigma",), lambda v: v > 0, "must be > 0")
-
-    @property
-    def enabled(self) -> bool:
-        return self.temporal > 0 or self.spatial > 0
-
-
-@dataclasses.dataclass(frozen=True)
-class DistillConfig:
-    """A privileged teacher to imitate (train/distill.py), and the imitation term's weight."""
-
-    teacher: str = ""
-    """The teacher's run or model directory ("": no teacher): a policy of the same task
-    (``env`` may differ only in ``obs_history`` and ``physics_impl``), usually a privileged
-    one (``network.teacher = true``); of a run, its first seed is the teacher
-    (``mecanum-export --model`` packs another)."""
-    weight: float = 1.0
-    """Weight of ``‖μ(s) − μ_teacher(s)‖²`` in the policy loss (> 0)."""
-
-    def validate(self, where: str = "ppo.distill") -> None:
-        """Check values; raise :class:`ConfigError` naming the field."""
-        require(self, where, ("weight",), lambda v: v > 0, "must be > 0")
-
-    @property
-    def enabled(self) -> bool:
-        return bool(self.teacher)
-
-
-@dataclasses.dataclass(frozen=True)
-class AnchorConfig:
-    """Weight of :func:`anchor_loss` (0: off) and where it applies; needs a twist-space
-    residual."""
-
-    weight: float = 0.0
-    """Weight of the mean of ``μ_k(s)²`` over the states and components where the base is
-    exact (>= 0; 0: off)."""
-    spins: bool = False
-    """Also every component on the nominal robot's steady pure spins (within reach) and
-    stops, where the base holds v and ωz exactly; off: only ωz on steady no-yaw commands."""
-    translations: bool = False
-    """Also every component on the nominal robot's steady pure translations within reach,
-    where the base's setpoints are ``analytic``'s; off: only their ωz."""
-
-    def validate(self, where: str = "ppo.anchor") -> None:
-        """Check values; raise :class:`ConfigError` naming the field."""
-        require(self, where, ("weight",), lambda v: v >= 0, "must be >= 0 (0: off)")
-        flags = ("spins", "translations")
-        require(self, where, flags, lambda v: isinstance(v, bool), "must be true or false")
-
-    @property
-    def enabled(self) -> bool:
-        return self.weight > 0
 
 
 def anchor_loss(action: jax.Array, mask: jax.Array) -> jax.Array:
@@ -238,9 +169,6 @@ def at_precision(fn: Callable[..., Any], name: str) -> Callable[..., Any]:
 
 
 __all__ = [
-    "AnchorConfig",
-    "DistillConfig",
-    "SmoothnessConfig",
     "anchor_loss",
     "at_precision",
     "imitation_loss",

@@ -15,7 +15,7 @@ from typing import Any
 from rich import box
 from rich.table import Table
 
-from train.progress import SCENARIO, count
+from train.loop.progress import SCENARIO, count
 
 PLOT_NAME = "learning_curve.png"
 

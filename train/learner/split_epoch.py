@@ -9,7 +9,7 @@ and ``jax.shard_map`` of the step crashed. Here no program that holds the physic
 more than one device: device ``d``'s rollout program takes that device's slice of the
 states (``(1, S, ...)``, zero-copy from the mesh-sharded arrays) and returns its slice of
 the transitions, which are put together, again without a copy, into mesh-sharded arrays
-for the update, the same program :meth:`~train.ppo.Learner.update` is on the ``"sharded"``
+for the update, the same program :meth:`~train.learner.ppo.Learner.update` is on the ``"sharded"``
 path (gradients and normalizer statistics averaged across devices).
 
 An epoch is then ``epoch_iterations`` x (one rollout per device, one update).
@@ -33,8 +33,8 @@ import jax
 import jax.numpy as jnp
 from jax.sharding import NamedSharding
 
-from train.parallel import AXIS
-from train.state import TrainingState, allow_rank_promotion, epoch_metrics
+from train.learner.parallel import AXIS
+from train.learner.state import TrainingState, allow_rank_promotion, epoch_metrics
 
 
 def slices(tree: Any, devices: Sequence[Any]) -> list[Any]:
@@ -68,7 +68,7 @@ class SplitEpoch:
     """The ``"split"`` epoch of ``learner`` (see the module): callable as
     ``(state, packed env state) -> (state, packed env state, metrics)``."""
 
-    def __init__(self, learner: Any):  # a train.ppo.Learner (which builds this)
+    def __init__(self, learner: Any):  # a train.learner.ppo.Learner (which builds this)
         if learner.n_processes > 1:
             raise ValueError(
                 "run.parallel = 'split': one process only (its devices are the mesh); "
@@ -108,7 +108,7 @@ class SplitEpoch:
     @allow_rank_promotion
     def _rollout_one(self, ts: TrainingState, packed: Any) -> tuple[Any, ...]:
         """One seed's rollouts of one iteration on one device: the one-program epoch's
-        :meth:`~train.ppo.Learner.iteration_rollouts` (same keys)."""
+        :meth:`~train.learner.ppo.Learner.iteration_rollouts` (same keys)."""
         learner = self.learner
         env_state, *rest = learner.iteration_rollouts(ts, learner.unpack_env(packed))
         return learner.pack_env(env_state), *rest

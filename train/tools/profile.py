@@ -1,15 +1,15 @@
 """Where a training epoch's time goes, part by part, on one device.
 
 Each part of the epoch is compiled as a program of its own on the learner's shapes
-(:mod:`train.profile_parts`) and warmed up; then ``--repeats`` rounds call each program
+(:mod:`train.tools.profile_parts`) and warmed up; then ``--repeats`` rounds call each program
 once, blocking, in turn (so that all see the same load), and each part is the median of
 its calls, less that of an empty program's call with the same arguments. One measured
 epoch is set against their sum. The periodic evaluation and the run loop's host
 transfers are timed in the same rounds and spread over the epochs between them
 (``run.eval_every``, ``run.checkpoint_every``)::
 
-    python -m train.profile --config gpu --json-out profile.json [mecanum-train flags]
-    python -m train.profile --config tiny --ppo.num-envs 8 --trace-dir /tmp/trace
+    python -m train.tools.profile --config gpu --json-out profile.json [mecanum-train flags]
+    python -m train.tools.profile --config tiny --ppo.num-envs 8 --trace-dir /tmp/trace
 
 Some parts are differences of nested programs (environment step ⊂ training environment ⊂
 rollout, each with the physics replaced), so a part smaller than the timing noise can read
@@ -38,12 +38,12 @@ from rich.table import Table
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.precision import set_matmul_precision
-from train import compilation_cache
 from train.config import TrainConfig, apply_flags, load_train_config
-from train.ppo import Learner, first_device, to_host
-from train.profile_parts import EpochParts
-from train.progress import print_error
-from train.run_records import machine_record, write_json
+from train.learner.ppo import Learner, first_device, to_host
+from train.loop import compilation_cache
+from train.loop.progress import print_error
+from train.loop.run_records import machine_record, write_json
+from train.tools.profile_parts import EpochParts
 
 
 class Timer:
@@ -232,7 +232,7 @@ def check_out_path(flag: str, value: str | None, directory: bool) -> None:
 def main(argv: list[str] | None = None) -> int:
     argv = compilation_cache.configure(sys.argv[1:] if argv is None else argv)
     parser = argparse.ArgumentParser(
-        prog="python -m train.profile",
+        prog="python -m train.tools.profile",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

@@ -6,9 +6,9 @@ A run directory holds::
     status.json        running | finished | interrupted | diverged, with the epoch
     metrics.jsonl      one line per seed per epoch (training, evaluation, baseline)
     tb/seed_<k>/       TensorBoard event files
-    checkpoints/<e>/   orbax checkpoints (full state; see train.checkpoint)
+    checkpoints/<e>/   orbax checkpoints (full state; see train.store.checkpoint)
     summary.json       final figures per seed (when finished)
-    learning_curve.png the learning curve (written by mecanum-train; train.curve)
+    learning_curve.png the learning curve (written by mecanum-train; train.loop.curve)
 
 Rules: a run directory is never overwritten (an existing one is only *resumed*); a NaN
 stops the run with a message and keeps the last good checkpoint; Ctrl-C writes a
@@ -17,10 +17,11 @@ checkpoint of the last completed epoch before exiting.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import time
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -30,18 +31,20 @@ from rich.console import Console
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.precision import set_matmul_precision
-from mecanum_jax.sim.description import fingerprint
-from train import aot, baseline_cache, checkpoint
-from train import run_records as records
-from train.aot import first_runs_alone
 from train.config import TrainConfig, config_diff, load_train_config
-from train.distributed import barrier, restore_process, save_process
-from train.loggers import MetricLogger, TensorBoardLogger, WandbLogger
-from train.periodic import Result, beats, compare
-from train.ppo import Learner, first_device, to_host
-from train.run_records import stacked, write_json
+from train.learner.periodic import Result, beats, compare
+from train.learner.policy import check_compatible
+from train.learner.ppo import Learner, first_device, to_host
+from train.loop import aot
+from train.loop import run_records as records
+from train.loop.aot import first_runs_alone
+from train.loop.distributed import barrier, restore_process
+from train.loop.loggers import MetricLogger, TensorBoardLogger, WandbLogger
+from train.loop.run_records import stacked, write_json
+from train.loop.session import Session
+from train.store import checkpoint
 
-# Fields a resumed run may change: its length, logging/evaluation cadence, baseline cache.
+# Fields a resumed run may change: its length, logging and evaluation cadence.
 RESUMABLE_CHANGES = {
     "ppo.num_timesteps",
     "run.eval_every",
@@ -49,10 +52,9 @@ RESUMABLE_CHANGES = {
     "run.max_checkpoints",
     "run.wandb_project",
     "run.progress_every_s",
-    "run.baseline_cache",
 }
 # Fields the compiled learner never reads: a learner built without them serves the run.
-LOGGING_ONLY = {"run.wandb_project", "run.progress_every_s", "run.baseline_cache"}
+LOGGING_ONLY = {"run.wandb_project", "run.progress_every_s"}
 
 
 class TrainingDiverged(RuntimeError):  # noqa: N818 (reads as the event it reports)
@@ -61,83 +63,6 @@ class TrainingDiverged(RuntimeError):  # noqa: N818 (reads as the event it repor
 
 class RunDirError(ValueError):
     """The run directory cannot be used as asked (exists, or is not a run)."""
-
-
-@dataclasses.dataclass
-class _Loop:
-    """What one call of :meth:`Run.train` carries from epoch to epoch."""
-
-    run: Run
-    learner: Learner
-    t_start: float
-    state: Any
-    env_state: Any
-    epoch: int = 0
-    walltime_before: float = 0.0
-    beat_at: dict[str, Any] = dataclasses.field(default_factory=dict)
-    saved_epoch: int = 0
-    first_epoch: int = 1  # this session's
-    mgr: Any = None
-    baseline_job: Any = None
-    baseline_from: str = ""  # "cache", "computed" or "off" (train.baseline_cache)
-    baseline: Result | None = None
-    setup_s: float = 0.0
-    results: list[Result] = dataclasses.field(default_factory=list)
-    comparisons: list[dict[str, Any]] = dataclasses.field(default_factory=list)
-    shown: str = ""  # the last evaluation's figures, kept on the progress line
-
-    def steps(self, epochs: int) -> int:
-        """Environment steps per seed in ``epochs`` epochs."""
-        cfg = self.run.cfg
-        return epochs * cfg.steps_per_iteration * cfg.run.epoch_iterations
-
-    def session_s(self) -> float:
-        return time.time() - self.t_start
-
-    def walltime(self) -> float:
-        """Wall time of the run: this session (model, compilation, the baseline's
-        evaluation included) plus the sessions before a resume."""
-        return self.walltime_before + self.session_s()
-
-    def eval_due(self, final: bool) -> bool:
-        """Evaluate this epoch: on the period, on this session's first (a first figure soon
-        after the start), and on the epoch a run ends or stops at."""
-        due = self.epoch % self.run.cfg.run.eval_every == 0
-        return due or self.epoch == self.first_epoch or final
-
-    def checkpoint_due(self, final: bool) -> bool:
-        """Checkpoint this epoch: on the period, and on the epoch a run ends or stops at."""
-        return self.epoch % self.run.cfg.run.checkpoint_every == 0 or final
-
-    def meta(self) -> dict[str, Any]:
-        env = self.learner.env
-        return {
-            "config": self.run.cfg.to_dict(),
-            "robot": env.desc.robot.name,
-            "robot_fingerprint": fingerprint(env.desc),
-            "observation_layout": [list(x) for x in env.layout],
-            "privileged_layout": [list(x) for x in env.privileged_layout],
-            "action_size": env.action_size,
-            "devices": self.learner.n_devices,
-            "epoch": self.epoch,
-            "env_steps": self.steps(self.epoch),
-            "walltime": self.walltime(),
-            "beat_baseline": self.beat_at,
-        }
-
-    def save(self) -> None:
-        """Checkpoint the current epoch, unless it is saved already."""
-        if self.epoch != self.saved_epoch:
-            ts, es = self.state, self.env_state
-            if self.run.is_writer:  # the manager opened at the first save (after a restore)
-                self.mgr = self.mgr or checkpoint.manager(
-                    self.run.dir, self.run.cfg.run.max_checkpoints
-                )
-                checkpoint.save(self.mgr, self.epoch, to_host(ts), to_host(es), self.meta())
-            elif jax.process_count() > 1:  # only its keys and robots are its own
-                keep = self.run.cfg.run.max_checkpoints
-                save_process(self.run.dir, self.epoch, to_host(ts.key), to_host(es), keep)
-        self.saved_epoch = self.epoch
 
 
 class Run:
@@ -150,7 +75,7 @@ class Run:
         console: Console | None = None,
         loggers: list[MetricLogger] | None = None,
     ):
-        """``loggers``: extra metric sinks (:class:`train.loggers.MetricLogger`), called with
+        """``loggers``: extra metric sinks (:class:`train.loop.loggers.MetricLogger`), called with
         every epoch's flat rows beside metrics.jsonl, TensorBoard and W&B."""
         self.cfg = cfg
         self.dir = run_dir
@@ -290,28 +215,16 @@ class Run:
 
     # --- the steps of train ------------------------------------------------------------------
 
-    def _set_up(self, learner: Learner | None) -> _Loop:
-        """The learner, fresh or restored state, logs, and the baseline's evaluation: read
-        back (train.baseline_cache) or begun in a thread, beside the first epoch's
-        compilation (where :func:`first_runs_alone`: finished first, compiled together with
-        the reset and the epoch, ``train.aot.compile_together``). The checkpoint manager
-        opens at the first save."""
-        cfg = self.cfg
-        set_matmul_precision(cfg.run.matmul_precision)  # before anything is traced
+    def _set_up(self, learner: Learner | None) -> Session:
+        """The learner; its state, fresh or restored; the logs; and the baseline's
+        evaluation, begun in a thread beside the first epoch's compilation (where
+        :func:`first_runs_alone`: finished first, and compiled together with the reset and
+        the epoch, :func:`train.loop.aot.compile_together`). The checkpoint manager opens at
+        the first save."""
+        set_matmul_precision(self.cfg.run.matmul_precision)  # before anything is traced
         t_start = time.time()
-        if learner is not None:
-            differs = [f for f in config_diff(learner.cfg, cfg) if f not in LOGGING_ONLY]
-            if differs:
-                raise ValueError(f"learner was built for another config: {differs}")
-        learner = self.learner = learner or Learner(cfg)
-        if learner.teacher is not None:
-            self.console.log(f"imitating {learner.teacher.describe()} (ppo.distill)")
-        alone = first_runs_alone(learner)
-        together = alone and aot.can_compile_together(learner)
-        state, env_state = (
-            learner.init(*aot.compile_together(learner)) if together else learner.init()
-        )
-        loop = _Loop(self, learner, t_start, state, env_state)
+        learner = self.learner = self._learner(learner)
+        loop = Session(self.cfg, self.dir, self.is_writer, learner, t_start, *self._fresh(learner))
         if checkpoint.latest_epoch(self.dir) is not None:
             self._restore(loop)
         loop.saved_epoch, loop.first_epoch = loop.epoch, loop.epoch + 1
@@ -321,25 +234,42 @@ class Run:
             barrier("epoch-compiled")
         self._open_logs()
         self._status("running", epoch=loop.epoch)
-        in_place = alone and not together  # on a hit, its program traced all the same
-        loop.baseline_job, loop.baseline_from = baseline_cache.start(
-            learner, first_device(loop.state), cfg.run.baseline_cache, self.console.log, in_place
-        )
-        if alone:
+        loop.baseline_job = _in_thread(learner.evaluate_baseline, first_device(loop.state))
+        if first_runs_alone(learner):
             loop.baseline_job.result()
         loop.setup_s = time.time() - t_start
         return loop
 
-    def _restore(self, loop: _Loop) -> None:
+    def _learner(self, learner: Learner | None) -> Learner:
+        """``learner`` where it was built for this run's config, else a new one."""
+        if learner is not None:
+            differs = [f for f in config_diff(learner.cfg, self.cfg) if f not in LOGGING_ONLY]
+            if differs:
+                raise ValueError(f"learner was built for another config: {differs}")
+        learner = learner or Learner(self.cfg)
+        if learner.teacher is not None:
+            self.console.log(f"imitating {learner.teacher.describe()} (ppo.distill)")
+        return learner
+
+    @staticmethod
+    def _fresh(learner: Learner) -> tuple[Any, Any]:
+        """The learner's fresh state; where the baseline runs first, its reset, epoch and
+        evaluation compiled together before any of them runs
+        (:func:`train.loop.aot.compile_together`)."""
+        if first_runs_alone(learner) and aot.can_compile_together(learner):
+            return learner.init(*aot.compile_together(learner))
+        return learner.init()
+
+    def _restore(self, loop: Session) -> None:
         """Continue from the newest checkpoint: state, robots, epoch, wall time, "beat at"."""
         learner = loop.learner
         host_state, host_env, meta = checkpoint.restore(
             self.dir, to_host(loop.state), to_host(loop.env_state), log=self.console.log
         )
-        checkpoint.check_compatible(meta, learner.env, f"checkpoint in {str(self.dir)!r}")
+        check_compatible(meta, learner.env, f"checkpoint in {str(self.dir)!r}")
         if jax.process_index() != 0:
             # the checkpoint holds process 0's robots and loop keys; the others saved
-            # theirs beside it (train.distributed.save_process)
+            # theirs beside it (train.loop.distributed.save_process)
             own = restore_process(self.dir, int(meta["epoch"]), host_state.key, host_env)
             if own is None:  # lost: this process's fresh robots and loop keys
                 self.console.log(
@@ -354,7 +284,7 @@ class Run:
         loop.beat_at = meta.get("beat_baseline", {})
         self.console.log(f"resumed {self.dir} at epoch {loop.epoch} ({meta['env_steps']:,} steps)")
 
-    def _train_epoch(self, loop: _Loop) -> tuple[float, dict[str, np.ndarray]]:
+    def _train_epoch(self, loop: Session) -> tuple[float, dict[str, np.ndarray]]:
         """One compiled epoch: ``(env steps/s, per-seed metrics)``. Ctrl-C saves the last
         completed epoch; a non-finite loss or parameter saves it and stops the run."""
         t_epoch = time.time()
@@ -368,8 +298,7 @@ class Run:
             raise
         if loop.baseline is None:
             loop.baseline = loop.baseline_job.result()
-            alone = first_runs_alone(loop.learner) or loop.baseline_from == "cache"
-            beside = "" if alone else ", with the baseline's evaluation"
+            beside = "" if first_runs_alone(loop.learner) else ", with the baseline's evaluation"
             epoch_s = time.time() - t_epoch
             self.console.log(f"set-up {loop.setup_s:.0f} s; first epoch{beside}: {epoch_s:.0f} s")
         if not np.all(metrics["finite"] > 0):
@@ -389,7 +318,7 @@ class Run:
         sps = loop.steps(1) * len(self.cfg.run.seeds) / (time.time() - t_epoch)
         return sps, metrics
 
-    def _evaluate(self, loop: _Loop) -> list[Result]:
+    def _evaluate(self, loop: Session) -> list[Result]:
         """Each seed's policy on the held-out episodes, compared with the baseline; records
         the first epoch each seed beats it."""
         assert loop.baseline is not None  # awaited after the first epoch
@@ -406,7 +335,7 @@ class Run:
         return results
 
     def _log_epoch(
-        self, loop: _Loop, metrics: dict[str, np.ndarray], results: list[Result], sps: float
+        self, loop: Session, metrics: dict[str, np.ndarray], results: list[Result], sps: float
     ) -> None:
         assert loop.baseline is not None
         evals = stacked(results) if results else {}
@@ -418,7 +347,7 @@ class Run:
         if evals:
             loop.shown = records.shown(evals["randomized"], loop.baseline.values["randomized"])
 
-    def _finish(self, loop: _Loop) -> dict[str, Any]:
+    def _finish(self, loop: Session) -> dict[str, Any]:
         """The last checkpoint, the summary and the final status."""
         loop.save()
         if loop.baseline is None:  # no epoch ran (a finished run resumed)
@@ -442,6 +371,14 @@ class Run:
         done = loop.epoch >= self.cfg.num_epochs
         self._status("finished" if done else "stopped", epoch=loop.epoch)
         return summary
+
+
+def _in_thread(fn: Callable[..., Result], *args: Any) -> Future[Result]:
+    """``fn(*args)`` begun in a thread of its own."""
+    pool = ThreadPoolExecutor(1, thread_name_prefix="baseline-eval")
+    job = pool.submit(fn, *args)
+    pool.shutdown(wait=False)
+    return job
 
 
 def _get(cfg: Any, dotted: str) -> Any:

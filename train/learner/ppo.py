@@ -4,13 +4,13 @@ Brax's ``ppo.train`` restores only network weights, so this module drives Brax's
 pieces (``make_ppo_networks``, ``compute_ppo_loss``, ``loss_and_pgrad``, the running
 observation normalizer) from an outer loop whose whole state is explicit:
 
-- :class:`~train.state.TrainingState` (optimizer state, parameters, normalizer, rng key;
-  it, the networks and the optimizer are defined in :mod:`train.state`) and the
+- :class:`~train.learner.state.TrainingState` (optimizer state, parameters, normalizer, rng key;
+  it, the networks and the optimizer are defined in :mod:`train.learner.state`) and the
   environment state are the only things that change between epochs, and both go into
   every checkpoint, so a resumed run continues exactly as the uninterrupted one would have;
 - several seeds train side by side in one compiled program (``jax.vmap`` over a seed
   axis), and the program is spread over the devices as ``run.parallel`` says
-  (train/parallel.py: ``jax.pmap``, or jitted over a device mesh; gradients and normalizer
+  (train/learner/parallel.py: ``jax.pmap``, or jitted over a device mesh; gradients and normalizer
   statistics are averaged across devices, as in Brax);
 - between epochs the host checks for NaNs, evaluates the policy and the analytic
   baseline on the same fixed, held-out episodes, logs and checkpoints.
@@ -41,12 +41,12 @@ from jax.sharding import NamedSharding
 
 from mecanum_jax.host import host_side
 from mecanum_jax.task.env import MecanumEnv, TrainingEnv
-from train import distill, leaves, losses, parallel
 from train.config import TrainConfig
-from train.parallel import AXIS
-from train.periodic import PeriodicEvaluation, Result
-from train.split_epoch import SplitEpoch
-from train.state import (
+from train.learner import distill, losses, parallel
+from train.learner.parallel import AXIS
+from train.learner.periodic import PeriodicEvaluation, Result
+from train.learner.split_epoch import SplitEpoch
+from train.learner.state import (
     TrainingState,
     all_finite,
     allow_rank_promotion,
@@ -56,6 +56,7 @@ from train.state import (
     make_optimizer,
     policy_obs_key,
 )
+from train.store import leaves
 
 
 class Learner:
@@ -78,7 +79,7 @@ class Learner:
         self.make_policy = ppo_networks.make_inference_fn(self.networks)
         self.optimizer = make_optimizer(cfg)
         loss: Any = ppo_losses.compute_ppo_loss
-        # a teacher to imitate (train/distill.py)
+        # a teacher to imitate (train/learner/distill.py)
         self.teacher = distill.load_teacher(cfg, self.env) if p.distill.enabled else None
         if p.smoothness.enabled or self.teacher or p.anchor.enabled:  # losses.py's terms
             loss = functools.partial(
@@ -127,7 +128,7 @@ class Learner:
 
     def init(self, host: tuple[Any, Any] | None = None, reset: Any = None) -> tuple[Any, Any]:
         """Fresh training and environment state, laid out ``(D, S, ...)``; ``host``:
-        :meth:`init_training`'s, if made, ``reset``: the reset compiled (train.aot)."""
+        :meth:`init_training`'s, if made, ``reset``: the reset compiled (train.loop.aot)."""
         state, env_keys = self.init_training() if host is None else host
         env_state = (self._reset if reset is None else reset)(env_keys)
         return self.place(state, self.pack_env(env_state))
@@ -162,7 +163,7 @@ class Learner:
 
     def program(self, fn: Callable[..., Any]) -> Any:
         """``fn`` of one seed's states as the epoch runs: vmapped over seeds, then spread over
-        the devices as ``run.parallel`` says (train/parallel.py)."""
+        the devices as ``run.parallel`` says (train/learner/parallel.py)."""
         return parallel.spread(fn, self.parallel, self.devices, self._sharding)
 
     def epoch(self, ts: TrainingState, env_state: Any) -> tuple[TrainingState, Any, Any]:
@@ -177,7 +178,7 @@ class Learner:
 
     def compile_epoch(self, ts: TrainingState, env_state: Any, lowered: Any = None) -> None:
         """Compile :meth:`epoch` for these states (or their ``ShapeDtypeStruct``s) now,
-        ahead of its first call (train.aot); ``lowered``: :meth:`lower_epoch`'s, if done."""
+        ahead of its first call (train.loop.aot); ``lowered``: :meth:`lower_epoch`'s, if done."""
         lowered = self.lower_epoch(ts, env_state) if lowered is None else lowered
         self._compiled_epoch = lowered.compile()
 
@@ -205,7 +206,7 @@ class Learner:
     def pack_env(self, env_state: Any) -> Any:
         """The environment state as it crosses device programs and is checkpointed: its
         zero-size leaves (MJX has several) and batch-wide buffers (``leaves.batch_wide``)
-        left out of a flat dict (:func:`train.leaves.prune`)."""
+        left out of a flat dict (:func:`train.store.leaves.prune`)."""
         return leaves.prune(env_state, self._shared_at)
 
     def unpack_env(self, packed: Any) -> Any:

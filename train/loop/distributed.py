@@ -27,7 +27,7 @@ import jax
 import numpy as np
 
 from mecanum_jax.config import ConfigError
-from train.leaves import CheckpointError, corruption, pack, unpack
+from train.store.leaves import CheckpointError, corruption, pack, unpack
 
 ENV_KEYS = ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID")
 

@@ -5,7 +5,7 @@ compiled training program, times the first epoch (compilation included) and then
 ``--epochs`` further epochs, and reports end-to-end training throughput (rollouts and PPO
 updates; evaluation and checkpointing excluded), summed over vectorized seeds::
 
-    python -m train.bench --config gpu --epochs 3 \\
+    python -m train.tools.bench --config gpu --epochs 3 \\
         --variant base \\
         --variant "tf32 --run.matmul-precision default" \\
         --variant "envs16k --ppo.num-envs 16384 --ppo.batch-size 2048"
@@ -31,11 +31,11 @@ from rich.table import Table
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.precision import set_matmul_precision
-from train import compilation_cache
 from train.config import TrainConfig, apply_flags, load_train_config
-from train.distributed import init_distributed
-from train.ppo import Learner, to_host
-from train.progress import print_error
+from train.learner.ppo import Learner, to_host
+from train.loop import compilation_cache
+from train.loop.distributed import init_distributed
+from train.loop.progress import print_error
 
 
 def measure(cfg: TrainConfig, epochs: int) -> dict[str, Any]:
@@ -110,7 +110,7 @@ def _table(results: list[dict[str, Any]]) -> Table:
 
 def main(argv: list[str] | None = None) -> int:
     argv = compilation_cache.configure(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(prog="python -m train.bench", description=__doc__)
+    parser = argparse.ArgumentParser(prog="python -m train.tools.bench", description=__doc__)
     parser.add_argument("--config", default="gpu")
     parser.add_argument("--epochs", type=int, default=3)
     parser.add_argument(

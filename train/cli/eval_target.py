@@ -1,0 +1,109 @@
+"""What ``mecanum-eval`` evaluates (:class:`Target`): the reference controllers alone
+(``baseline``), or a checkpoint's policy beside them, in the environment and physics they
+are played in; and where its report goes by default (:func:`default_out`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+from rich.console import Console
+
+from mecanum_jax.config import ConfigError
+from mecanum_jax.evaluation import rollout as ev
+from mecanum_jax.evaluation import scenarios
+from mecanum_jax.precision import set_matmul_precision
+from mecanum_jax.task import MecanumEnv
+from mecanum_jax.task import fidelity as fid
+from train.cli.eval_args import EvalArgs
+from train.config import load_train_config
+from train.learner.policy import PROVENANCE, RestoredPolicy, restore_policy, split_target
+
+console = Console(stderr=True)
+
+
+def default_impl(trained: str) -> str:
+    """The MJX implementation to evaluate a task trained under ``trained`` with, when
+    ``--physics-impl`` is not given: "" (the task's own), or "jax" for a Warp task where
+    the warp extra is absent or the backend is the CPU. Both simulate the same robot
+    (docs/benchmarks.md), and on the CPU Warp's kernels run about 30x slower than JAX's."""
+    if trained != "warp":
+        return ""
+    if importlib.util.find_spec("warp") is None or jax.default_backend() == "cpu":
+        return "jax"
+    return ""
+
+
+class Target:
+    """What is evaluated: the environment, and the learned policy if any."""
+
+    def __init__(self, args: EvalArgs, scenario_set: scenarios.ScenarioSet):
+        self.restored: RestoredPolicy | None = None
+        if args.target == "baseline":
+            base = load_train_config(args.config or "quick").env
+            if args.robot is not None:
+                base = dataclasses.replace(base, robot=args.robot)
+            for name in ("seed", "epoch"):
+                if getattr(args, name) is not None:
+                    raise ConfigError(f"--{name} = {getattr(args, name)}: only for a checkpoint")
+            self.label = "references"
+            precision = load_train_config(args.config or "quick").run.matmul_precision
+        else:
+            for name in ("robot", "config"):
+                if getattr(args, name) is not None:
+                    raise ConfigError(
+                        f"--{name} = {getattr(args, name)!r}: a checkpoint evaluates on the "
+                        "task it was trained on; --robot/--config are for `baseline`"
+                    )
+            run_dir, epoch = split_target(args.target)
+            if epoch is not None and args.epoch is not None and epoch != args.epoch:
+                raise ConfigError(f"--epoch = {args.epoch}: the target names epoch {epoch}")
+            self.restored = restore_policy(run_dir, args.seed, epoch or args.epoch)
+            base = self.restored.cfg.env
+            precision = self.restored.cfg.run.matmul_precision
+            teacher = ", a privileged teacher" if self.restored.cfg.network.teacher else ""
+            r = self.restored
+            self.label = f"{run_dir} (epoch {r.epoch}, seed {r.seed}{teacher})"
+        # before anything is traced: one number on every device (mecanum_jax.precision)
+        self.precision = args.matmul_precision or precision
+        set_matmul_precision(self.precision, "--matmul-precision")
+        fidelity = fid.check_fidelity(args.fidelity, "--fidelity")
+        max_batch = fid.eval_batch(fidelity, args.max_batch, "--max-batch", 16384)
+        impl = args.physics_impl or default_impl(base.physics_impl)
+        if impl and not args.physics_impl:  # chosen here, not asked for: say so
+            console.log(
+                f"trained under MJX's {base.physics_impl} implementation; evaluating under its "
+                f"{impl} one, the same robot (--physics-impl to choose)"
+            )
+        if impl:
+            base = dataclasses.replace(base, physics_impl=impl)
+        eval_cfg = scenarios.eval_env_config(base.validate("env"), scenario_set)
+        fid.check_task(eval_cfg, fidelity, "--fidelity")
+        self.env = MecanumEnv(eval_cfg, robots=max_batch, fidelity=fidelity)
+        self.label += "" if fidelity == "fast" else f" in the {fidelity} model"
+        apply = None
+        if self.restored is not None:
+            apply = self.restored.apply
+        self.evaluator = ev.Evaluator(self.env, apply, max_batch)
+
+    @property
+    def params(self) -> Any:
+        r = self.restored
+        return None if r is None else (r.normalizer, r.params)
+
+
+def default_out(args: EvalArgs, target: Target) -> Path:
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    if target.restored is None:
+        return Path(f"runs/eval-references-{stamp}")
+    run_dir = target.restored.run_dir
+    if (run_dir / PROVENANCE).exists():  # a shipped model: not a place to write
+        return Path(f"runs/eval-{run_dir.name}-{stamp}")
+    return run_dir / "eval" / f"epoch{target.restored.epoch}-{stamp}"
+
+
+__all__ = ["Target", "default_impl", "default_out"]

@@ -1,0 +1,227 @@
+"""One seed's policy from a checkpoint, and the model directory that packages it.
+
+:func:`restore_policy` reads only a checkpoint's ``train`` and ``meta`` items
+(:mod:`train.store.checkpoint`) into one seed's networks and parameters, refusing a
+checkpoint of another robot or observation layout (:func:`check_compatible`);
+:func:`load_policy` makes of it a jitted deterministic ``obs -> action`` function for
+evaluation and deployment. :func:`package_model` writes a self-contained model directory
+(one checkpoint, the config and ``provenance.json``), which both read as a run directory.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import jax
+
+from mecanum_jax.config import ConfigError
+from train.store.checkpoint import CHECKPOINT_DIR, checkpoint_path, read_checked, unpack_train
+from train.store.leaves import CheckpointError
+
+
+@dataclasses.dataclass(frozen=True)
+class RestoredPolicy:
+    """One seed's policy from a checkpoint: config, networks and host parameters."""
+
+    run_dir: Path
+    epoch: int
+    seed: int
+    cfg: Any  # train.config.TrainConfig
+    networks: Any  # brax PPONetworks
+    normalizer: Any  # running statistics (host arrays)
+    params: Any  # policy network parameters (host arrays)
+    meta: dict[str, Any]
+
+    def apply(self, params: Any, obs: dict[str, Any]) -> jax.Array:
+        """The deterministic action for ``params = (normalizer, policy params)``."""
+        from train.learner.periodic import deterministic_apply
+
+        return deterministic_apply(self.networks)(params, obs)
+
+
+def split_target(path: str | Path) -> tuple[Path, int | None]:
+    """A run directory, or one checkpoint ``<run>/checkpoints/<epoch>``: ``(run_dir, epoch)``."""
+    path = Path(path)
+    if path.parent.name == CHECKPOINT_DIR and path.name.isdigit():
+        return path.parent.parent, int(path.name)
+    return path, None
+
+
+def restore_policy(
+    run_dir: str | Path, seed: int | None = None, epoch: int | None = None
+) -> RestoredPolicy:
+    """Restore one seed's policy (not the optimizer or environment) from a run's checkpoint.
+
+    Raises :class:`CheckpointError` naming what is missing, corrupt or mismatched: no
+    run directory or checkpoint, unreadable files, a seed the run did not train, or a
+    checkpoint whose robot description or observation layout differs from what this code
+    builds from the checkpoint's own config (e.g. the robot's TOML file changed since).
+    """
+    from train.config import parse_train_config
+
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise CheckpointError(f"run directory {str(run_dir)!r}: no such directory")
+    packaged = _provenance(run_dir)
+    if epoch is None and packaged.get("epoch") is not None:
+        # a model directory evaluates the epoch it was packaged from, not a newer
+        # checkpoint that landed beside it (e.g. a model unpacked over another)
+        epoch = int(packaged["epoch"])
+        if not checkpoint_path(run_dir, epoch).is_dir():
+            raise CheckpointError(
+                f"model {str(run_dir)!r}: {PROVENANCE} names epoch {epoch}, which "
+                f"{CHECKPOINT_DIR}/ lacks"
+            )
+    epoch, items = read_checked(run_dir, epoch, ("train", "meta"))
+    meta = dict(items["meta"])
+    try:
+        cfg = parse_train_config(meta["config"], f"{run_dir}/checkpoint meta")
+    except (KeyError, ConfigError) as err:
+        raise CheckpointError(
+            f"checkpoint {str(run_dir)!r}: bad config in metadata: {err}"
+        ) from err
+    seeds = list(cfg.run.seeds)
+    if seed is None:  # a model directory evaluates the seed it was packaged from
+        seed = packaged.get("seed")
+    seed = seeds[0] if seed is None else int(seed)
+    if seed not in seeds:
+        raise CheckpointError(f"seed = {seed}: this run trained seeds {seeds}")
+    from mecanum_jax.task.env import MecanumEnv
+    from train.learner.state import make_networks, state_template
+
+    # the networks need the task's shapes only: whichever MJX implementation trained it,
+    # restoring needs no Warp
+    env = MecanumEnv(dataclasses.replace(cfg.env, physics_impl="jax"))
+    networks = make_networks(env, cfg)
+    check_compatible(meta, env, f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r}")
+    train = unpack_train(run_dir, epoch, state_template(cfg, env, int(meta["devices"])), items)
+    one = jax.tree.map(lambda x: x[0, seeds.index(seed)], train)
+    return RestoredPolicy(
+        run_dir=run_dir,
+        epoch=epoch,
+        seed=seed,
+        cfg=cfg,
+        networks=networks,
+        normalizer=one.normalizer_params,
+        params=one.params.policy,
+        meta=meta,
+    )
+
+
+PROVENANCE = "provenance.json"
+
+
+def _provenance(run_dir: Path) -> dict[str, Any]:
+    """A model directory's ``provenance.json`` (empty for a run directory)."""
+    path = run_dir / PROVENANCE
+    if not path.exists():
+        return {}
+    try:
+        return dict(json.loads(path.read_text()))
+    except (OSError, ValueError) as err:
+        raise CheckpointError(f"{str(path)!r}: unreadable: {err}") from err
+
+
+def package_model(restored: RestoredPolicy, out: Path, provenance: dict[str, Any]) -> Path:
+    """A self-contained model directory from one checkpoint of a run: ``config.json``,
+    ``checkpoints/<epoch>/`` with the training state and metadata but not the environment
+    state (the robots of every training slot), and ``provenance.json`` (the run, epoch,
+    seed, wall time and env steps from the checkpoint, plus ``provenance``). mecanum-eval
+    and mecanum-export read it as they read a run directory. Written atomically."""
+    src = checkpoint_path(restored.run_dir, restored.epoch)
+    tmp = out.with_name(out.name + ".partial")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    dst = tmp / CHECKPOINT_DIR / str(restored.epoch)
+    dst.mkdir(parents=True)
+    for item in ("train", "meta"):
+        shutil.copytree(src / item, dst / item)
+    for name in ("_CHECKPOINT_METADATA", "commit_success.txt"):
+        if (src / name).exists():
+            shutil.copyfile(src / name, dst / name)
+    config = restored.run_dir / "config.json"
+    if config.exists():
+        shutil.copyfile(config, tmp / "config.json")
+    meta = restored.meta
+    record = {
+        "source_run": str(restored.run_dir),
+        "epoch": restored.epoch,
+        "seed": restored.seed,
+        "env_steps": meta.get("env_steps"),
+        "walltime_s": meta.get("walltime"),
+        "robot": meta.get("robot"),
+        "devices": meta.get("devices"),
+        **provenance,
+    }
+    (tmp / PROVENANCE).write_text(json.dumps(record, indent=2) + "\n")
+    tmp.rename(out)
+    return out
+
+
+def check_compatible(meta: dict[str, Any], env: Any, what: str) -> None:
+    """Refuse a checkpoint whose robot or observation layout differs from ``env``'s."""
+    from mecanum_jax.sim.description import fingerprint
+
+    robot = env.desc.robot.name
+    if meta.get("robot") not in (None, robot):
+        raise CheckpointError(f"{what}: trained on robot {meta.get('robot')!r}, expected {robot!r}")
+    saved = meta.get("robot_fingerprint")
+    if saved is not None and saved != fingerprint(env.desc):
+        raise CheckpointError(
+            f"{what}: robot {robot!r} has changed since training (description fingerprint "
+            f"{saved}, this code builds {fingerprint(env.desc)}); evaluate with the "
+            "description it was trained on"
+        )
+    layout = [list(x) for x in env.layout]
+    if meta.get("observation_layout") != layout:
+        raise CheckpointError(
+            f"{what}: observation layout {meta.get('observation_layout')}, expected {layout}"
+        )
+    if int(meta.get("action_size", env.action_size)) != env.action_size:
+        raise CheckpointError(
+            f"{what}: action size {meta.get('action_size')}, expected {env.action_size}"
+        )
+
+
+def load_policy(
+    run_dir: str | Path, seed: int | None = None, epoch: int | None = None
+) -> tuple[Callable[[dict[str, Any]], jax.Array], dict[str, Any]]:
+    """A deterministic ``policy(obs) -> action`` from a run's checkpoint.
+
+    Args:
+      run_dir: the run directory (holding ``checkpoints/``).
+      seed: which of the run's seeds (default: the first).
+      epoch: which checkpoint (default: the latest; a model directory's packaged one).
+
+    Returns:
+      ``(policy, meta)``; ``meta["policy_params"]`` holds the host arrays
+      ``(normalizer, policy_params)`` for export.
+    """
+    from train.learner.state import allow_rank_promotion
+
+    restored = restore_policy(run_dir, seed, epoch)
+    params = (restored.normalizer, restored.params)
+
+    @jax.jit
+    @allow_rank_promotion
+    def act(obs: dict[str, Any]) -> jax.Array:
+        return restored.apply(params, obs)
+
+    meta = dict(restored.meta, epoch=restored.epoch, seed=restored.seed, policy_params=params)
+    return act, meta
+
+
+__all__ = [
+    "PROVENANCE",
+    "RestoredPolicy",
+    "check_compatible",
+    "load_policy",
+    "package_model",
+    "restore_policy",
+    "split_target",
+]

@@ -1,0 +1,98 @@
+"""One session of a training run (:class:`~train.loop.run.Run`): what it carries from
+epoch to epoch, when it evaluates and checkpoints, and the checkpoint it writes."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+
+from mecanum_jax.sim.description import fingerprint
+from train.config import TrainConfig
+from train.learner.periodic import Result
+from train.learner.ppo import Learner, to_host
+from train.loop.distributed import save_process
+from train.store import checkpoint
+
+
+@dataclasses.dataclass
+class Session:
+    """What one call of :meth:`train.loop.run.Run.train` carries from epoch to epoch: the
+    run's config and directory, the learner and its state, and the epoch's figures."""
+
+    cfg: TrainConfig
+    dir: Path
+    is_writer: bool  # process 0: writes the checkpoints
+    learner: Learner
+    t_start: float
+    state: Any
+    env_state: Any
+    epoch: int = 0
+    walltime_before: float = 0.0
+    beat_at: dict[str, Any] = dataclasses.field(default_factory=dict)
+    saved_epoch: int = 0
+    first_epoch: int = 1  # this session's
+    mgr: Any = None
+    baseline_job: Any = None  # a Future of the baseline's Result
+    baseline: Result | None = None
+    setup_s: float = 0.0
+    results: list[Result] = dataclasses.field(default_factory=list)
+    comparisons: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    shown: str = ""  # the last evaluation's figures, kept on the progress line
+
+    def steps(self, epochs: int) -> int:
+        """Environment steps per seed in ``epochs`` epochs."""
+        cfg = self.cfg
+        return epochs * cfg.steps_per_iteration * cfg.run.epoch_iterations
+
+    def session_s(self) -> float:
+        return time.time() - self.t_start
+
+    def walltime(self) -> float:
+        """Wall time of the run: this session (model, compilation, the baseline's
+        evaluation included) plus the sessions before a resume."""
+        return self.walltime_before + self.session_s()
+
+    def eval_due(self, final: bool) -> bool:
+        """Evaluate this epoch: on the period, on this session's first (a first figure soon
+        after the start), and on the epoch a run ends or stops at."""
+        due = self.epoch % self.cfg.run.eval_every == 0
+        return due or self.epoch == self.first_epoch or final
+
+    def checkpoint_due(self, final: bool) -> bool:
+        """Checkpoint this epoch: on the period, and on the epoch a run ends or stops at."""
+        return self.epoch % self.cfg.run.checkpoint_every == 0 or final
+
+    def meta(self) -> dict[str, Any]:
+        env = self.learner.env
+        return {
+            "config": self.cfg.to_dict(),
+            "robot": env.desc.robot.name,
+            "robot_fingerprint": fingerprint(env.desc),
+            "observation_layout": [list(x) for x in env.layout],
+            "privileged_layout": [list(x) for x in env.privileged_layout],
+            "action_size": env.action_size,
+            "devices": self.learner.n_devices,
+            "epoch": self.epoch,
+            "env_steps": self.steps(self.epoch),
+            "walltime": self.walltime(),
+            "beat_baseline": self.beat_at,
+        }
+
+    def save(self) -> None:
+        """Checkpoint the current epoch, unless it is saved already."""
+        if self.epoch != self.saved_epoch:
+            ts, es = self.state, self.env_state
+            if self.is_writer:  # the manager opened at the first save (after a restore)
+                self.mgr = self.mgr or checkpoint.manager(self.dir, self.cfg.run.max_checkpoints)
+                checkpoint.save(self.mgr, self.epoch, to_host(ts), to_host(es), self.meta())
+            elif jax.process_count() > 1:  # only its keys and robots are its own
+                keep = self.cfg.run.max_checkpoints
+                save_process(self.dir, self.epoch, to_host(ts.key), to_host(es), keep)
+        self.saved_epoch = self.epoch
+
+
+__all__ = ["Session"]
