@@ -94,7 +94,7 @@ def _spin_of_x_square(desc, seconds=2.0):
 
 def test_reference_x_square_does_not_spin_under_the_o_spin_pattern():
     """Kinematics: its rollers point at the centre, the wheels fight with no lever arm
-    (seed 002). Rollers mounted at 45° spun it at −0.65 rad/s (experiments/xsquare_spin.py)."""
+    (seed 002). Rollers mounted at 45° spun it at −0.65 rad/s."""
     assert abs(_spin_of_x_square(_desc("x_square"))) < 0.15
     at_45 = _desc("x_square", roller_angle_deg=math.degrees(math.atan(1.0169)))
     assert _spin_of_x_square(at_45) < -0.4

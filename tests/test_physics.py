@@ -283,7 +283,7 @@ def test_saturated_wheels_spin_up_at_the_torque_limit(servo):
 def test_torque_limited_spin_start_does_not_overshoot():
     """A spin from rest at 1 N·m and the 4 ms step. MJX's own servo over-spins to 1.9x the
     command (-10.5 rad/s) while its wheels lag; a converged run reaches -5.5 without
-    overshoot (experiments/servo_saturation.py)."""
+    overshoot (docs/physics_model.md)."""
     robot = _robot_4ms(max_torque=1.0)
     params = robot.nominal_params()
     rates = kinematics.inverse(robot.geometry, jnp.array([0.0, 0.0, -5.5]))

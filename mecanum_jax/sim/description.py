@@ -145,7 +145,7 @@ class SimSpec:
       iterations: constraint solver (Newton) iterations. 12: with fewer, the solve is not
         converged while wheels slip fast on a slippery floor, and the error feeds energy
         into the chassis. Robots tipped over in 4096 randomized baseline episodes × 10 s
-        (experiments/runaway_episodes.py, H100): 509 with 4 iterations (some flew metres
+        (H100): 509 with 4 iterations (some flew metres
         high), 25 with 8, none with 12 or 16 (whose statistics equal 12's).
       ls_iterations: line-search iterations.
       floor_friction: sliding friction coefficient of floor and wheels.

@@ -444,8 +444,8 @@ class Robot:
 
     def up_z(self, state: SimState) -> jax.Array:
         """World z component of the chassis's up axis: 1 upright, below
-        :data:`TIPPED_UP_Z` tipped over (no flat-floor mecanum base gets there physically:
-        experiments/runaway_episodes.py counts such robots)."""
+        :data:`TIPPED_UP_Z` tipped over (no flat-floor mecanum base gets there physically;
+        an unconverged solve on a slippery floor did, docs/physics_model.md)."""
         f = self.index.free_qpos
         return _quat_to_mat(state.data.qpos[f + 3 : f + 7])[2, 2]
 

@@ -342,8 +342,7 @@ def _x_square_md(fast: dict[str, Any], ref: dict[str, Any]) -> list[str]:
         "reference model's rollers are mounted at `mjcf.mounted_roller_angle` (44.52° for 10 "
         "rollers), so that the floor roller's effective angle, which grows as the roller "
         "turns away from the bottom, averages the layout's 45°; mounted at 45° they act as "
-        "45.48°, which gave the X-square a lever arm and ωz = −0.80 rad/s "
-        "(experiments/xsquare_spin.py). What is left is of the order of 0.1 rad/s either "
+        "45.48°, which gave the X-square a lever arm and ωz = −0.80 rad/s. What is left is of the order of 0.1 rad/s either "
         "way, the spin of a few hundredths of a degree of effective angle, while the chassis "
         "hops on its fighting wheels.",
     ]

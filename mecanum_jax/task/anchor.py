@@ -7,7 +7,7 @@ gains, no latency) the base holds, once the command is older than the feedback
 controller's hold window (the transient is over):
 
 - a pure translation or a stop (commanded ωz = 0) with a yaw rate of at most 0.003 rad/s
-  (experiments/straight_line_residual.py): the yaw component is exact;
+  (measured on the nominal robot's straight segments): the yaw component is exact;
 - with ``translations``, a pure translation within reach: every component. The base's
   setpoints are ``analytic``'s there (its correction is of the yaw only, and a steady
   one is 0 on this robot, behind the deadband);

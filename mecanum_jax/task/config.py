@@ -46,7 +46,7 @@ class EnvConfig:
     integral of the yaw-rate error the robot *measures*, ``I ← e^(−dt/τ)·I + (ω_cmd −
     gyro)·dt`` (gyro as observed: noisy, delayed), in units of ``τ`` times the largest
     feasible ωz. It gives a feedforward policy the memory an integral controller needs
-    (experiments/feedback_headroom.py); ``0`` leaves it out.
+    (measured with a probe since removed); ``0`` leaves it out.
 
     ``action_filter`` = f > 0 low-passes the actions: the action applied (and observed as
     ``last_action`` next step) is ``f·previous + (1 − f)·new``. The wheels' reflected
@@ -60,7 +60,7 @@ class EnvConfig:
     base stops the robot as it would alone. On the nominal robot the base's stop returns
     the robot to where the commands put it (its wheels lag the command as much on the way
     down as on the way up); a correction that brakes harder leaves it short
-    (experiments/six_modes_drift.py, docs/evaluation.md).
+    (docs/evaluation.md).
 
     ``obs_history`` = H > 0 appends the H sensor frames before the observed one (encoders,
     gyro, accelerometer, odometry twist, as observed: noisy and as delayed as the current

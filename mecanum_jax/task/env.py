@@ -15,8 +15,7 @@ drive it unchanged. Its parts live beside it:
 - **Control:** 50 Hz (``control_dt``) with ``control_dt / physics_timestep`` physics
   substeps. The default 5 ms physics step (contact time constant 10 ms) tracks steady
   twists within 0.5% like the 2 ms step, at 4 instead of 10 substeps; with the 12 Newton
-  iterations no robot tips over, under the baseline or random actions (docs/training.md,
-  experiments/physics_step_candidates.py).
+  iterations no robot tips over, under the baseline or random actions (docs/training.md).
 - **Actions** in [-1, 1] per wheel. ``residual = true``: wheel-rate setpoints are the
   analytic baseline's plus ``action · residual_scale · max_rate``, so the zero action *is*
   the baseline. ``residual = false``: setpoints are ``action · max_rate``.

@@ -38,10 +38,9 @@ class FeedbackConfig:
     ``I ← clip(I + ki·e·dt, ±i_max)``; the integrator holds while the corrected twist is out
     of the wheels' reach and ``e`` would drive it further (conditional-integration
     anti-windup), and, with ``hold_s > 0``, for ``hold_s`` after each command change, while
-    the servos' transient, not a steady bias, makes the error
-    (experiments/feedback_hold.py). With ``reset`` it restarts at 0 at each command change.
-    The gains come from a sweep on training-distribution episodes
-    (experiments/tune_feedback.py; docs/evaluation.md): any proportional gain (even 0.02)
+    the servos' transient, not a steady bias, makes the error. With ``reset`` it restarts
+    at 0 at each command change. The gains come from a sweep on training-distribution
+    episodes (docs/evaluation.md): any proportional gain (even 0.02)
     raised the steady-state ωz error there, since the servos' own step response overshoots
     within one control step and the gyro arrives noisy and up to 2 steps late; integral
     gains above about 0.8/s oscillate.

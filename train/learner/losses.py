@@ -26,7 +26,7 @@ is already exact (:func:`mecanum_jax.task.anchor.exact_components`: the yaw part
 no-yaw commands on the nominal robot; with ``spins`` every part on its steady pure spins and
 stops too): the mean of ``μ_k(s)²`` over those states and components. Without it the policy
 learns a constant, direction-dependent yaw correction on straight lines from the randomized
-robots and applies it to every robot (experiments/straight_line_residual.py), and a constant
+robots and applies it to every robot (measured with a probe since removed), and a constant
 correction on spins. Its weight is :class:`AnchorConfig`; reported as ``anchor``.
 """
 
