@@ -420,7 +420,9 @@ def _nested_keys(cls, where=""):
 def test_shipped_configs_validate_and_spell_out_the_task():
     """Each shipped config states every task setting: the file a user reads is what runs."""
     task_keys = _nested_keys(EnvConfig)
-    for name in ("quick", "tiny", "gpu"):
+    names = sorted(p.stem for p in TRAIN_CONFIG_DIR.glob("*.toml"))
+    assert {"quick", "tiny", "gpu", "scratch"} <= set(names)
+    for name in names:
         cfg = load_train_config(name)
         assert cfg.name == name
         raw = tomllib.loads((TRAIN_CONFIG_DIR / f"{name}.toml").read_text())
