@@ -331,11 +331,12 @@ profile() {  # [--trace] [flags]: the epoch's parts (train/tools/profile.py)
 }
 
 coldstart() {  # [flags]: an empty compilation cache, then the same start with it warm
-  local pass tree=${COLDSTART_TREE:-$PWD}
+  local pass tree=${COLDSTART_TREE:-$PWD} mod=train.tools.coldstart
+  [ -f "$tree/train/coldstart.py" ] && mod=train.coldstart  # a tree from before train/ had rooms
   rm -rf /tmp/coldstart-cache
   for pass in cold warm; do
     echo "== $pass compilation cache ${COLDSTART_TAG:-} (sources: $tree)"
-    (cd "$tree" && PYTHONPATH=/tmp/site:$tree python3 -m train.tools.coldstart --config gpu \
+    (cd "$tree" && PYTHONPATH=/tmp/site:$tree python3 -m "$mod" --config gpu \
       --compilation-cache /tmp/coldstart-cache \
       --json-out "$O/coldstart_${COLDSTART_TAG:+${COLDSTART_TAG}_}$pass.json" "$@") 2>&1 \
       | quiet | tail -42
