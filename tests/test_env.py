@@ -317,6 +317,26 @@ def test_twist_residual_needs_residual_actions():
         EnvConfig(residual_space="joint").validate()
 
 
+def test_a_config_is_validated_once(monkeypatch):
+    """The layers a config passes through each ask for it to be valid; it is checked once.
+    A changed copy is checked anew, and a bad config is refused at every ask."""
+    checks = []
+    real = EnvConfig._validate_timing
+    monkeypatch.setattr(
+        EnvConfig, "_validate_timing", lambda self, where: checks.append(1) or real(self, where)
+    )
+    cfg = EnvConfig(obs_history=2)
+    assert cfg.validate() is cfg
+    assert cfg.validate("elsewhere") is cfg
+    assert len(checks) == 1
+    dataclasses.replace(cfg, obs_history=3).validate()
+    assert len(checks) == 2
+    bad = EnvConfig(residual_space="joint")
+    for _ in range(2):
+        with pytest.raises(ConfigError, match=r"env\.residual_space = 'joint'"):
+            MecanumEnv(bad)
+
+
 def test_chunked_vmap_equals_vmap():
     """CPU batches run in chunks (jaxlib's batched LAPACK deadlocks from 256 robots on)."""
     assert cpu_chunk() == CPU_CHUNK["fast"]  # the suite runs on CPU
