@@ -393,11 +393,12 @@ def load_description(path: str | Path) -> RobotDescription:
     file = Path(path).resolve()
     try:
         digest = hashlib.sha256(file.read_bytes()).digest()
-    except OSError:  # load_toml says what is wrong
-        return parse_description(load_toml(path), source=str(path))
+    except OSError:  # unreadable: load_toml below says why
+        digest = b""
     known = _LOADED.get(file)
-    if known is None or known[0] != digest:
-        known = _LOADED[file] = (digest, parse_description(load_toml(path), source=str(path)))
+    if not digest or known is None or known[0] != digest:
+        known = (digest, parse_description(load_toml(path), source=str(path)))
+        _LOADED[file] = known
     return known[1]
 
 
