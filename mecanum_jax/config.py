@@ -15,16 +15,20 @@ offending value, e.g. ``geometry.wheel_radius = 'big': expected a number``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import importlib.resources
 import math
 import tomllib
 import types
 import typing
+import weakref
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
-from typing import Any, Literal, TypeVar, get_args, get_origin
+from typing import Any, Concatenate, Literal, ParamSpec, TypeVar, get_args, get_origin
 
 T = TypeVar("T")
+S = TypeVar("S")
+P = ParamSpec("P")
 
 
 class ConfigError(ValueError):
@@ -110,6 +114,23 @@ def require(
         value = getattr(section, name)
         if not ok(value):
             raise invalid(f"{where}.{name}", value, why)
+
+
+def validated_once(validate: Callable[Concatenate[S, P], S]) -> Callable[Concatenate[S, P], S]:
+    """A frozen config's ``validate(self, ...) -> self``, run once per object: an object
+    that passed is returned at once on later calls (frozen, it cannot have changed), so the
+    layers a config passes through may each ask for it. A copy (``dataclasses.replace``, a
+    config read again) is another object, checked anew."""
+    passed: weakref.WeakValueDictionary[int, Any] = weakref.WeakValueDictionary()
+
+    @functools.wraps(validate)
+    def once(self: S, *args: P.args, **kwargs: P.kwargs) -> S:
+        if passed.get(id(self)) is not self:
+            validate(self, *args, **kwargs)
+            passed[id(self)] = self
+        return self
+
+    return once
 
 
 def from_mapping(cls: type[T], data: Any, where: str = "") -> T:

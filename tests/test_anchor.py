@@ -41,7 +41,7 @@ def robots():
 def _one(robots, nominal: bool):
     """The info of the batch's first nominal (or first randomized) robot."""
     env, batch = robots
-    which = jax.vmap(lambda i: is_nominal(env, i))(batch.info) == nominal
+    which = jax.vmap(lambda i: is_nominal(env.constants, i))(batch.info) == nominal
     assert bool(which.any())
     index = int(jnp.argmax(which))
     return jax.tree.map(lambda x: x[index], batch.info)
@@ -51,8 +51,13 @@ def _with(info, command, age):
     return {**info, "command": jnp.asarray(command, jnp.float32), "command_age": jnp.asarray(age)}
 
 
+def _hold(env):
+    return env.config.feedback.hold_steps(env.config.control_dt)
+
+
 def _mask(env, info, command, age, spins=False, translations=False):
-    mask = exact_components(env, _with(info, command, age), spins, translations)
+    info = _with(info, command, age)
+    mask = exact_components(env.constants, info, _hold(env), spins, translations)
     return [float(x) for x in mask]
 
 
@@ -110,7 +115,7 @@ def test_state_extras_carry_the_mask_only_when_the_anchor_is_on(robots):
     yaw_only = state_extras(env, info, batch.info, AnchorConfig(weight=1.0))["anchor"]
     spins = state_extras(env, info, batch.info, AnchorConfig(weight=1.0, spins=True))["anchor"]
     assert yaw_only.shape == spins.shape == (64, 3)
-    nominal = jax.vmap(lambda i: is_nominal(env, i))(info)
+    nominal = jax.vmap(lambda i: is_nominal(env.constants, i))(info)
     assert 0 < int(nominal.sum()) < 64  # about half the robots are nominal
     # without spins=True only the stops' yaw is marked; marks follow the robot: none on
     # the randomized ones
@@ -120,7 +125,7 @@ def test_state_extras_carry_the_mask_only_when_the_anchor_is_on(robots):
     assert float(spins[~nominal].sum()) == 0.0
     assert float(spins.sum()) > 0
     one = jax.tree.map(lambda x: x[int(jnp.argmax(spins[:, YAW]))], info)
-    assert [float(x) for x in exact_components(env, one, True)] == [1.0, 1.0, 1.0]
+    assert [float(x) for x in exact_components(env.constants, one, _hold(env), True)] == [1.0] * 3
 
 
 def test_the_loss_is_the_masked_mean_over_states_and_components():

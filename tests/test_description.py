@@ -143,3 +143,27 @@ def test_custom_wheel_errors_name_the_wheel(tmp_path):
     bad = src.replace('name = "left_middle"\n', "", 1)
     with pytest.raises(ConfigError, match=r"geometry\.wheels\[1\]\.name: missing required key"):
         load_description(write(tmp_path, bad))
+
+
+def test_a_description_is_parsed_once_until_its_file_changes(tmp_path, monkeypatch):
+    """The same file loads as the same (frozen) description without being parsed again;
+    edited, it is parsed anew."""
+    from mecanum_jax.sim import description
+
+    parsed = []
+    real = description.parse_description
+    monkeypatch.setattr(
+        description, "parse_description", lambda *a, **k: parsed.append(1) or real(*a, **k)
+    )
+    path = write(tmp_path, GOOD)
+    first = load_description(path)
+    assert load_description(str(path)) is first
+    assert load_description(tmp_path / "." / "robot.toml") is first
+    assert len(parsed) == 1
+    with pytest.raises(AttributeError):
+        first.motors.gear_ratio = 1.0  # type: ignore[misc]  # frozen: shared safely
+    path.write_text(GOOD.replace("gear_ratio = 19.0", "gear_ratio = 20.0"))
+    edited = load_description(path)
+    assert len(parsed) == 2
+    assert edited.motors.gear_ratio == 20.0
+    assert load_description(path) is edited

@@ -21,6 +21,8 @@ from mecanum_jax.task import (
     baseline_policy,
     reward_terms,
 )
+from mecanum_jax.task.commands import sample_command
+from mecanum_jax.task.references import baseline_rates
 
 
 @pytest.fixture(scope="session")
@@ -34,7 +36,7 @@ def env():
 def rollout(env):
     """Eight robots, twelve steps (two episodes) under the baseline; compiled once."""
     tenv = TrainingEnv(env)
-    policy = baseline_policy(env)
+    policy = baseline_policy(env.constants, env.config.residual, env.action_size)
 
     @jax.jit
     def run(keys):
@@ -80,7 +82,8 @@ def test_default_physics_step_tracks_like_the_fine_step(env):
 
 
 def test_commands_cover_kinds_and_respect_reach(env):
-    sample = jax.jit(jax.vmap(env.sample_command))  # one program, not op by op
+    draw = lambda k: sample_command(env.constants, k, env.config.commands)  # noqa: E731
+    sample = jax.jit(jax.vmap(draw))  # one program, not op by op
     cmds = np.asarray(sample(jax.random.split(jax.random.PRNGKey(1), 4000)))
     sat = np.asarray(limits.saturation(env.geometry, cmds, env.max_rates))
     zero = np.all(cmds == 0, axis=1)
@@ -106,7 +109,7 @@ def test_commands_cover_kinds_and_respect_reach(env):
 
 def test_baseline_is_desaturated_inverse(env):
     cmd = jnp.array([3.0, -1.0, 4.0])  # beyond reach
-    rates = env.baseline_rates(cmd)
+    rates = baseline_rates(env.constants, cmd)
     scaled, scale = limits.desaturate(env.geometry, cmd, env.max_rates)
     assert float(scale) < 1
     np.testing.assert_allclose(rates, kinematics.inverse(env.geometry, scaled), rtol=1e-5)
@@ -117,11 +120,13 @@ def test_baseline_is_desaturated_inverse(env):
 
 def test_direct_mode_baseline_action_reproduces_rates():
     env = MecanumEnv(EnvConfig(residual=False))
-    policy = baseline_policy(env)
+    policy = baseline_policy(env.constants, env.config.residual, env.action_size)
     cmd = jnp.array([0.5, 0.2, -1.0])
     obs = {"state": jnp.concatenate([cmd / env.command_scale, jnp.zeros(14)])}
     action, _ = policy(obs, None)
-    np.testing.assert_allclose(env.wheel_setpoints(cmd, action), env.baseline_rates(cmd), atol=1e-4)
+    np.testing.assert_allclose(
+        env.wheel_setpoints(cmd, action), baseline_rates(env.constants, cmd), atol=1e-4
+    )
 
 
 @pytest.mark.full  # compiles an auto-reset rollout; the tiny training run drives the same path
@@ -215,7 +220,7 @@ def test_a_share_of_nominal_robots_leaves_the_other_draws_alone(env):
 
     def draw(share):
         r = dataclasses.replace(base, nominal_share=share)
-        return jax.vmap(lambda k: sample_params(env, k, r))(keys)
+        return jax.vmap(lambda k: sample_params(env.constants, k, r))(keys)
 
     (p0, lat0), (p5, lat5), (p1, lat1) = draw(0.0), draw(0.5), draw(1.0)
     nom = env.nominal_params
@@ -264,7 +269,7 @@ def test_twist_residual_acts_only_through_the_inverse_model():
     assert env.action_size == 3
     assert dict(env.layout)["last_action"] == 3
     cmd = jnp.array([0.3, -0.2, 0.5])  # well within reach: nothing clips
-    base = env.baseline_rates(cmd)
+    base = baseline_rates(env.constants, cmd)
     np.testing.assert_allclose(env.wheel_setpoints(cmd, jnp.zeros(3)), base, rtol=1e-6)
     a = jnp.array([0.5, -1.0, 0.25])
     delta = env.wheel_setpoints(cmd, a) - base
@@ -276,7 +281,7 @@ def test_twist_residual_acts_only_through_the_inverse_model():
     state = env.step(env.reset(jax.random.PRNGKey(0)), a)
     assert state.obs["state"].shape == env.observation_size["state"]
     np.testing.assert_array_equal(state.info["last_action"], a)
-    policy = baseline_policy(env)
+    policy = baseline_policy(env.constants, env.config.residual, env.action_size)
     action, _ = policy(state.obs, None)
     assert action.shape == (3,)
     assert not np.any(np.asarray(action))
@@ -315,6 +320,26 @@ def test_twist_residual_needs_residual_actions():
         EnvConfig(residual=False, residual_space="twist").validate()
     with pytest.raises(ConfigError, match=r"env\.residual_space = 'joint'"):
         EnvConfig(residual_space="joint").validate()
+
+
+def test_a_config_is_validated_once(monkeypatch):
+    """The layers a config passes through each ask for it to be valid; it is checked once.
+    A changed copy is checked anew, and a bad config is refused at every ask."""
+    checks = []
+    real = EnvConfig._validate_timing
+    monkeypatch.setattr(
+        EnvConfig, "_validate_timing", lambda self, where: checks.append(1) or real(self, where)
+    )
+    cfg = EnvConfig(obs_history=2)
+    assert cfg.validate() is cfg
+    assert cfg.validate("elsewhere") is cfg
+    assert len(checks) == 1
+    dataclasses.replace(cfg, obs_history=3).validate()
+    assert len(checks) == 2
+    bad = EnvConfig(residual_space="joint")
+    for _ in range(2):
+        with pytest.raises(ConfigError, match=r"env\.residual_space = 'joint'"):
+            MecanumEnv(bad)
 
 
 def test_chunked_vmap_equals_vmap():

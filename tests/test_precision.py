@@ -50,12 +50,9 @@ def test_nearest_feasible_asks_for_highest_precision_on_every_product():
 
 def test_the_feasible_target_path_asks_for_highest_precision():
     """The steady-state error's target: the real robot's radii, then nearest_feasible."""
-    env = types.SimpleNamespace(
-        geometry=GEOM,
-        max_rates=RATES,
-        config=types.SimpleNamespace(feedback=references.FeedbackConfig()),
-    )
-    fn = lambda c, s: references.feasible_target(env, c, s)  # noqa: E731
+    robot = types.SimpleNamespace(geometry=GEOM, max_rates=RATES)
+    w = references.FeedbackConfig().omega_weight
+    fn = lambda c, s: references.feasible_target(robot, c, s, w)  # noqa: E731
     assert all_highest(fn, jnp.asarray([2.0, 1.0, 3.0]), jnp.full((4,), 1.03)) == []
 
 

@@ -12,7 +12,7 @@ import pytest
 from mecanum_jax.evaluation import metrics, scenarios
 from mecanum_jax.evaluation import rollout as evaluation
 from mecanum_jax.kinematics import model as kinematics
-from mecanum_jax.task import REFERENCES, EnvConfig, MecanumEnv
+from mecanum_jax.task import REFERENCES, EnvConfig, MecanumEnv, references
 from train.cli.evaluate import main as eval_main
 from train.learner.policy import PROVENANCE, restore_policy
 
@@ -24,10 +24,16 @@ MODEL = "models/o_rectangle"
 def test_reference_rates_select_the_named_controller():
     env = MecanumEnv(EnvConfig().nominal())
     s = env.set_command(env.reset(jax.random.PRNGKey(0)), jnp.asarray([0.3, 0.1, 0.5]))
-    traced = [np.asarray(env.reference_rates(jnp.asarray(i), s.info)) for i in range(3)]
+    fb = env.config.feedback
+    traced = [
+        np.asarray(references.reference_rates(env.constants, jnp.asarray(i), s.info, fb))
+        for i in range(3)
+    ]
     for i in range(len(REFERENCES)):
-        np.testing.assert_allclose(traced[i], env.reference_rates(i, s.info), atol=1e-5)
-    np.testing.assert_allclose(traced[0], env.baseline_rates(s.info["command"]), atol=1e-5)
+        one = references.reference_rates(env.constants, i, s.info, fb)
+        np.testing.assert_allclose(traced[i], one, atol=1e-5)
+    base = references.baseline_rates(env.constants, s.info["command"])
+    np.testing.assert_allclose(traced[0], base, atol=1e-5)
     # at rest, the feedback's integrator grows by ki·e·dt with e the whole yaw command
     ki = env.config.feedback.ki
     after = env.step(s, jnp.zeros(env.action_size), jnp.asarray(2))

@@ -3,8 +3,6 @@ policy observes the controller's integrator."""
 
 from __future__ import annotations
 
-import types
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -18,6 +16,7 @@ from mecanum_jax.task import references as refs
 
 FEEDBACK = jnp.asarray(2)  # index of "feedback" in REFERENCES
 POLICY = jnp.asarray(-1)  # no reference: the policy's action (the same compiled step)
+DT = EnvConfig().control_dt
 
 
 @pytest.fixture(scope="module")
@@ -131,31 +130,30 @@ def test_the_command_age_counts_steps_since_a_change_and_holds_the_integrator():
     """``track_command`` on a stand-in environment (no physics): the age is 0 at a reset and
     at a change, one more per step, unchanged by an imposed equal command; the integrator
     holds while the age is below ``hold_s`` in control periods, then integrates."""
-    cfg = EnvConfig(feedback=FeedbackConfig(hold_s=0.06))  # 3 periods of 20 ms
-    fake = types.SimpleNamespace(config=cfg)
+    fb = FeedbackConfig(hold_s=0.06)  # 3 periods of 20 ms
     a, b = jnp.asarray([0.3, 0.0, 0.0]), jnp.asarray([0.3, 0.0, 0.5])
-    info = refs.track_command(fake, {"command": a, "feedback_integral": jnp.asarray(0.2)})
+    info = refs.track_command(fb, DT, {"command": a, "feedback_integral": jnp.asarray(0.2)})
     ages = [int(info["command_age"])]
     for command, advance in [(a, True), (a, False), (a, True), (b, True), (b, True), (b, False)]:
-        info = {**refs.track_command(fake, info, command, advance), "command": command}
+        info = {**refs.track_command(fb, DT, info, command, advance), "command": command}
         ages.append(int(info["command_age"]))
     assert ages == [0, 1, 1, 2, 0, 1, 1]
     assert float(info["feedback_integral"]) == pytest.approx(0.2)  # carried: no reset
-    off = types.SimpleNamespace(config=EnvConfig())
-    assert refs.track_command(off, {"command": a}) == {"command": a}  # no rule: no state
+    assert refs.track_command(FeedbackConfig(), DT, {"command": a}) == {
+        "command": a
+    }  # no rule: no state
 
 
 def test_the_integrator_restarts_at_each_command_change_with_reset():
     """``feedback.reset``: the integrator is 0 after a change (stepped or imposed), kept
     while the command stays, with or without the hold."""
     for hold_s in (0.0, 0.06):
-        cfg = EnvConfig(feedback=FeedbackConfig(hold_s=hold_s, reset=True))
-        fake = types.SimpleNamespace(config=cfg)
+        fb = FeedbackConfig(hold_s=hold_s, reset=True)
         a, b = jnp.asarray([0.3, 0.0, 0.0]), jnp.asarray([0.3, 0.0, 0.5])
         info = {"command": a, "feedback_integral": jnp.asarray(0.2), "command_age": 0}
         values = []
         for command, advance in [(a, True), (b, True), (b, True), (a, False)]:
-            info = {**refs.track_command(fake, info, command, advance), "command": command}
+            info = {**refs.track_command(fb, DT, info, command, advance), "command": command}
             values.append(float(info["feedback_integral"]))
             info["feedback_integral"] = jnp.asarray(0.1)  # as if it had integrated
         assert values == pytest.approx([0.2, 0.0, 0.1, 0.0])

@@ -64,6 +64,8 @@ from mecanum_jax.kinematics import limits, singularity
 from mecanum_jax.kinematics.modes import SIX_MODES
 from mecanum_jax.sim.physics import RobotParams
 from mecanum_jax.task import CommandConfig, EnvConfig, MecanumEnv, NoiseConfig, RandomizationConfig
+from mecanum_jax.task.commands import command_schedule
+from mecanum_jax.task.randomization import sample_params
 
 EVAL_DIR = CONFIG_DIR / "eval"
 # Domain tags of evaluation rng streams: scenario files, and the trainer's periodic
@@ -447,9 +449,12 @@ def _samplers(env: MecanumEnv, steps: int) -> tuple[Any, Any]:
     configs as traced values: compiled once per environment and episode length."""
     cache = _SAMPLERS.setdefault(env, {})
     if steps not in cache:
+        robot, dt = env.constants, env.config.control_dt
+        draw_params = lambda k, r: sample_params(robot, k, r)  # noqa: E731
+        schedule = lambda k, c: command_schedule(robot, k, steps, c, dt)  # noqa: E731
         cache[steps] = (
-            jax.jit(jax.vmap(env.sample_params, in_axes=(0, None))),
-            jax.jit(jax.vmap(lambda k, c: env.command_schedule(k, steps, c), in_axes=(0, None))),
+            jax.jit(jax.vmap(draw_params, in_axes=(0, None))),
+            jax.jit(jax.vmap(schedule, in_axes=(0, None))),
         )
     return cache[steps]
 

@@ -381,9 +381,25 @@ def require_impl(impl: str, field: str = "sim.impl") -> None:
         )
 
 
+_LOADED: dict[Path, tuple[bytes, RobotDescription]] = {}
+"""The description files read in this process, by resolved path: each one's SHA-256 and
+the (frozen) description parsed from it."""
+
+
 def load_description(path: str | Path) -> RobotDescription:
-    """Load and validate a robot description TOML file."""
-    return parse_description(load_toml(path), source=str(path))
+    """Load and validate a robot description TOML file: parsed once per process while its
+    bytes stay the same (the same frozen description comes back); an edited file is
+    parsed again."""
+    file = Path(path).resolve()
+    try:
+        digest = hashlib.sha256(file.read_bytes()).digest()
+    except OSError:  # unreadable: load_toml below says why
+        digest = b""
+    known = _LOADED.get(file)
+    if not digest or known is None or known[0] != digest:
+        known = (digest, parse_description(load_toml(path), source=str(path)))
+        _LOADED[file] = known
+    return known[1]
 
 
 def builtin_description(name: str) -> RobotDescription:

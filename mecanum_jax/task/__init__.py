@@ -4,11 +4,12 @@
 - :mod:`.config`: :class:`EnvConfig`, the task's settings;
 - :mod:`.commands`, :mod:`.randomization`, :mod:`.observations`, :mod:`.reward`: its parts;
 - :mod:`.references`: the reference controllers (``analytic``, the baseline, among them);
-- :mod:`.protocol`: :class:`~.protocol.TaskEnv`, what those parts read of the environment.
+- :mod:`.constants`: :class:`~.constants.RobotConstants`, what those parts know of the robot.
 """
 
 from mecanum_jax.task.commands import CommandConfig
 from mecanum_jax.task.config import EnvConfig, load_env_config
+from mecanum_jax.task.constants import RobotConstants
 from mecanum_jax.task.env import MecanumEnv, TrainingEnv
 from mecanum_jax.task.observations import NoiseConfig
 from mecanum_jax.task.randomization import RandomizationConfig
@@ -25,6 +26,7 @@ __all__ = [
     "NoiseConfig",
     "RandomizationConfig",
     "RewardConfig",
+    "RobotConstants",
     "TrainingEnv",
     "baseline_policy",
     "load_env_config",

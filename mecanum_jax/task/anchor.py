@@ -23,47 +23,45 @@ keep to the yaw component of no-yaw commands only.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 
 from mecanum_jax.kinematics import limits
-
-if TYPE_CHECKING:
-    from mecanum_jax.task.protocol import TaskEnv
+from mecanum_jax.task.constants import RobotConstants
 
 YAW = 2
 """Index of ωz in a twist-space residual (vx, vy, ωz)."""
 
 
-def is_nominal(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
+def is_nominal(robot: RobotConstants, info: dict[str, Any]) -> jax.Array:
     """Whether one robot's ``info["params"]`` are the nominal robot's and it has no latency."""
-    pairs = zip(jax.tree.leaves(info["params"]), jax.tree.leaves(env.nominal_params), strict=True)
+    pairs = zip(jax.tree.leaves(info["params"]), jax.tree.leaves(robot.nominal_params), strict=True)
     same = [jnp.all(a == b) for a, b in pairs]
     return jnp.all(jnp.stack(same)) & (info["latency"] == 0)
 
 
-def _steady(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
-    """The command is older than the feedback controller's hold window (every step counts
-    without one)."""
-    hold = env.config.feedback.hold_steps(env.config.control_dt)
-    return info["command_age"] >= hold if hold > 0 else jnp.asarray(True)
-
-
 def exact_components(
-    env: TaskEnv, info: dict[str, Any], spins: bool = False, translations: bool = False
+    robot: RobotConstants,
+    info: dict[str, Any],
+    hold_steps: int,
+    spins: bool = False,
+    translations: bool = False,
 ) -> jax.Array:
     """(3,) float mask of one robot's state: 1.0 for each twist component (vx, vy, ωz) the
-    base holds exactly (see the module), else 0.0. ``spins`` adds steady pure spins within
-    reach and stops, on every component; ``translations`` steady pure translations within
-    reach, on every component; without them only ωz of steady no-yaw commands."""
+    base holds exactly (see the module), else 0.0. Steady: the command is at least
+    ``hold_steps`` old, the feedback controller's hold window (every step counts without
+    one). ``spins`` adds steady pure spins within reach and stops, on every component;
+    ``translations`` steady pure translations within reach, on every component; without
+    them only ωz of steady no-yaw commands."""
     command = info["command"]
-    base = is_nominal(env, info) & _steady(env, info)
+    steady = info["command_age"] >= hold_steps if hold_steps > 0 else jnp.asarray(True)
+    base = is_nominal(robot, info) & steady
     no_yaw = command[YAW] == 0.0
     yaw = base & no_yaw
     lin = jnp.asarray(False)
-    within = limits.saturation(env.geometry, command, env.max_rates) <= 1.0  # in reach
+    within = limits.saturation(robot.geometry, command, robot.max_rates) <= 1.0  # in reach
     if spins:
         lin = base & jnp.all(command[:YAW] == 0.0) & within
         yaw = yaw | lin

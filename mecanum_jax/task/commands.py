@@ -9,16 +9,13 @@ wheels' rate limits allow), each a fraction of the feasible set's radius in its 
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 
 from mecanum_jax.config import invalid, require
 from mecanum_jax.kinematics import limits
-
-if TYPE_CHECKING:
-    from mecanum_jax.task.protocol import TaskEnv
+from mecanum_jax.task.constants import RobotConstants
 
 COMMAND_KINDS = ("zero", "translation", "spin", "combined", "beyond")
 """The kinds of command, in the order of :class:`CommandConfig`'s ``p_*`` weights."""
@@ -76,12 +73,8 @@ class CommandConfig:
             raise invalid(f"{where}.resample_min_s", self.resample_min_s, "need 0 < min <= max")
 
 
-def sample_command(
-    env: TaskEnv, key: jax.Array, commands: CommandConfig | None = None
-) -> jax.Array:
-    """One command (vx, vy, ωz) from the mix of kinds of ``commands`` (default: the
-    task's :class:`CommandConfig`)."""
-    c = commands or env.config.commands
+def sample_command(robot: RobotConstants, key: jax.Array, c: CommandConfig) -> jax.Array:
+    """One command (vx, vy, ωz) for ``robot`` from the mix of kinds of ``c``."""
     k_kind, k_angle, k_dir, k_sign, k_frac, k_beyond = jax.random.split(key, 6)
     weights = jnp.array([c.p_zero, c.p_translation, c.p_spin, c.p_combined, c.p_beyond])
     kind = jax.random.categorical(k_kind, jnp.log(weights))
@@ -89,13 +82,13 @@ def sample_command(
     translation = jnp.stack([jnp.cos(angle), jnp.sin(angle), jnp.asarray(0.0)])
     spin = jnp.array([0.0, 0.0, 1.0]) * jnp.where(jax.random.bernoulli(k_sign), 1.0, -1.0)
     # combined: a random direction in command space, each axis scaled to its reach
-    combined = jax.random.normal(k_dir, (3,)) * env.command_scale
+    combined = jax.random.normal(k_dir, (3,)) * robot.command_scale
     direction = jnp.select(
         [kind == 1, kind == 2], [translation, spin], jnp.where(kind == 0, 0.0, combined)
     )
     norm = jnp.linalg.norm(direction)
     unit = direction / jnp.where(norm > 0, norm, 1.0)
-    reach = limits.max_speed(env.geometry, jnp.where(norm > 0, unit, 1.0), env.max_rates)
+    reach = limits.max_speed(robot.geometry, jnp.where(norm > 0, unit, 1.0), robot.max_rates)
     frac = jax.random.uniform(k_frac, (), minval=c.min_fraction, maxval=c.max_fraction)
     beyond = jax.random.uniform(
         k_beyond, (), minval=c.beyond_min_fraction, maxval=c.beyond_max_fraction
@@ -104,33 +97,29 @@ def sample_command(
     return jnp.where(kind == 0, 0.0, unit * reach * frac)
 
 
-def resample_time(
-    env: TaskEnv, key: jax.Array, now: jax.Array, commands: CommandConfig | None = None
-) -> jax.Array:
-    """The control step at which the command drawn at step ``now`` is replaced."""
-    c = commands or env.config.commands
+def resample_time(key: jax.Array, now: jax.Array, c: CommandConfig, dt: float) -> jax.Array:
+    """The control step (of ``dt`` s) at which the command drawn at step ``now`` is replaced."""
     # jnp (not Python) arithmetic: evaluation passes the config's values as traced arrays
-    dt = env.config.control_dt
     lo = jnp.maximum(1, jnp.round(jnp.asarray(c.resample_min_s) / dt)).astype(jnp.int32)
     hi = jnp.maximum(lo, jnp.round(jnp.asarray(c.resample_max_s) / dt).astype(jnp.int32))
     return now + jax.random.randint(key, (), lo, hi + 1)
 
 
 def command_schedule(
-    env: TaskEnv, key: jax.Array, steps: int, commands: CommandConfig | None = None
+    robot: RobotConstants, key: jax.Array, steps: int, c: CommandConfig, dt: float
 ) -> jax.Array:
-    """``(steps, 3)`` commands as an episode would draw them: a first command, then a
-    new one at random times (the training task's process, from ``commands``)."""
+    """``(steps, 3)`` commands as an episode (control period ``dt`` s) would draw them: a
+    first command, then a new one at random times (the training task's process, from ``c``)."""
     k0, k1, key = jax.random.split(key, 3)
-    first = sample_command(env, k0, commands)
-    start = resample_time(env, k1, jnp.asarray(0, jnp.int32), commands)
+    first = sample_command(robot, k0, c)
+    start = resample_time(k1, jnp.asarray(0, jnp.int32), c, dt)
 
     def step(carry: tuple, t: jax.Array) -> tuple[tuple, jax.Array]:
         cmd, due, k = carry
         k, k_cmd, k_time = jax.random.split(k, 3)
         now = t >= due
-        cmd = jnp.where(now, sample_command(env, k_cmd, commands), cmd)
-        due = jnp.where(now, resample_time(env, k_time, t, commands), due)
+        cmd = jnp.where(now, sample_command(robot, k_cmd, c), cmd)
+        due = jnp.where(now, resample_time(k_time, t, c, dt), due)
         return (cmd, due, k), cmd
 
     _, out = jax.lax.scan(step, (first, start, key), jnp.arange(steps, dtype=jnp.int32))

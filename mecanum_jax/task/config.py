@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from mecanum_jax.config import from_mapping, invalid, load_toml, require
+from mecanum_jax.config import from_mapping, invalid, load_toml, require, validated_once
 from mecanum_jax.sim.description import IMPLS, RobotDescription, resolve_description
 from mecanum_jax.task.commands import CommandConfig
 from mecanum_jax.task.observations import NoiseConfig
@@ -110,6 +110,7 @@ class EnvConfig:
     feedback: FeedbackConfig = FeedbackConfig()
     """The feedback reference controller's gains."""
 
+    @validated_once  # each config once, however many layers ask
     def validate(self, where: str = "env") -> EnvConfig:
         """Check values (not only types); raise :class:`ConfigError` naming the field."""
         self._validate_timing(where)

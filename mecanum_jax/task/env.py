@@ -6,6 +6,7 @@ robot; :class:`TrainingEnv` batches it with automatic resets), so Brax's PPO com
 drive it unchanged. Its parts live beside it:
 
 - :mod:`.config`: :class:`EnvConfig`, the task's settings;
+- :mod:`.constants`: :class:`RobotConstants`, the robot as those parts see it;
 - :mod:`.commands`: the commands and when they change;
 - :mod:`.randomization`: the per-robot physical parameters drawn at each reset;
 - :mod:`.observations`: sensors, noise, latency and the observation layouts;
@@ -35,18 +36,16 @@ import numpy as np
 from brax.envs.base import Env, State, Wrapper
 
 from mecanum_jax.host import host_side
-from mecanum_jax.kinematics import limits
 from mecanum_jax.kinematics import model as kinematics
-from mecanum_jax.sim.physics import Robot, RobotParams, chunked_vmap, cpu_chunk, select
+from mecanum_jax.sim.physics import Robot, RobotParams, Sensors, chunked_vmap, cpu_chunk, select
 from mecanum_jax.task import commands as cmds
 from mecanum_jax.task import fidelity as fid
 from mecanum_jax.task import observations as obs_
 from mecanum_jax.task import randomization as rand
 from mecanum_jax.task import references as refs
-from mecanum_jax.task.commands import CommandConfig
 from mecanum_jax.task.config import EnvConfig
+from mecanum_jax.task.constants import robot_constants
 from mecanum_jax.task.observations import NoiseConfig
-from mecanum_jax.task.randomization import RandomizationConfig
 from mecanum_jax.task.references import FeedbackConfig
 from mecanum_jax.task.reward import METRIC_NAMES, step_reward
 
@@ -64,31 +63,29 @@ class MecanumEnv(Env):
         self.config = config = (config or EnvConfig()).validate()
         self.desc = config.description()
         self.robot = Robot(*fid.model(config, fidelity), robots=robots)
-        self.geometry = self.robot.geometry
-        self.n_wheels = n = self.geometry.n_wheels
         self.substeps = fid.substeps(config, self.robot.desc, self.robot.fidelity)
-        self.max_rates = self.desc.max_wheel_rates(self.geometry).astype(jnp.float32)
-        self.max_rate = float(np.max(np.asarray(self.max_rates)))
-        axes = np.eye(3, dtype=np.float32)
-        # scale of each command axis: the largest feasible pure vx, vy, ωz
-        self.command_scale = jnp.asarray(
-            np.asarray(limits.max_speed(self.geometry, axes, self.max_rates)), jnp.float32
+        # what the task's parts read of the robot, built once and handed to them
+        c = self.constants = robot_constants(
+            self.desc, self.robot.geometry, self.robot.nominal_params()
         )
-        self.nominal_params = self.robot.nominal_params()
-        self.jacobian = jnp.asarray(kinematics.jacobian(self.geometry), jnp.float32)
-        kinematics.require_full_rank(self.geometry)
-        self.forward_matrix = jnp.asarray(kinematics.forward_matrix(self.geometry), jnp.float32)
+        self.geometry, self.n_wheels, self.max_rates = c.geometry, c.n_wheels, c.max_rates
+        self.command_scale, self.nominal_params = c.command_scale, c.nominal_params
+        self.jacobian, self.forward_matrix = c.jacobian, c.forward_matrix
+        n = self.n_wheels
+        self.max_rate = float(np.max(np.asarray(self.max_rates)))
         self.max_latency = config.randomization.latency_steps[1]
         self.twist_residual = config.residual and config.residual_space == "twist"
         self._action_size = 3 if self.twist_residual else n
         self.sensor_size = obs_.sensor_size(n)
         # the sensor frames kept: the latest latency_steps[1] + 1 and the observed history
         self.history_frames = self.max_latency + 1 + config.obs_history
-        tau = config.yaw_integral_tau
-        self.yaw_decay = float(np.exp(-config.control_dt / tau)) if tau > 0 else 0.0
         self.feedback_base = config.residual and config.residual_base == "feedback"
         self.layout = obs_.policy_layout(
-            n, self._action_size, tau > 0, self.feedback_base, config.obs_history
+            n,
+            self._action_size,
+            config.yaw_integral_tau > 0,
+            self.feedback_base,
+            config.obs_history,
         )
         self.privileged_layout = obs_.privileged_layout(self.layout, n)
 
@@ -111,7 +108,7 @@ class MecanumEnv(Env):
 
     def reset(self, rng: jax.Array) -> State:
         k_params, rng = jax.random.split(rng)
-        params, latency = self.sample_params(k_params)
+        params, latency = rand.sample_params(self.constants, k_params, self.config.randomization)
         return self.reset_to(rng, params, latency, self.noise_std())
 
     def reset_to(
@@ -124,17 +121,19 @@ class MecanumEnv(Env):
         compiled program serves them all.
         """
         k_cmd, k_time, k_noise, rng = jax.random.split(rng, 4)
+        c, commands = self.constants, self.config.commands
         sim = self.robot.reset(params)
         sens = self.robot.sensors(sim)
         noise_std = jnp.asarray(noise_std, jnp.float32)
-        sensors = obs_.sensor_vector(self, sens, k_noise, noise_std)
+        sensors = obs_.sensor_vector(c, sens, k_noise, noise_std)
+        start = jnp.asarray(0, jnp.int32)
         info = {
             "rng": rng,
             "params": params,
             "latency": jnp.asarray(latency, jnp.int32),
             "noise_std": noise_std,
-            "command": self.sample_command(k_cmd),
-            "next_resample": cmds.resample_time(self, k_time, jnp.asarray(0, jnp.int32)),
+            "command": cmds.sample_command(c, k_cmd, commands),
+            "next_resample": cmds.resample_time(k_time, start, commands, self.config.control_dt),
             "step": jnp.asarray(0, jnp.int32),
             "last_action": jnp.zeros(self.action_size),
             "history": jnp.broadcast_to(sensors, (self.history_frames, self.sensor_size)),
@@ -143,8 +142,8 @@ class MecanumEnv(Env):
             "feedback_gains": self.feedback_gains(),
             "truncation": jnp.asarray(0.0),
         }
-        info = refs.track_command(self, info)
-        obs = obs_.observe(self, sens, info)
+        info = refs.track_command(self.config.feedback, self.config.control_dt, info)
+        obs = self._observe(sens, info)
         metrics = {k: jnp.asarray(0.0) for k in self.metric_names}
         return State(sim, obs, jnp.asarray(0.0), jnp.asarray(0.0), metrics, info)
 
@@ -154,49 +153,55 @@ class MecanumEnv(Env):
         setpoints replace the action's. The feedback controller's integrator is updated only
         when ``reference`` is given."""
         info = dict(state.info)
+        c, cfg = self.constants, self.config
         action = jnp.clip(action, -1.0, 1.0)
-        if not self.config.residual_at_stop:  # the base alone stops (EnvConfig)
+        if not cfg.residual_at_stop:  # the base alone stops (EnvConfig)
             action = jnp.where(jnp.all(info["command"] == 0.0), 0.0, action)
-        if self.config.action_filter > 0:  # the applied action, low-passed (EnvConfig)
-            f = self.config.action_filter
+        if cfg.action_filter > 0:  # the applied action, low-passed (EnvConfig)
+            f = cfg.action_filter
             action = f * info["last_action"] + (1.0 - f) * action
         params: RobotParams = info["params"]
         command = info["command"]
         rates = self.wheel_setpoints(command, action, state.info)
         if reference is not None:
-            rates = jnp.where(reference >= 0, self.reference_rates(reference, state.info), rates)
+            chosen = refs.reference_rates(c, reference, state.info, cfg.feedback)
+            rates = jnp.where(reference >= 0, chosen, rates)
         if reference is not None or self.feedback_base:
             # the feedback controller's integrator runs where it may act: a reference in
             # evaluation, or the base of the policy's residual
-            info["feedback_integral"] = refs.feedback_integral(self, state.info)
+            info["feedback_integral"] = refs.feedback_integral(
+                c, state.info, cfg.feedback, cfg.control_dt
+            )
         sim = self.robot.step(state.pipeline_state, rates, params, self.substeps)
         sens = self.robot.sensors(sim)
         reward, metrics = step_reward(
-            self.config.reward, sens, command, action, info["last_action"], params,
-            self.config.control_dt,
+            cfg.reward, sens, command, action, info["last_action"], params,
+            cfg.control_dt,
         )  # fmt: skip
         metrics["unstable"] = sim.unstable.astype(jnp.float32)
         rng, k_noise, k_cmd, k_time = jax.random.split(info["rng"], 4)
         step = info["step"] + 1
         resample = step >= info["next_resample"]
-        new_command = jnp.where(resample, self.sample_command(k_cmd), command)
-        info = refs.track_command(self, info, new_command)
+        new_command = jnp.where(resample, cmds.sample_command(c, k_cmd, cfg.commands), command)
+        info = refs.track_command(cfg.feedback, cfg.control_dt, info, new_command)
         info["command"] = new_command
-        info["next_resample"] = jnp.where(
-            resample, cmds.resample_time(self, k_time, step), info["next_resample"]
-        )
+        due = cmds.resample_time(k_time, step, cfg.commands, cfg.control_dt)
+        info["next_resample"] = jnp.where(resample, due, info["next_resample"])
         info.update(step=step, rng=rng, last_action=action)
-        sensors = obs_.sensor_vector(self, sens, k_noise, info["noise_std"])
+        sensors = obs_.sensor_vector(c, sens, k_noise, info["noise_std"])
         info["history"] = jnp.concatenate([sensors[None], info["history"][:-1]], axis=0)
-        if self.config.yaw_integral_tau > 0:  # against the command tracked in this step
-            info["yaw_integral"] = obs_.yaw_integral(self, info, command)
-        obs = obs_.observe(self, sens, info)
+        if cfg.yaw_integral_tau > 0:  # against the command tracked in this step
+            info["yaw_integral"] = obs_.yaw_integral(
+                c, info, command, cfg.yaw_integral_tau, cfg.control_dt
+            )
+        obs = self._observe(sens, info)
         return state.replace(pipeline_state=sim, obs=obs, reward=reward, metrics=metrics, info=info)
 
     def set_command(self, state: State, command: jax.Array) -> State:
         """Impose ``command`` from now on (scripted sequences): it replaces the current
         command, in the observations too, and the environment stops resampling."""
-        info = refs.track_command(self, dict(state.info), command, advance=False)
+        fb, dt = self.config.feedback, self.config.control_dt
+        info = refs.track_command(fb, dt, dict(state.info), command, advance=False)
         info["command"] = command
         info["next_resample"] = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
         scaled = command / self.command_scale
@@ -215,9 +220,11 @@ class MecanumEnv(Env):
         if self.feedback_base:
             if info is None:
                 raise ValueError("wheel_setpoints: residual_base = 'feedback' needs the state")
-            base = refs.feedback_rates(self, dict(info, command=command))
+            base = refs.feedback_rates(
+                self.constants, dict(info, command=command), self.config.feedback
+            )
         elif self.config.residual:
-            base = self.baseline_rates(command)
+            base = refs.baseline_rates(self.constants, command)
         if self.twist_residual:
             correction = action * (self.config.residual_scale * self.command_scale)
             rates = base + kinematics.apply_rows(self.jacobian, correction)
@@ -227,23 +234,11 @@ class MecanumEnv(Env):
             rates = action * self.max_rates
         return jnp.clip(rates, -self.max_rates, self.max_rates)
 
-    # --- the task's parts, bound to this robot (see the modules beside this one) ------------
-
-    def sample_params(
-        self, key: jax.Array, randomization: RandomizationConfig | None = None
-    ) -> tuple[RobotParams, jax.Array]:
-        """:func:`.randomization.sample_params`: physical parameters and latency."""
-        return rand.sample_params(self, key, randomization)
-
-    def sample_command(self, key: jax.Array, commands: CommandConfig | None = None) -> jax.Array:
-        """:func:`.commands.sample_command`: one command from the mix of kinds."""
-        return cmds.sample_command(self, key, commands)
-
-    def command_schedule(
-        self, key: jax.Array, steps: int, commands: CommandConfig | None = None
-    ) -> jax.Array:
-        """:func:`.commands.command_schedule`: ``(steps, 3)`` commands as an episode draws them."""
-        return cmds.command_schedule(self, key, steps, commands)
+    def _observe(self, sens: Sensors, info: dict[str, Any]) -> dict[str, jax.Array]:
+        cfg = self.config
+        return obs_.observe(
+            self.constants, sens, info, cfg.yaw_integral_tau, self.feedback_base, cfg.obs_history
+        )
 
     def noise_std(self, noise: NoiseConfig | None = None) -> jax.Array:
         """Sensor noise standard deviations (wheel rate, gyro, accel) of a noise config."""
@@ -253,29 +248,11 @@ class MecanumEnv(Env):
         """``(kp, ki, i_max)`` of a feedback config (default: this task's)."""
         return (feedback or self.config.feedback).gains()
 
-    def measured_yaw_rate(self, info: dict[str, Any]) -> jax.Array:
-        """The gyro's yaw rate as the controller sees it now (noisy, ``latency`` steps old)."""
-        return obs_.measured_yaw_rate(self, info)
-
-    def command_from_obs(self, obs: dict[str, jax.Array]) -> jax.Array:
-        """The (noise-free) command carried in the first three policy observations."""
-        return obs_.command_from_obs(self, obs)
-
-    def baseline_rates(self, command: jax.Array) -> jax.Array:
-        """The analytic baseline: the nominal inverse model, desaturated to the rate limits."""
-        return refs.baseline_rates(self, command)
-
-    def nearest_rates(self, twist: jax.Array) -> jax.Array:
-        """Wheel rates of the feasible twist nearest ``twist`` (nominal geometry)."""
-        return refs.nearest_rates(self, twist)
-
     def feasible_target(self, command: jax.Array, radius_scale: jax.Array) -> jax.Array:
-        """:func:`.references.feasible_target`: the steady-state error's target."""
-        return refs.feasible_target(self, command, radius_scale)
-
-    def reference_rates(self, reference: int | jax.Array, info: dict[str, Any]) -> jax.Array:
-        """:func:`.references.reference_rates`: setpoints of reference ``reference``."""
-        return refs.reference_rates(self, reference, info)
+        """:func:`.references.feasible_target` in this task's metric: the steady-state
+        error's target."""
+        w = self.config.feedback.omega_weight
+        return refs.feasible_target(self.constants, command, radius_scale, w)
 
 
 class TrainingEnv(Wrapper):

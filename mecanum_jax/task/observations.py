@@ -12,17 +12,16 @@ about unit size (by the rate limits, the largest feasible twist, or gravity).
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from mecanum_jax.config import require
 from mecanum_jax.precision import HIGHEST
 from mecanum_jax.sim.physics import GRAVITY, RobotParams, Sensors
-
-if TYPE_CHECKING:
-    from mecanum_jax.task.protocol import TaskEnv
+from mecanum_jax.task.constants import RobotConstants
 
 Layout = tuple[tuple[str, int], ...]
 
@@ -109,20 +108,22 @@ def privileged_layout(layout: Layout, n_wheels: int) -> Layout:
     )
 
 
-def sensor_vector(env: TaskEnv, s: Sensors, key: jax.Array, noise_std: jax.Array) -> jax.Array:
+def sensor_vector(
+    robot: RobotConstants, s: Sensors, key: jax.Array, noise_std: jax.Array
+) -> jax.Array:
     """Noisy encoder rates, gyro z, accelerometer and the odometry twist (scaled)."""
     k1, k2, k3 = jax.random.split(key, 3)
-    n = env.n_wheels
+    n = robot.n_wheels
     rate = s.wheel_rate + noise_std[0] * jax.random.normal(k1, (n,))
     gyro = s.gyro_z + noise_std[1] * jax.random.normal(k2)
     accel = s.accel + noise_std[2] * jax.random.normal(k3, (3,))
-    odom = jnp.matmul(env.forward_matrix, rate, precision=HIGHEST)
+    odom = jnp.matmul(robot.forward_matrix, rate, precision=HIGHEST)
     return jnp.concatenate(
         [
-            rate / env.max_rates,
-            (gyro / env.command_scale[2])[None],
+            rate / robot.max_rates,
+            (gyro / robot.command_scale[2])[None],
             accel / GRAVITY,
-            odom / env.command_scale,
+            odom / robot.command_scale,
         ]
     )
 
@@ -138,31 +139,42 @@ def past_sensors(info: dict[str, Any], frames: int) -> jax.Array:
     return past.reshape(-1)
 
 
-def measured_yaw_rate(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
+def measured_yaw_rate(robot: RobotConstants, info: dict[str, Any]) -> jax.Array:
     """The gyro's yaw rate as a controller sees it now (noisy, ``latency`` steps old)."""
-    return delayed(info)[env.n_wheels] * env.command_scale[2]
+    return delayed(info)[robot.n_wheels] * robot.command_scale[2]
 
 
-def yaw_integral(env: TaskEnv, info: dict[str, Any], command: jax.Array) -> jax.Array:
-    """The observed leaky yaw-error integral after a step that tracked ``command``."""
-    err = command[2] - measured_yaw_rate(env, info)
-    return env.yaw_decay * info["yaw_integral"] + err * env.config.control_dt
+def yaw_integral(
+    robot: RobotConstants, info: dict[str, Any], command: jax.Array, tau: float, dt: float
+) -> jax.Array:
+    """The observed leaky yaw-error integral (time constant ``tau`` > 0 s) after a step of
+    ``dt`` s that tracked ``command``."""
+    err = command[2] - measured_yaw_rate(robot, info)
+    return float(np.exp(-dt / tau)) * info["yaw_integral"] + err * dt
 
 
-def observe(env: TaskEnv, sens: Sensors, info: dict[str, Any]) -> dict[str, jax.Array]:
-    """The policy's and the critic's observations of the state ``info`` describes."""
-    parts = [info["command"] / env.command_scale, delayed(info), info["last_action"]]
-    tau = env.config.yaw_integral_tau
-    if tau > 0:
-        parts.append((info["yaw_integral"] / (tau * env.command_scale[2]))[None])
-    if env.feedback_base:  # the integrator of the controller the residual corrects, rad/s
-        parts.append((info["feedback_integral"] / env.command_scale[2])[None])
-    if env.config.obs_history > 0:
-        parts.append(past_sensors(info, env.config.obs_history))
+def observe(
+    robot: RobotConstants,
+    sens: Sensors,
+    info: dict[str, Any],
+    yaw_integral_tau: float,
+    feedback_integral: bool,
+    history: int,
+) -> dict[str, jax.Array]:
+    """The policy's and the critic's observations of the state ``info`` describes (the
+    entries as :func:`policy_layout` lists them)."""
+    scale = robot.command_scale
+    parts = [info["command"] / scale, delayed(info), info["last_action"]]
+    if yaw_integral_tau > 0:
+        parts.append((info["yaw_integral"] / (yaw_integral_tau * scale[2]))[None])
+    if feedback_integral:  # the integrator of the controller the residual corrects, rad/s
+        parts.append((info["feedback_integral"] / scale[2])[None])
+    if history > 0:
+        parts.append(past_sensors(info, history))
     state = jnp.concatenate(parts)
     p: RobotParams = info["params"]
-    nom = env.nominal_params
-    truth = sens.twist / env.command_scale
+    nom = robot.nominal_params
+    truth = sens.twist / scale
     privileged = jnp.concatenate(
         [
             state,
@@ -179,10 +191,10 @@ def observe(env: TaskEnv, sens: Sensors, info: dict[str, Any]) -> dict[str, jax.
     return {"state": state, "privileged_state": privileged}
 
 
-def command_from_obs(env: TaskEnv, obs: dict[str, jax.Array]) -> jax.Array:
+def command_from_obs(robot: RobotConstants, obs: dict[str, jax.Array]) -> jax.Array:
     """The (noise-free) command carried in the first three policy observations."""
     cmd = obs["state"][..., :3]
-    return cmd * env.command_scale.reshape((1,) * (cmd.ndim - 1) + (3,))
+    return cmd * robot.command_scale.reshape((1,) * (cmd.ndim - 1) + (3,))
 
 
 __all__ = [

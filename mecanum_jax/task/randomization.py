@@ -9,16 +9,13 @@ can be the nominal robot instead.
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 
 from mecanum_jax.config import invalid, require
 from mecanum_jax.sim.physics import RobotParams
-
-if TYPE_CHECKING:
-    from mecanum_jax.task.protocol import TaskEnv
+from mecanum_jax.task.constants import RobotConstants
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,15 +102,14 @@ jax.tree_util.register_dataclass(
 
 
 def sample_params(
-    env: TaskEnv, key: jax.Array, randomization: RandomizationConfig | None = None
+    robot: RobotConstants, key: jax.Array, r: RandomizationConfig
 ) -> tuple[RobotParams, jax.Array]:
-    """Per-robot physical parameters and observation latency (steps), drawn from
-    ``randomization`` (default: the task's)."""
-    r: RandomizationConfig = randomization or env.config.randomization
-    nom = env.nominal_params
+    """Physical parameters around ``robot``'s nominal ones, and observation latency
+    (steps), drawn from ``r``."""
+    nom = robot.nominal_params
     if not r.enabled:
         return nom, jnp.asarray(0, jnp.int32)
-    n = env.n_wheels
+    n = robot.n_wheels
     ks = jax.random.split(key, 10)
 
     def u(k: jax.Array, lo: float, hi: float, shape: tuple[int, ...] = ()) -> jax.Array:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -21,10 +21,8 @@ import jax.numpy as jnp
 from mecanum_jax.config import require
 from mecanum_jax.kinematics import limits
 from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.task.constants import RobotConstants
 from mecanum_jax.task.observations import command_from_obs, measured_yaw_rate
-
-if TYPE_CHECKING:
-    from mecanum_jax.task.protocol import TaskEnv
 
 Policy = Callable[[Any, jax.Array], tuple[jax.Array, dict[str, Any]]]
 
@@ -93,67 +91,75 @@ desaturation (the baseline), the same with nearest-feasible desaturation, and
 :class:`FeedbackConfig`'s closed loop."""
 
 
-def baseline_rates(env: TaskEnv, command: jax.Array) -> jax.Array:
+def baseline_rates(robot: RobotConstants, command: jax.Array) -> jax.Array:
     """The analytic baseline: the nominal inverse model, desaturated to the rate limits."""
-    twist, _ = limits.desaturate(env.geometry, command, env.max_rates)
-    return kinematics.apply_rows(env.jacobian, twist)
+    twist, _ = limits.desaturate(robot.geometry, command, robot.max_rates)
+    return kinematics.apply_rows(robot.jacobian, twist)
 
 
-def nearest_rates(env: TaskEnv, twist: jax.Array) -> jax.Array:
-    """Wheel rates of the feasible twist nearest ``twist`` (nominal geometry)."""
-    w = env.config.feedback.omega_weight
-    feasible = limits.nearest_feasible(env.geometry, twist, env.max_rates, w)
-    return kinematics.apply_rows(env.jacobian, feasible)
+def nearest_rates(robot: RobotConstants, twist: jax.Array, omega_weight: float) -> jax.Array:
+    """Wheel rates of the feasible twist nearest ``twist`` (nominal geometry; the metric's
+    (m/s)² per (rad/s)², :attr:`FeedbackConfig.omega_weight`)."""
+    feasible = limits.nearest_feasible(robot.geometry, twist, robot.max_rates, omega_weight)
+    return kinematics.apply_rows(robot.jacobian, feasible)
 
 
-def feasible_target(env: TaskEnv, command: jax.Array, radius_scale: jax.Array) -> jax.Array:
+def feasible_target(
+    robot: RobotConstants, command: jax.Array, radius_scale: jax.Array, omega_weight: float
+) -> jax.Array:
     """The nearest feasible twist to ``command`` (..., 3) for the robot as it really is
     (wheel radii scaled by ``radius_scale`` (n,), the rate limits), in the reference
-    controllers' metric: the target of the steady-state error."""
-    geom = env.geometry.replace(radii=env.geometry.radii * radius_scale)
-    w = env.config.feedback.omega_weight
-    return limits.nearest_feasible(geom, command, env.max_rates, w)
+    controllers' metric (``omega_weight``): the target of the steady-state error."""
+    geom = robot.geometry.replace(radii=robot.geometry.radii * radius_scale)
+    return limits.nearest_feasible(geom, command, robot.max_rates, omega_weight)
 
 
-def feedback_twist(env: TaskEnv, info: dict[str, Any]) -> tuple[jax.Array, jax.Array]:
+def feedback_twist(
+    robot: RobotConstants, info: dict[str, Any], deadband: float
+) -> tuple[jax.Array, jax.Array]:
     """The PI-corrected twist command, and the yaw-rate error it corrects."""
     kp = info["feedback_gains"][0]
     command = info["command"]
-    err = command[2] - measured_yaw_rate(env, info)
+    err = command[2] - measured_yaw_rate(robot, info)
     u = kp * err + info["feedback_integral"]
-    band = env.config.feedback.deadband
-    if band > 0:
-        u = jnp.sign(u) * jnp.maximum(jnp.abs(u) - band, 0.0)
+    if deadband > 0:
+        u = jnp.sign(u) * jnp.maximum(jnp.abs(u) - deadband, 0.0)
     return command + jnp.asarray([0.0, 0.0, 1.0]) * u, err
 
 
-def feedback_integral(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
-    """The feedback controller's integrator after this step (see :class:`FeedbackConfig`)."""
+def feedback_integral(
+    robot: RobotConstants, info: dict[str, Any], fb: FeedbackConfig, dt: float
+) -> jax.Array:
+    """The feedback controller's integrator after this step of ``dt`` s (see
+    :class:`FeedbackConfig`)."""
     _, ki, i_max = info["feedback_gains"]
-    twist, err = feedback_twist(env, info)
-    rates = kinematics.apply_rows(env.jacobian, twist)
-    saturated = jnp.max(jnp.abs(rates) / env.max_rates) > 1.0
+    twist, err = feedback_twist(robot, info, fb.deadband)
+    rates = kinematics.apply_rows(robot.jacobian, twist)
+    saturated = jnp.max(jnp.abs(rates) / robot.max_rates) > 1.0
     u = twist[2] - info["command"][2]
     hold = saturated & (err * u > 0)  # the error would wind it up further
-    steps = env.config.feedback.hold_steps(env.config.control_dt)
+    steps = fb.hold_steps(dt)
     if steps > 0:  # the command is younger than hold_s: a transient, not a bias
         hold = hold | (info["command_age"] < steps)
-    grown = jnp.clip(info["feedback_integral"] + ki * err * env.config.control_dt,
-                     -i_max, i_max)  # fmt: skip
+    grown = jnp.clip(info["feedback_integral"] + ki * err * dt, -i_max, i_max)
     return jnp.where(hold, info["feedback_integral"], grown)
 
 
 def track_command(
-    env: TaskEnv, info: dict[str, Any], command: jax.Array | None = None, advance: bool = True
+    fb: FeedbackConfig,
+    dt: float,
+    info: dict[str, Any],
+    command: jax.Array | None = None,
+    advance: bool = True,
 ) -> dict[str, Any]:
     """``info`` with what the feedback controller keeps of the tracked command: its age,
     ``command_age`` in control periods since it changed (where the integrator holds after
     changes, ``hold_s > 0``), and the integrator restarted at 0 where it changed (``reset``).
     ``command=None``: a reset, age 0. Otherwise the age is 0 where ``command`` differs from
     the one ``info`` tracked, else one more (``advance``: a step) or the same (a command
-    imposed between steps). ``info`` as it is when neither rule is on."""
-    fb = env.config.feedback
-    hold = fb.hold_steps(env.config.control_dt) > 0
+    imposed between steps). ``info`` as it is when neither rule is on. ``dt``: the
+    control period, s."""
+    hold = fb.hold_steps(dt) > 0
     if not (hold or fb.reset):
         return info
     if command is None:
@@ -168,18 +174,21 @@ def track_command(
     return out
 
 
-def feedback_rates(env: TaskEnv, info: dict[str, Any]) -> jax.Array:
+def feedback_rates(robot: RobotConstants, info: dict[str, Any], fb: FeedbackConfig) -> jax.Array:
     """The ``feedback`` reference's wheel-rate setpoints for the state's ``info``."""
-    return nearest_rates(env, feedback_twist(env, info)[0])
+    return nearest_rates(robot, feedback_twist(robot, info, fb.deadband)[0], fb.omega_weight)
 
 
-def reference_rates(env: TaskEnv, reference: int | jax.Array, info: dict[str, Any]) -> jax.Array:
+def reference_rates(
+    robot: RobotConstants, reference: int | jax.Array, info: dict[str, Any], fb: FeedbackConfig
+) -> jax.Array:
     """Wheel-rate setpoints of reference controller ``reference`` (an index into
-    :data:`REFERENCES`; a Python int computes only that one) for the state's ``info``."""
+    :data:`REFERENCES`; a Python int computes only that one) for the state's ``info``
+    (``fb``: the feedback controller's settings)."""
     candidates = (
-        lambda: baseline_rates(env, info["command"]),
-        lambda: nearest_rates(env, info["command"]),
-        lambda: feedback_rates(env, info),
+        lambda: baseline_rates(robot, info["command"]),
+        lambda: nearest_rates(robot, info["command"], fb.omega_weight),
+        lambda: feedback_rates(robot, info, fb),
     )
     if isinstance(reference, int):
         return candidates[reference]()
@@ -187,20 +196,20 @@ def reference_rates(env: TaskEnv, reference: int | jax.Array, info: dict[str, An
     return jnp.select([index == i for i in range(len(candidates))], [c() for c in candidates])
 
 
-def baseline_policy(env: TaskEnv) -> Policy:
+def baseline_policy(robot: RobotConstants, residual: bool, action_size: int) -> Policy:
     """The analytic baseline behind the learned-policy interface ``(obs, key) -> (action, {})``.
 
-    With residual actions it is the zero residual; otherwise it outputs the desaturated
-    nominal inverse model's wheel rates divided by the rate limits.
+    With ``residual`` actions (``action_size`` of them) it is the zero residual; otherwise it
+    outputs the desaturated nominal inverse model's wheel rates divided by the rate limits.
     """
 
     def policy(obs: dict[str, jax.Array], key: jax.Array) -> tuple[jax.Array, dict[str, Any]]:
         del key
-        command = command_from_obs(env, obs)
-        if env.config.residual:
-            return jnp.zeros((*command.shape[:-1], env.action_size)), {}
-        rates = baseline_rates(env, command)
-        return rates / env.max_rates.reshape((1,) * (rates.ndim - 1) + (-1,)), {}
+        command = command_from_obs(robot, obs)
+        if residual:
+            return jnp.zeros((*command.shape[:-1], action_size)), {}
+        rates = baseline_rates(robot, command)
+        return rates / robot.max_rates.reshape((1,) * (rates.ndim - 1) + (-1,)), {}
 
     return policy
 

@@ -45,7 +45,7 @@ from mecanum_jax.task.anchor import exact_components
 from train.loss_config import AnchorConfig, SmoothnessConfig
 
 if TYPE_CHECKING:
-    from mecanum_jax.task.protocol import TaskEnv
+    from mecanum_jax.task.env import MecanumEnv
 
 
 def anchor_loss(action: jax.Array, mask: jax.Array) -> jax.Array:
@@ -57,15 +57,20 @@ def anchor_loss(action: jax.Array, mask: jax.Array) -> jax.Array:
 
 
 def state_extras(
-    env: TaskEnv, info: dict[str, Any], next_info: dict[str, Any], anchor: AnchorConfig
+    env: MecanumEnv, info: dict[str, Any], next_info: dict[str, Any], anchor: AnchorConfig
 ) -> dict[str, jax.Array]:
     """What the loss reads of a batch of transitions besides the observations:
     ``truncation`` (Brax's), and with ``anchor`` on the mask of
     :func:`~mecanum_jax.task.anchor.exact_components` on the states acted from (``info``)."""
     extras = {"truncation": next_info["truncation"]}
     if anchor.enabled:
+        hold = env.config.feedback.hold_steps(env.config.control_dt)
         exact = functools.partial(
-            exact_components, env, spins=anchor.spins, translations=anchor.translations
+            exact_components,
+            env.constants,
+            hold_steps=hold,
+            spins=anchor.spins,
+            translations=anchor.translations,
         )
         extras["anchor"] = jax.vmap(exact)(info)
     return extras
