@@ -64,7 +64,6 @@
 #                           sh2gpu_64k mp2gpu (default), pmap2gpu, sh1gpu_64k, and split2gpu
 #                           split2gpu_64k (each GPU its own rollout program), each with FLAGS
 #                           too (e.g. -- --env.physics-impl warp, with --warp)
-#   experiment SCRIPT ARGS...      python experiments/SCRIPT ARGS
 #   profile [--trace] ARGS...      where one epoch's time goes (python -m train.tools.profile, gpu
 #                           config + ARGS): $OUT/profile.json; --trace also sends a
 #                           jax.profiler trace of one epoch as $OUT/profile_trace.tgz.partNN
@@ -402,7 +401,6 @@ case "$TASK" in
   ab) ab "$@" ;;
   student) student "$@" ;;
   multi-gpu) multi_gpu "$@" ;;
-  experiment) script=$1; shift; python3 "experiments/$script" "$@" 2>&1 | quiet ;;
   profile) profile "$@" ;;
   coldstart) coldstart "$@" ;;
   scaling) scaling "$@" ;;
