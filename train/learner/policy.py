@@ -20,6 +20,7 @@ from typing import Any
 import jax
 
 from mecanum_jax.config import ConfigError
+from train.store import inputs
 from train.store.checkpoint import CHECKPOINT_DIR, checkpoint_path, read_checked, unpack_train
 from train.store.leaves import CheckpointError
 
@@ -66,7 +67,9 @@ def restore_policy(
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
-        raise CheckpointError(f"run directory {str(run_dir)!r}: no such directory")
+        what = "not a directory" if run_dir.exists() else "no such directory"
+        raise CheckpointError(f"run directory {str(run_dir)!r}: {what}")
+    check_saved_config(run_dir)
     packaged = _provenance(run_dir)
     if epoch is None and packaged.get("epoch") is not None:
         # a model directory evaluates the epoch it was packaged from, not a newer
@@ -81,6 +84,7 @@ def restore_policy(
     meta = dict(items["meta"])
     try:
         cfg = parse_train_config(meta["config"], f"{run_dir}/checkpoint meta")
+        cfg = inputs.use_copies(cfg, run_dir)  # the description it trained on, if copied
     except (KeyError, ConfigError) as err:
         raise CheckpointError(
             f"checkpoint {str(run_dir)!r}: bad config in metadata: {err}"
@@ -116,6 +120,22 @@ def restore_policy(
 PROVENANCE = "provenance.json"
 
 
+def check_saved_config(run_dir: Path) -> None:
+    """Refuse a run or model directory whose ``config.json`` is unreadable or invalid
+    (truncated, say): it is the task deploy-sim and a resumed run read, and a model
+    directory packed from the run would carry it."""
+    from train.config import load_train_config
+
+    path = run_dir / "config.json"
+    if path.exists() or path.is_symlink():
+        try:
+            load_train_config(path)
+        except ConfigError as err:  # names the file
+            raise CheckpointError(str(err)) from None
+        except OSError as err:
+            raise CheckpointError(f"{str(path)!r}: unreadable: {err}") from None
+
+
 def _provenance(run_dir: Path) -> dict[str, Any]:
     """A model directory's ``provenance.json`` (empty for a run directory)."""
     path = run_dir / PROVENANCE
@@ -146,7 +166,9 @@ def package_model(restored: RestoredPolicy, out: Path, provenance: dict[str, Any
             shutil.copyfile(src / name, dst / name)
     config = restored.run_dir / "config.json"
     if config.exists():
+        check_saved_config(restored.run_dir)  # never a broken config.json into a model
         shutil.copyfile(config, tmp / "config.json")
+    inputs.copy_inputs(restored.run_dir, tmp)
     meta = restored.meta
     record = {
         "source_run": str(restored.run_dir),
