@@ -131,7 +131,6 @@ def _check(args: DeploySimArgs) -> None:
 
 def load_model(args: DeploySimArgs) -> tuple[Any, Controller]:
     """The model directory's task config and a controller on the chosen backend."""
-    from train.config import load_train_config
     from train.store import inputs
 
     model = Path(args.model)
@@ -150,7 +149,7 @@ def load_model(args: DeploySimArgs) -> tuple[Any, Controller]:
                     else ")"
                 )
             )
-    cfg = inputs.use_copies(load_train_config(model / "config.json"), model)
+    cfg = inputs.load_saved_config(model)  # the robot: the model's copy, if it has one
     controller = Controller.load(model / f"policy.{suffix}")
     if controller.policy.meta.get("robot") not in (None, cfg.env.description().robot.name):
         raise ConfigError(

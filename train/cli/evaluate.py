@@ -55,8 +55,8 @@ from train.cli.eval_output import (  # noqa: E402
     write_plots,
 )
 from train.cli.eval_target import Target, default_out  # noqa: E402
-from train.cli.paths import check_output, resolve_model  # noqa: E402
 from train.cli.export import export_policy  # noqa: E402
+from train.cli.paths import check_output, resolve_model  # noqa: E402
 from train.loop import compilation_cache  # noqa: E402
 from train.loop.progress import print_error, rollout_progress  # noqa: E402
 from train.loop.run_records import write_json  # noqa: E402
@@ -254,6 +254,8 @@ def _prepare(args: EvalArgs) -> tuple[Target, scenarios.ScenarioSet, Path]:
     """Check everything that can be checked before a rollout: the arguments, the
     scenarios (scripted ones included), the target and the output directory."""
     check_args(args)
+    if args.out:  # before anything is built
+        check_output(args.out, "--out")
     if args.target != "baseline":  # models/o_rectangle is found where the package is
         args.target = resolve_model(args.target)
     scenario_set = scenarios.load_scenarios(args.scenarios).select(

@@ -124,16 +124,12 @@ def check_saved_config(run_dir: Path) -> None:
     """Refuse a run or model directory whose ``config.json`` is unreadable or invalid
     (truncated, say): it is the task deploy-sim and a resumed run read, and a model
     directory packed from the run would carry it."""
-    from train.config import load_train_config
-
     path = run_dir / "config.json"
     if path.exists() or path.is_symlink():
         try:
-            load_train_config(path)
+            inputs.load_saved_config(run_dir, warn=False)  # the robot: the run's copy
         except ConfigError as err:  # names the file
             raise CheckpointError(str(err)) from None
-        except OSError as err:
-            raise CheckpointError(f"{str(path)!r}: unreadable: {err}") from None
 
 
 def _provenance(run_dir: Path) -> dict[str, Any]:

@@ -122,11 +122,35 @@ def use_copies(cfg: Any, run_dir: Path) -> Any:
     return dataclasses.replace(cfg, env=env)
 
 
+def load_saved_config(run_dir: Path, warn: bool = True) -> Any:
+    """``run_dir/config.json`` as a TrainConfig whose ``env.robot`` is the run's copy (if
+    it has one), so that it loads after the original is gone. Errors name the file."""
+    from train.config import parse_train_config
+
+    path = run_dir / "config.json"
+    try:
+        data = json.loads(path.read_text())
+    except ValueError as err:  # JSON, or not UTF-8 text
+        raise ConfigError(f"config file {str(path)!r}: invalid JSON: {err}") from None
+    except OSError as err:
+        raise ConfigError(f"config file {str(path)!r}: unreadable: {err.strerror}") from None
+    env = data.get("env") if isinstance(data, dict) else None
+    if isinstance(env, dict) and isinstance(env.get("robot"), str):
+        with warnings.catch_warnings():
+            if not warn:
+                warnings.simplefilter("ignore", EditedInputWarning)
+            copy = robot_copy(run_dir, env["robot"])
+        if copy is not None:
+            data = {**data, "env": {**env, "robot": str(copy.resolve())}}
+    return parse_train_config(data, str(path))
+
+
 __all__ = [
     "INPUTS_DIR",
     "EditedInputWarning",
     "add_file",
     "copy_inputs",
+    "load_saved_config",
     "read_index",
     "robot_copy",
     "save_inputs",
