@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from mecanum_jax.config import CONFIG_DIR
-from train.config import TrainConfig, load_train_config
+from train.config import TrainConfig, load_train_config, parse_train_config
 from train.store import inputs
 
 ROBOT = CONFIG_DIR / "robots" / "o_rectangle.toml"
@@ -20,6 +20,11 @@ ROBOT = CONFIG_DIR / "robots" / "o_rectangle.toml"
 def _cfg(robot: str) -> TrainConfig:
     cfg = TrainConfig()
     return dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, robot=robot))
+
+
+def _restored(robot: str, run: Path) -> TrainConfig:
+    """The config a run of ``robot`` restores with (as restore_policy reads it)."""
+    return parse_train_config(inputs.use_copies(_cfg(robot).to_dict(), run), "saved")
 
 
 @pytest.fixture
@@ -45,7 +50,7 @@ def test_the_copy_serves_when_the_original_is_deleted_silently(custom):
     path.unlink()
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        cfg = inputs.use_copies(_cfg(str(path)), run)
+        cfg = _restored(str(path), run)
     assert cfg.env.robot == str((run / "inputs" / "robot.toml").resolve())
     assert cfg.env.description().robot.name == "o_rectangle"
 
@@ -54,7 +59,7 @@ def test_an_edited_original_is_named_beside_the_copy(custom):
     path, run = custom
     path.write_text(path.read_text().replace("wheel_radius = 0.05", "wheel_radius = 0.06"))
     with pytest.warns(inputs.EditedInputWarning) as record:
-        cfg = inputs.use_copies(_cfg(str(path)), run)
+        cfg = _restored(str(path), run)
     message = str(record[0].message)
     assert str(path) in message
     assert str(run / "inputs" / "robot.toml") in message
@@ -64,7 +69,7 @@ def test_an_edited_original_is_named_beside_the_copy(custom):
 def test_a_built_in_robot_is_copied_too_and_a_run_without_copies_is_unchanged(tmp_path):
     inputs.save_inputs(tmp_path / "run", _cfg("o_rectangle"))
     assert (tmp_path / "run" / "inputs" / "robot.toml").read_bytes() == ROBOT.read_bytes()
-    old = _cfg("o_rectangle")
+    old = _cfg("o_rectangle").to_dict()
     assert inputs.use_copies(old, tmp_path) is old  # no inputs/: as before
 
 

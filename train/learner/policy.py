@@ -83,8 +83,8 @@ def restore_policy(
     epoch, items = read_checked(run_dir, epoch, ("train", "meta"))
     meta = dict(items["meta"])
     try:
-        cfg = parse_train_config(meta["config"], f"{run_dir}/checkpoint meta")
-        cfg = inputs.use_copies(cfg, run_dir)  # the description it trained on, if copied
+        saved = inputs.use_copies(meta["config"], run_dir)  # the robot it trained on, if copied
+        cfg = parse_train_config(saved, f"{run_dir}/checkpoint meta")
     except (KeyError, ConfigError) as err:
         raise CheckpointError(
             f"checkpoint {str(run_dir)!r}: bad config in metadata: {err}"

@@ -8,14 +8,13 @@ holds::
     inputs/inputs.json    where each came from, and its SHA-256
 
 so that it evaluates and exports after the user's TOML is moved, edited or deleted:
-:func:`use_copies` points a restored config's ``env.robot`` at the copy. An original that
+:func:`use_copies` points a saved config's ``env.robot`` at the copy. An original that
 still exists but whose bytes changed is named in a warning beside the copy (the copy is
 used: it is what the run trained on); a deleted one is not mentioned.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import shutil
@@ -113,13 +112,20 @@ def robot_copy(run_dir: Path, given: str) -> Path | None:
     return copy
 
 
-def use_copies(cfg: Any, run_dir: Path) -> Any:
-    """``cfg`` (a TrainConfig read from ``run_dir``) with ``env.robot`` the run's copy."""
-    copy = robot_copy(run_dir, cfg.env.robot)
+def use_copies(data: Any, run_dir: Path, warn: bool = True) -> Any:
+    """A saved config mapping of ``run_dir`` (config.json's, or a checkpoint's) with
+    ``env.robot`` the run's copy, where it has one; parse it after this, since parsing
+    loads the description."""
+    env = data.get("env") if isinstance(data, dict) else None
+    if not (isinstance(env, dict) and isinstance(env.get("robot"), str)):
+        return data
+    with warnings.catch_warnings():
+        if not warn:
+            warnings.simplefilter("ignore", EditedInputWarning)
+        copy = robot_copy(run_dir, env["robot"])
     if copy is None:
-        return cfg
-    env = dataclasses.replace(cfg.env, robot=str(copy.resolve()))
-    return dataclasses.replace(cfg, env=env)
+        return data
+    return {**data, "env": {**env, "robot": str(copy.resolve())}}
 
 
 def load_saved_config(run_dir: Path, warn: bool = True) -> Any:
@@ -134,14 +140,7 @@ def load_saved_config(run_dir: Path, warn: bool = True) -> Any:
         raise ConfigError(f"config file {str(path)!r}: invalid JSON: {err}") from None
     except OSError as err:
         raise ConfigError(f"config file {str(path)!r}: unreadable: {err.strerror}") from None
-    env = data.get("env") if isinstance(data, dict) else None
-    if isinstance(env, dict) and isinstance(env.get("robot"), str):
-        with warnings.catch_warnings():
-            if not warn:
-                warnings.simplefilter("ignore", EditedInputWarning)
-            copy = robot_copy(run_dir, env["robot"])
-        if copy is not None:
-            data = {**data, "env": {**env, "robot": str(copy.resolve())}}
+    data = use_copies(data, run_dir, warn)
     return parse_train_config(data, str(path))
 
 
