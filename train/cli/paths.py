@@ -22,9 +22,10 @@ def check_output(path: str | Path, field: str, empty_dir_ok: bool = False) -> Pa
     path = Path(path)
     text = f"{field} = {str(path)!r}"
     if path.exists() or path.is_symlink():
-        if not path.is_dir():
-            raise ConfigError(f"{text}: already exists (a file); never overwritten")
-        if not (empty_dir_ok and not any(path.iterdir())):
+        if not (empty_dir_ok and path.is_dir()):
+            what = " and is not a directory" if empty_dir_ok else ""
+            raise ConfigError(f"{text}: already exists{what}; never overwritten")
+        if any(path.iterdir()):
             raise ConfigError(f"{text}: already exists and is not empty; never overwritten")
         return path
     parent = path.absolute().parent
