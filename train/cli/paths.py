@@ -36,7 +36,7 @@ def check_output(path: str | Path, field: str, empty_dir_ok: bool = False) -> Pa
     try:  # writing tells what access() cannot: read-only mounts, /proc, ACLs
         os.rmdir(tempfile.mkdtemp(prefix=".mecanum-probe-", dir=parent))
     except OSError as err:
-        raise ConfigError(f"{text}: cannot write in {str(parent)!r} ({err.strerror})") from None
+        raise ConfigError(f"{text}: cannot create it in {str(parent)!r} ({err.strerror})") from None
     return path
 
 
