@@ -6,12 +6,14 @@ Run: ``mecanum-demo [--robot o_rectangle] [--speed 0.5]``.
 from __future__ import annotations
 
 import dataclasses
+import sys
 
 import jax.numpy as jnp
 import tyro
 from rich.console import Console
 from rich.table import Table
 
+from mecanum_jax.config import ConfigError
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.kinematics import motors
 from mecanum_jax.kinematics.modes import SIX_MODES
@@ -29,13 +31,21 @@ class DemoArgs:
     """Linear speed (m/s) of translations and spin rate (rad/s) of the spins."""
 
 
-def main(argv: list[str] | None = None) -> None:
-    args = tyro.cli(DemoArgs, args=argv)
+def main(argv: list[str] | None = None) -> int:
+    """``mecanum-demo``: exit code 2 for a bad speed or robot description."""
+    args = tyro.cli(DemoArgs, args=argv, prog="mecanum-demo")
     set_matmul_precision("highest")
-    if not args.speed > 0:
-        raise SystemExit(f"--speed = {args.speed!r}: must be > 0")
-    desc = resolve_description(args.robot)
-    geom = desc.build_geometry()
+    try:
+        if not 0 < args.speed < float("inf"):
+            raise ConfigError(f"--speed = {args.speed!r}: must be a finite number > 0")
+        desc = resolve_description(args.robot)
+        geom = desc.build_geometry()
+    except UnicodeDecodeError:
+        print(f"error: robot = {args.robot!r}: not a text file (UTF-8)", file=sys.stderr)
+        return 2
+    except (ConfigError, OSError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     twists = jnp.asarray([t for _, t, _ in SIX_MODES.values()]) * args.speed
     rates = kinematics.inverse(geom, twists)
     signs = desc.motor_signs(geom.names)
@@ -65,6 +75,7 @@ def main(argv: list[str] | None = None) -> None:
         f"Jacobian rank {kinematics.jacobian_rank(geom)}, condition number "
         f"{float(kinematics.condition_number(geom)):.3f}; motor signs {signs}"
     )
+    return 0
 
 
 def _fmt(v: jnp.ndarray) -> str:
@@ -77,4 +88,4 @@ def _short(name: str) -> str:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

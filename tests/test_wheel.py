@@ -1,5 +1,7 @@
 """The built wheel works outside the clone: its robots, run configs and scenarios ship
-inside the package (full tier: builds a wheel and a fresh environment)."""
+inside the package, and so does the shipped policy (models/o_rectangle as
+mecanum_jax/shipped/o_rectangle); a user's own ``train.py`` in the working folder does
+not shadow the trainer (full tier: builds a wheel and a fresh environment)."""
 
 import os
 import shutil
@@ -32,6 +34,11 @@ def test_wheel_installs_and_runs_from_outside_the_clone(tmp_path):
         metadata = whl.read(next(n for n in names if n.endswith(".dist-info/METADATA")))
     assert b"License-Expression: Apache-2.0" in metadata
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names), names
+    shipped = "mecanum_jax/shipped/o_rectangle/"
+    for name in ("config.json", "policy.npz", "provenance.json", "checkpoints/19/meta/metadata"):
+        assert shipped + name in names, name
+    for kind in ("robots/o_rectangle", "eval/default", "train/tiny"):
+        assert f"mecanum_jax/configs/{kind}.toml" in names, kind
     # the locked versions of the runtime dependencies (from uv's cache, no resolution)
     reqs = tmp_path / "requirements.txt"
     subprocess.run(
@@ -47,6 +54,9 @@ def test_wheel_installs_and_runs_from_outside_the_clone(tmp_path):
     subprocess.run([*install, "--no-deps", str(wheel)], check=True)
     work = tmp_path / "elsewhere"
     work.mkdir()
+    # a user's own script named like the trainer's package: console scripts do not put the
+    # working folder on sys.path, so it is never imported in place of the package
+    (work / "train.py").write_text("raise SystemExit('the user train.py was imported')\n")
     script = textwrap.dedent(
         """
         import jax.numpy as jnp
@@ -82,3 +92,13 @@ def test_wheel_installs_and_runs_from_outside_the_clone(tmp_path):
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert "pip install 'mecanum-jax[video]'" in " ".join(proc.stderr.split())
     assert not (work / "v").exists()
+    # the shipped policy, found inside the package from a folder without models/
+    run(str(bin_dir / "mecanum-eval"), "models/o_rectangle", "--only", "nominal",
+        "--episodes", "2", "--seconds", "0.2", "--no-plots", "--out", "ev_shipped")  # fmt: skip
+    assert "o_rectangle" in (work / "ev_shipped" / "report.json").read_text()
+    run(str(bin_dir / "mecanum-deploy-sim"), "--episodes", "1", "--seconds", "0.2",
+        "--out", "ds.json")  # fmt: skip
+    assert (work / "ds.json").exists()
+    (installed,) = venv.glob("lib/python*/site-packages/mecanum_jax/shipped/o_rectangle")
+    packed = {n[len(shipped) :].split("/")[0] for n in names if n.startswith(shipped)}
+    assert {p.name for p in installed.iterdir()} == packed  # nothing written beside it

@@ -33,7 +33,7 @@ TRAIN_CONFIG_DIR = CONFIG_DIR / "train"
 
 @dataclasses.dataclass(frozen=True)
 class NetworkConfig:
-    """Policy and value MLPs (Brax's ``make_ppo_networks``)."""
+    """Policy and value MLPs (Brax's make_ppo_networks)."""
 
     policy_hidden: tuple[int, ...] = (128, 128, 128)
     """Hidden layer sizes of the policy MLP (at least one, each >= 1)."""
@@ -57,9 +57,9 @@ class NetworkConfig:
 class PPOConfig:
     """PPO hyper-parameters with Brax's meanings.
 
-    One training iteration collects ``batch_size · num_minibatches`` trajectories of
-    ``unroll_length`` steps from ``num_envs`` environments, then runs
-    ``num_updates_per_batch`` passes of ``num_minibatches`` gradient steps.
+    One training iteration collects batch_size · num_minibatches trajectories of
+    unroll_length steps from num_envs environments, then runs
+    num_updates_per_batch passes of num_minibatches gradient steps.
     """
 
     num_timesteps: int = 400_000
@@ -98,7 +98,7 @@ class PPOConfig:
     """Ramp the policy's updates from zero over this many env steps (>= 0; 0: off)."""
     update_precision: Literal["run", "default", "high", "highest"] = "run"
     """Matmul precision of the update's forward and backward passes (train/learner/losses.py
-    ``at_precision``): ``run`` keeps ``run.matmul_precision``; ``default`` lets an
+    at_precision): run keeps run.matmul_precision; default lets an
     NVIDIA GPU use TF32 there. Rollouts and evaluations keep the run's precision."""
     smoothness: SmoothnessConfig = SmoothnessConfig()
     """CAPS-style smoothness terms in the policy loss (train/learner/losses.py; off by default)."""
@@ -114,17 +114,17 @@ class PPOConfig:
 class RunConfig:
     """Seeds, evaluation, checkpoints, devices.
 
-    ``seeds`` are trained side by side, vectorized in one program (``jax.vmap``).
-    ``parallel`` spreads that program over the devices: ``"pmap"`` (Brax's path) or
-    ``"sharded"`` (``jit`` with the device axis sharded over a mesh; the collectives are
-    those of a named ``vmap``). With jax 0.11.2 on 2 GPUs, ``pmap`` (and ``shard_map``)
-    of any MJX step crashes XLA's compiler, while sharded ``jit`` compiles; ``"auto"``
-    picks ``"sharded"`` for several GPUs or several processes (``--distributed``),
-    ``"pmap"`` otherwise, except ``"split"`` for MuJoCo Warp on several GPUs of one
+    seeds are trained side by side, vectorized in one program (jax.vmap).
+    parallel spreads that program over the devices: "pmap" (Brax's path) or
+    "sharded" (jit with the device axis sharded over a mesh; the collectives are
+    those of a named vmap). With jax 0.11.2 on 2 GPUs, pmap (and shard_map)
+    of any MJX step crashes XLA's compiler, while sharded jit compiles; "auto"
+    picks "sharded" for several GPUs or several processes (--distributed),
+    "pmap" otherwise, except "split" for MuJoCo Warp on several GPUs of one
     process: each device's rollouts in a program of its own and only the update over the
     mesh, since the mesh cannot split Warp's step (train/learner/parallel.py,
     train/learner/split_epoch.py).
-    ``epoch_iterations`` training iterations run per compiled call; logging, the NaN
+    epoch_iterations training iterations run per compiled call; logging, the NaN
     check and Ctrl-C checkpoints happen between calls.
     """
 
@@ -155,9 +155,9 @@ class RunConfig:
     parallel: Literal["auto", "pmap", "sharded", "split"] = "auto"
     """How the program spreads over devices: "pmap", "sharded", "split", or "auto"."""
     wandb_project: str = ""
-    """Also log to this Weights & Biases project (needs ``pip install wandb``; empty: off)."""
+    """Also log to this Weights & Biases project (needs pip install wandb; empty: off)."""
     progress_every_s: float = 30.0
-    """Where the log stream is not a terminal (``> log 2>&1``, nohup, SLURM): a plain
+    """Where the log stream is not a terminal (> log 2>&1, nohup, SLURM): a plain
     progress line every this many seconds, and one at each evaluation (> 0)."""
 
 
@@ -339,13 +339,14 @@ def load_train_config(path: str | Path) -> TrainConfig:
     A bare name (``quick``) means ``configs/train/<name>.toml``.
     """
     p = find_config(path, TRAIN_CONFIG_DIR, "config", "built-in config")
-    if p.suffix == ".json":
-        try:
-            data = json.loads(p.read_text())
-        except json.JSONDecodeError as err:
-            raise ConfigError(f"config file {str(p)!r}: invalid JSON: {err}") from None
-    else:
-        data = load_toml(p)
+    try:
+        data = json.loads(p.read_text()) if p.suffix == ".json" else load_toml(p)
+    except json.JSONDecodeError as err:
+        raise ConfigError(f"config file {str(p)!r}: invalid JSON: {err}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"config file {str(p)!r}: not a text file (UTF-8)") from None
+    except OSError as err:
+        raise ConfigError(f"config file {str(p)!r}: unreadable: {err.strerror}") from None
     return parse_train_config(data, str(p))
 
 

@@ -14,9 +14,9 @@ class SmoothnessConfig:
     """Weights of the CAPS-style terms (0: off) and the spatial perturbation's scale."""
 
     temporal: float = 0.0
-    """Weight of ``‖μ(s_t) − μ(s_{t+1})‖²`` (>= 0; 0: off)."""
+    """Weight of ‖μ(s_t) − μ(s_{t+1})‖² (>= 0; 0: off)."""
     spatial: float = 0.0
-    """Weight of ``‖μ(s) − μ(s + ε)‖²`` (>= 0; 0: off)."""
+    """Weight of ‖μ(s) − μ(s + ε)‖² (>= 0; 0: off)."""
     sigma: float = 0.02
     """Standard deviation of ε, in the policy observation's scaled units (> 0)."""
 
@@ -37,11 +37,11 @@ class DistillConfig:
 
     teacher: str = ""
     """The teacher's run or model directory ("": no teacher): a policy of the same task
-    (``env`` may differ only in ``obs_history`` and ``physics_impl``), usually a privileged
-    one (``network.teacher = true``); of a run, its first seed is the teacher
-    (``mecanum-export --model`` packs another)."""
+    (env may differ only in obs_history and physics_impl), usually a privileged
+    one (network.teacher = true); of a run, its first seed is the teacher
+    (mecanum-export --model packs another)."""
     weight: float = 1.0
-    """Weight of ``‖μ(s) − μ_teacher(s)‖²`` in the policy loss (> 0)."""
+    """Weight of ‖μ(s) − μ_teacher(s)‖² in the policy loss (> 0)."""
 
     def validate(self, where: str = "ppo.distill") -> None:
         """Check values; raise :class:`ConfigError` naming the field."""
@@ -54,18 +54,18 @@ class DistillConfig:
 
 @dataclasses.dataclass(frozen=True)
 class AnchorConfig:
-    """Weight of :func:`anchor_loss` (0: off) and where it applies; needs a twist-space
+    """Weight of anchor_loss (0: off) and where it applies; needs a twist-space
     residual."""
 
     weight: float = 0.0
-    """Weight of the mean of ``μ_k(s)²`` over the states and components where the base is
+    """Weight of the mean of μ_k(s)² over the states and components where the base is
     exact (>= 0; 0: off)."""
     spins: bool = False
     """Also every component on the nominal robot's steady pure spins (within reach) and
     stops, where the base holds v and ωz exactly; off: only ωz on steady no-yaw commands."""
     translations: bool = False
     """Also every component on the nominal robot's steady pure translations within reach,
-    where the base's setpoints are ``analytic``'s; off: only their ωz."""
+    where the base's setpoints are analytic's; off: only their ωz."""
 
     def validate(self, where: str = "ppo.anchor") -> None:
         """Check values; raise :class:`ConfigError` naming the field."""

@@ -179,8 +179,10 @@ def convert_file(path: str | Path, name: str, controller: str | None = None, **k
         raise ConfigError(f"params = {str(path)!r}: no such file")
     try:
         data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as err:
+    except (yaml.YAMLError, UnicodeDecodeError) as err:
         raise ConfigError(f"params = {str(path)!r}: not valid YAML ({err})") from None
+    except OSError as err:
+        raise ConfigError(f"params = {str(path)!r}: unreadable ({err.strerror})") from None
     if not isinstance(data, dict):
         raise ConfigError(f"params = {str(path)!r}: expected a mapping at the top")
     return description_toml(controller_parameters(data, controller), name, **kwargs)
@@ -237,14 +239,19 @@ def main(argv: list[str] | None = None) -> int:
                 max_motor_rpm=args.max_motor_rpm,
                 gear_ratio=args.gear_ratio,
             )
-    except ConfigError as err:
+    except (ConfigError, OSError, UnicodeDecodeError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     if args.out is None:
         sys.stdout.write(text)
-    else:
-        Path(args.out).write_text(text)
-        print(f"wrote {args.out}", file=sys.stderr)
+        return 0
+    try:
+        with open(args.out, "x") as f:  # "x": an existing file is never overwritten
+            f.write(text)
+    except OSError as err:
+        print(f"error: out = {args.out!r}: cannot write it: {err.strerror}", file=sys.stderr)
+        return 2
+    print(f"wrote {args.out}", file=sys.stderr)
     return 0
 
 

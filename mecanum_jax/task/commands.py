@@ -26,7 +26,7 @@ COMMAND_KINDS = ("zero", "translation", "spin", "combined", "beyond")
 class CommandConfig:
     """How commands are drawn. Fractions are of the feasible set's radius in the direction.
 
-    The kind of each command is drawn with the relative weights ``p_*``.
+    The kind of each command is drawn with the relative weights p_*.
     """
 
     p_zero: float = 0.1

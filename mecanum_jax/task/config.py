@@ -22,39 +22,39 @@ MAX_OBS_HISTORY = 50
 
 @dataclasses.dataclass(frozen=True)
 class EnvConfig:
-    """The task. ``robot`` is a built-in description name or a path to a TOML file.
+    """The task. robot is a built-in description name or a path to a TOML file.
 
-    ``residual_space`` (with ``residual = true``): ``"wheel"``, one correction per wheel
-    (``± residual_scale · max_rate``); or ``"twist"``, a correction of the body twist
-    (``± residual_scale`` of the largest feasible vx, vy, ωz) mapped through the nominal
+    residual_space (with residual = true): "wheel", one correction per wheel
+    (± residual_scale · max_rate); or "twist", a correction of the body twist
+    (± residual_scale of the largest feasible vx, vy, ωz) mapped through the nominal
     inverse model, so the policy cannot drive the wheels against each other (the
     inverse model's null space, which squeezes the rollers and only costs energy).
 
-    ``residual_base`` (with ``residual = true``): the controller the residual corrects.
-    ``"analytic"``: the nominal inverse model, desaturated uniformly (the baseline).
-    ``"feedback"``: the ``feedback`` reference controller (:class:`FeedbackConfig`): the
+    residual_base (with residual = true): the controller the residual corrects.
+    "analytic": the nominal inverse model, desaturated uniformly (the baseline).
+    "feedback": the feedback reference controller (FeedbackConfig): the
     inverse model on the command plus a yaw-rate integral correction from the gyro, with
     anti-windup, projected onto the nearest feasible twist; the policy then also observes
-    that integrator (``feedback_integral``), so the zero action *is* that controller and
+    that integrator (feedback_integral), so the zero action *is* that controller and
     the policy carries a true integrator instead of a leaky one (residual RL on a classical
     loop, Johannink et al. 2019).
 
-    ``solver_iterations`` > 0 overrides the description's Newton iterations (``0``: keep
+    solver_iterations > 0 overrides the description's Newton iterations (0: keep
     them); fewer than 12 let robots on slippery floors tip over (SimSpec.iterations).
 
-    ``yaw_integral_tau`` > 0 adds an observation a real controller can compute: the leaky
-    integral of the yaw-rate error the robot *measures*, ``I ← e^(−dt/τ)·I + (ω_cmd −
-    gyro)·dt`` (gyro as observed: noisy, delayed), in units of ``τ`` times the largest
+    yaw_integral_tau > 0 adds an observation a real controller can compute: the leaky
+    integral of the yaw-rate error the robot *measures*, I ← e^(−dt/τ)·I + (ω_cmd −
+    gyro)·dt (gyro as observed: noisy, delayed), in units of τ times the largest
     feasible ωz. It gives a feedforward policy the memory an integral controller needs
-    (measured with a probe since removed); ``0`` leaves it out.
+    (measured with a probe since removed); 0 leaves it out.
 
-    ``action_filter`` = f > 0 low-passes the actions: the action applied (and observed as
-    ``last_action`` next step) is ``f·previous + (1 − f)·new``. The wheels' reflected
+    action_filter = f > 0 low-passes the actions: the action applied (and observed as
+    last_action next step) is f·previous + (1 − f)·new. The wheels' reflected
     rotor inertia turns step-to-step changes of the setpoints into torque spikes that
     shake the chassis; a policy whose actions flicker by 0.03 makes the yaw rate swing by
     0.3 rad/s where a constant correction makes it swing by none.
 
-    ``residual_at_stop = false`` turns the learned correction off while the command is a
+    residual_at_stop = false turns the learned correction off while the command is a
     stop (every component exactly 0; a joystick's deadzone must send 0): the action is
     taken as 0 before the filter, so the applied correction fades with the filter and the
     base stops the robot as it would alone. On the nominal robot the base's stop returns
@@ -62,7 +62,7 @@ class EnvConfig:
     down as on the way up); a correction that brakes harder leaves it short
     (docs/evaluation.md).
 
-    ``obs_history`` = H > 0 appends the H sensor frames before the observed one (encoders,
+    obs_history = H > 0 appends the H sensor frames before the observed one (encoders,
     gyro, accelerometer, odometry twist, as observed: noisy and as delayed as the current
     frame), newest first: the 0.5 to 1 s of history (25 to 50 frames at 20 ms) from which a
     student infers what a privileged teacher reads (friction, payload, motor gains).
@@ -98,7 +98,7 @@ class EnvConfig:
     """Low-pass factor of the actions, f in [0, 1): applied = f·previous + (1 − f)·new (0: off)."""
     obs_history: int = 0
     """Earlier sensor frames the policy observes, one control period apart (0 to
-    :data:`MAX_OBS_HISTORY`; 0: none)."""
+    MAX_OBS_HISTORY; 0: none)."""
     commands: CommandConfig = CommandConfig()
     """How commands are drawn."""
     randomization: RandomizationConfig = RandomizationConfig()

@@ -28,7 +28,7 @@ Layout = tuple[tuple[str, int], ...]
 
 @dataclasses.dataclass(frozen=True)
 class NoiseConfig:
-    """Gaussian sensor noise (standard deviations); ``scale = 0`` turns it off."""
+    """Gaussian sensor noise (standard deviations); scale = 0 turns it off."""
 
     scale: float = 1.0
     """Multiplies every standard deviation below (>= 0; 0: noise off)."""

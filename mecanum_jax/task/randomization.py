@@ -20,11 +20,11 @@ from mecanum_jax.task.constants import RobotConstants
 
 @dataclasses.dataclass(frozen=True)
 class RandomizationConfig:
-    """Per-robot domain randomization, drawn uniformly at each reset (``enabled = false``:
+    """Per-robot domain randomization, drawn uniformly at each reset (enabled = false:
     the nominal robot on the description's floor friction, no payload, no latency).
 
-    The payload's centre of mass is ``payload_com_offset`` plus a uniform draw in
-    ``±payload_com_xy`` (x, y) and ``payload_com_z`` (z), in the body frame.
+    The payload's centre of mass is payload_com_offset plus a uniform draw in
+    ±payload_com_xy (x, y) and payload_com_z (z), in the body frame.
     """
 
     enabled: bool = True

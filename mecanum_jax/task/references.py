@@ -29,14 +29,14 @@ Policy = Callable[[Any, jax.Array], tuple[jax.Array, dict[str, Any]]]
 
 @dataclasses.dataclass(frozen=True)
 class FeedbackConfig:
-    """The ``feedback`` reference controller: inverse-model feedforward, a yaw-rate PI loop
+    """The feedback reference controller: inverse-model feedforward, a yaw-rate PI loop
     on the (noisy, delayed) gyro, and nearest-feasible desaturation.
 
-    Yaw-rate correction ``u = kp·e + I`` with ``e = ωz_cmd − gyro`` and
-    ``I ← clip(I + ki·e·dt, ±i_max)``; the integrator holds while the corrected twist is out
-    of the wheels' reach and ``e`` would drive it further (conditional-integration
-    anti-windup), and, with ``hold_s > 0``, for ``hold_s`` after each command change, while
-    the servos' transient, not a steady bias, makes the error. With ``reset`` it restarts
+    Yaw-rate correction u = kp·e + I with e = ωz_cmd − gyro and
+    I ← clip(I + ki·e·dt, ±i_max); the integrator holds while the corrected twist is out
+    of the wheels' reach and e would drive it further (conditional-integration
+    anti-windup), and, with hold_s > 0, for hold_s after each command change, while
+    the servos' transient, not a steady bias, makes the error. With reset it restarts
     at 0 at each command change. The gains come from a sweep on training-distribution
     episodes (docs/evaluation.md): any proportional gain (even 0.02)
     raised the steady-state ωz error there, since the servos' own step response overshoots
@@ -59,12 +59,12 @@ class FeedbackConfig:
     """The integrator restarts at 0 at each command change: it estimates the bias of the
     command it tracks, and a slippery floor's yaw deficit belongs to that command. Carried
     into the next one, it pushes a new spin or a stop the wrong way for seconds, bleeding
-    off at ``ki`` (docs/evaluation.md, the settling of ωz on slippery floors)."""
+    off at ki (docs/evaluation.md, the settling of ωz on slippery floors)."""
     deadband: float = 0.0
     """The correction shrinks by this much towards 0, rad/s (>= 0; 0: none). The integrator
     grows through it, so a steady bias is still corrected in full, but the gyro noise's
     corrections of a few mrad/s vanish and a nominal robot's wheels get exactly
-    ``analytic``'s setpoints: any asymmetry in them, however small, changes how a robot
+    analytic's setpoints: any asymmetry in them, however small, changes how a robot
     stopped from speed slides, and so how far the next command's start turns it
     (docs/evaluation.md, six_modes drift)."""
 

@@ -18,25 +18,25 @@ from mecanum_jax.sim.physics import RobotParams, Sensors
 
 @dataclasses.dataclass(frozen=True)
 class RewardConfig:
-    """The reward's scales: it is ``Σ scale · term`` over :data:`REWARD_TERMS`
-    (:func:`reward_terms`), and each scaled term is logged as ``reward/<term>``."""
+    """The reward's scales: it is Σ scale · term over REWARD_TERMS
+    (reward_terms), and each scaled term is logged as reward/<term>."""
 
     tracking_lin: float = 1.0
-    """Scale of ``exp(−|v_err|²/sigma_lin)`` (>= 0)."""
+    """Scale of exp(−|v_err|²/sigma_lin) (>= 0)."""
     tracking_ang: float = 0.5
-    """Scale of ``exp(−ω_err²/sigma_ang)`` (>= 0)."""
+    """Scale of exp(−ω_err²/sigma_ang) (>= 0)."""
     sigma_lin: float = 0.25
     """Width of the linear tracking kernel, (m/s)² (> 0)."""
     sigma_ang: float = 1.0
     """Width of the yaw-rate tracking kernel, (rad/s)² (> 0)."""
     error_lin: float = 1.0
-    """Scale of the quadratic penalty ``−|v_err|²``, per (m/s)² (>= 0; 0: off)."""
+    """Scale of the quadratic penalty −|v_err|², per (m/s)² (>= 0; 0: off)."""
     error_ang: float = 0.1
-    """Scale of the quadratic penalty ``−ω_err²``, per (rad/s)² (>= 0; 0: off)."""
+    """Scale of the quadratic penalty −ω_err², per (rad/s)² (>= 0; 0: off)."""
     action_rate: float = 0.01
-    """Scale of ``−|a_t − a_(t−1)|²``, actions in [-1, 1] (>= 0)."""
+    """Scale of −|a_t − a_(t−1)|², actions in [-1, 1] (>= 0)."""
     energy: float = 0.0005
-    """Scale of ``−Σ|τ·ω|``, the wheels' mechanical power in W (>= 0)."""
+    """Scale of −Σ|τ·ω|, the wheels' mechanical power in W (>= 0)."""
 
     def validate(self, where: str = "env.reward") -> None:
         """Check values; raise :class:`ConfigError` naming the field."""

@@ -41,6 +41,7 @@ from mecanum_jax.deploy.policy import ExportError
 from mecanum_jax.evaluation import metrics
 from mecanum_jax.evaluation import rollout as ev
 from train.cli import eval_output
+from train.cli.paths import check_output, resolve_model
 from train.loop.progress import print_error
 
 console = Console(stderr=True)
@@ -52,23 +53,23 @@ class DeploySimArgs:
     """Run an exported policy's NumPy control loop against the robot in C MuJoCo."""
 
     model: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="MODEL")] = DEFAULT_MODEL
-    """A model directory: ``config.json`` (the task) and ``policy.npz`` (and
-    ``policy.onnx`` for ``--backend onnx``), as ``mecanum-export --model`` writes it."""
+    """A model directory: config.json (the task) and policy.npz (and
+    policy.onnx for --backend onnx), as mecanum-export --model writes it."""
     backend: Literal["numpy", "onnx"] = "numpy"
     """The policy's runtime: the NumPy module, or the ONNX graph in onnxruntime."""
     fidelity: Literal["fast", "reference"] = "fast"
-    """The robot model: ``fast`` (the one the policy was trained and is evaluated on) or
-    ``reference`` (10 passive rollers per wheel, 1 ms steps)."""
+    """The robot model: fast (the one the policy was trained and is evaluated on) or
+    reference (10 passive rollers per wheel, 1 ms steps)."""
     scenarios: str = "default"
     """Scenario file: a name in configs/eval/ or a path to a .toml file."""
     scenario: str | None = None
     """The scenario whose episodes (robots, commands, sensors) are played (default:
-    ``nominal``)."""
+    nominal)."""
     episodes: int | None = None
     """Override the scenario's number of episodes."""
     seconds: float | None = None
     """Override the episode length (with --command: its length, default 5 s)."""
-    command: tuple[float, float, float] | None = None
+    command: Annotated[tuple[float, ...], tyro.conf.arg(metavar="VX VY WZ")] = ()
     """A constant command (vx m/s, vy m/s, ωz rad/s) instead of the scenario's; the
     nominal robot."""
     noise_scale: float | None = None
@@ -115,9 +116,9 @@ def _check(args: DeploySimArgs) -> None:
         np.isfinite(args.noise_scale) and args.noise_scale >= 0
     ):
         raise ConfigError(f"--noise-scale = {args.noise_scale}: must be finite and >= 0")
-    if args.command is not None and not all(np.isfinite(args.command)):
-        raise ConfigError(f"--command = {list(args.command)}: must be finite (m/s, m/s, rad/s)")
-    if args.command is not None and args.scenario is not None:
+    if args.command and (len(args.command) != 3 or not all(np.isfinite(args.command))):
+        raise ConfigError(f"--command = {list(args.command)}: expected 3 finite numbers VX VY WZ")
+    if args.command and args.scenario is not None:
         raise ConfigError(
             f"--scenario = {args.scenario!r}: not with --command (a constant command)"
         )
@@ -125,17 +126,17 @@ def _check(args: DeploySimArgs) -> None:
         raise ConfigError(f"--settle-s = {args.settle_s}: must be >= 0")
     if args.bootstrap < 100:
         raise ConfigError(f"--bootstrap = {args.bootstrap}: must be >= 100")
-    if args.out is not None and Path(args.out).exists():
-        raise ConfigError(f"--out = {args.out!r}: already exists; never overwritten")
+    args.model = resolve_model(args.model)  # models/o_rectangle: the packaged one if need be
 
 
 def load_model(args: DeploySimArgs) -> tuple[Any, Controller]:
     """The model directory's task config and a controller on the chosen backend."""
-    from train.config import load_train_config
+    from train.store import inputs
 
     model = Path(args.model)
     if not model.is_dir():
-        raise ConfigError(f"model = {args.model!r}: no such directory")
+        what = "not a directory" if model.exists() else "no such directory"
+        raise ConfigError(f"model = {args.model!r}: {what}")
     suffix = "onnx" if args.backend == "onnx" else "npz"
     for name in ("config.json", f"policy.{suffix}"):
         if not (model / name).is_file():
@@ -148,7 +149,7 @@ def load_model(args: DeploySimArgs) -> tuple[Any, Controller]:
                     else ")"
                 )
             )
-    cfg = load_train_config(model / "config.json")
+    cfg = inputs.load_saved_config(model)  # the robot: the model's copy, if it has one
     controller = Controller.load(model / f"policy.{suffix}")
     if controller.policy.meta.get("robot") not in (None, cfg.env.description().robot.name):
         raise ConfigError(
@@ -165,7 +166,7 @@ def episodes(args: DeploySimArgs, cfg: Any) -> Episodes:
     from mecanum_jax.task import NoiseConfig
 
     set_matmul_precision(cfg.run.matmul_precision, "run.matmul_precision")
-    eps = _scenario_episodes(args, cfg) if args.command is None else _command_episodes(args, cfg)
+    eps = _command_episodes(args, cfg) if args.command else _scenario_episodes(args, cfg)
     if args.latency is not None:
         eps.latency = np.full(len(eps.commands), args.latency)
     if args.noise_scale is not None:
@@ -211,7 +212,6 @@ def _command_episodes(args: DeploySimArgs, cfg: Any) -> Episodes:
     from mecanum_jax.kinematics import limits
     from mecanum_jax.kinematics import model as kinematics
 
-    assert args.command is not None
     desc = dataclasses.replace(cfg.env, physics_impl="jax").description()
     geom = desc.build_geometry(warn_singular=False)
     max_rates = desc.max_wheel_rates(geom).astype(jnp.float32)
@@ -334,22 +334,20 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     args = tyro.cli(DeploySimArgs, args=argv, prog="mecanum-deploy-sim")
     t0 = time.time()
+    stamp = time.strftime("%Y%m%d-%H%M%S")
     try:
         _check(args)
+        name = Path(args.model).name
+        out = check_output(args.out or f"runs/deploy-sim-{name}-{stamp}.json", "--out")
         cfg, controller = load_model(args)
         eps = episodes(args, cfg)
         plant = Plant(dataclasses.replace(cfg.env, physics_impl="jax").description(), args.fidelity)
-    except (ConfigError, ExportError) as err:
+    except (ConfigError, ExportError, OSError) as err:
         _error(err)
         return 2
     except ImportError as err:  # onnxruntime for --backend onnx
         _error(ConfigError(f"--backend = {args.backend!r}: {err}"))
         return 2
-    out = (
-        Path(args.out)
-        if args.out
-        else Path(f"runs/deploy-sim-{Path(args.model).name}-{time.strftime('%Y%m%d-%H%M%S')}.json")
-    )
     console.log(
         f"{eps.description}: {_count(eps.commands.shape[0], 'episode')} of {eps.commands.shape[1]} "
         f"control steps, {args.backend} loop, {args.fidelity} model in C MuJoCo "
@@ -364,10 +362,14 @@ def main(argv: list[str] | None = None) -> int:
     result = report(trace, eps, args)
     result["wall_s"] = {"prepare": round(t1 - t0, 2), "loop": round(time.time() - t1, 2)}
     Console(width=None if sys.stdout.isatty() else 120).print(table(result))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    partial = out.with_name(out.name + ".partial")
-    partial.write_text(json.dumps(result, indent=1) + "\n")
-    partial.replace(out)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        partial = out.with_name(out.name + ".partial")
+        partial.write_text(json.dumps(result, indent=1) + "\n")
+        partial.replace(out)
+    except OSError as err:
+        _error(err)
+        return 2
     console.log(f"figures: {out} ({time.time() - t0:.0f} s)")
     return 0
 

@@ -21,7 +21,7 @@ class EvalArgs:
     """Evaluate a policy against the reference controllers on named scenarios."""
 
     target: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="TARGET")]
-    """``baseline``, a run directory (latest checkpoint), or ``<run>/checkpoints/<epoch>``."""
+    """baseline, a run directory (latest checkpoint), or <run>/checkpoints/<epoch>."""
     scenarios: str = "default"
     """Scenario file: a name in configs/eval/ or a path to a .toml file."""
     only: tuple[str, ...] = ()
@@ -35,9 +35,9 @@ class EvalArgs:
     epoch: int | None = None
     """Which checkpoint (default: the latest)."""
     robot: str | None = None
-    """``baseline`` only: robot description (built-in name or TOML path)."""
+    """baseline only: robot description (built-in name or TOML path)."""
     config: str | None = None
-    """``baseline`` only: train config whose [env] defines the task (default: quick)."""
+    """baseline only: train config whose [env] defines the task (default: quick)."""
     out: str | None = None
     """Output directory (default: <run>/eval/epoch<k>-<time>, or runs/eval-baseline-<time>)."""
     plots: bool = True
@@ -75,8 +75,8 @@ class EvalArgs:
     export: bool = False
     """Also write the deployable policy (policy.npz + mecanum_policy.py) to the output."""
     matmul_precision: Literal["default", "high", "highest"] | None = None
-    """jax's matmul precision for the evaluation (default: the run's ``run.matmul_precision``,
-    ``highest`` unless the run chose otherwise). ``default`` is TF32 on A100/H100 GPUs and
+    """jax's matmul precision for the evaluation (default: the run's run.matmul_precision,
+    highest unless the run chose otherwise). default is TF32 on A100/H100 GPUs and
     makes the figures depend on the device (mecanum_jax.precision)."""
     progress_every_s: float = 30.0
     """Where stderr is not a terminal: a plain progress line of the rollouts every this many

@@ -56,6 +56,7 @@ from train.cli.eval_output import (  # noqa: E402
 )
 from train.cli.eval_target import Target, default_out  # noqa: E402
 from train.cli.export import export_policy  # noqa: E402
+from train.cli.paths import check_output, resolve_model  # noqa: E402
 from train.loop import compilation_cache  # noqa: E402
 from train.loop.progress import print_error, rollout_progress  # noqa: E402
 from train.loop.run_records import write_json  # noqa: E402
@@ -215,18 +216,18 @@ def main(argv: list[str] | None = None) -> int:
     t_start = time.time()
     try:
         target, scenario_set, out = _prepare(args)
-    except (ConfigError, checkpoint.CheckpointError) as err:
+    except (ConfigError, checkpoint.CheckpointError, OSError) as err:
         _error(err)
         return 2
     partial = out.with_name(out.name + ".partial")
-    if partial.exists():
-        shutil.rmtree(partial)  # debris of an interrupted evaluation of the same name
-    partial.mkdir(parents=True)
     try:
+        if partial.exists():
+            shutil.rmtree(partial)  # debris of an interrupted evaluation of the same name
+        partial.mkdir(parents=True)
         console.log(f"evaluating {target.label} on {scenario_set.names} ({scenario_set.source})")
         results = _evaluate_into(partial, target, scenario_set, args, t_start)
         partial.rename(out)
-    except ConfigError as err:
+    except (ConfigError, OSError) as err:
         _error(err)
         return 2
     except KeyboardInterrupt:
@@ -253,6 +254,10 @@ def _prepare(args: EvalArgs) -> tuple[Target, scenarios.ScenarioSet, Path]:
     """Check everything that can be checked before a rollout: the arguments, the
     scenarios (scripted ones included), the target and the output directory."""
     check_args(args)
+    if args.out:  # before anything is built
+        check_output(args.out, "--out")
+    if args.target != "baseline":  # models/o_rectangle is found where the package is
+        args.target = resolve_model(args.target)
     scenario_set = scenarios.load_scenarios(args.scenarios).select(
         args.only, args.episodes, args.seconds
     )
@@ -267,9 +272,7 @@ def _prepare(args: EvalArgs) -> tuple[Target, scenarios.ScenarioSet, Path]:
         raise ConfigError(
             f"--video-episode = {args.video_episode}: scenarios have {smallest} episodes"
         )
-    out = Path(args.out) if args.out else default_out(args, target)
-    if out.exists():
-        raise ConfigError(f"--out = {str(out)!r}: already exists; never overwritten")
+    out = check_output(args.out or default_out(args, target), "--out")
     for sc in scenario_set.scenarios:  # fail on bad scenarios before any rollout
         if sc.scripted:
             scenarios.scripted_commands(target.env, sc)

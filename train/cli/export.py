@@ -36,6 +36,7 @@ from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.sim.description import fingerprint
 from mecanum_jax.sim.physics import GRAVITY
 from mecanum_jax.task import MecanumEnv
+from train.cli.paths import check_output, resolve_model
 from train.learner.policy import RestoredPolicy, package_model, restore_policy, split_target
 from train.loop.progress import print_error
 from train.store import checkpoint
@@ -46,17 +47,17 @@ console = Console(stderr=True)
 @dataclasses.dataclass
 class ExportArgs:
     """Write a trained policy: a small NumPy file (weights + observation normalizer), or a
-    model directory (``--model``) that mecanum-eval and mecanum-export read like a run."""
+    model directory (--model) that mecanum-eval and mecanum-export read like a run."""
 
     run: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN")]
-    """A run directory (latest checkpoint) or ``<run>/checkpoints/<epoch>``."""
+    """A run directory (latest checkpoint) or <run>/checkpoints/<epoch>."""
     out: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="OUT")]
-    """The file to write: ``.npz`` (``mecanum_policy.py``, NumPy inference, is copied beside
-    it) or, with ``--format onnx``, ``.onnx``; with ``--model``, the directory to create."""
+    """The file to write: .npz (mecanum_policy.py, NumPy inference, is copied beside
+    it) or, with --format onnx, .onnx; with --model, the directory to create."""
     format: Literal["npz", "onnx"] = "npz"
-    """``npz``: weights and normalizer for the NumPy module; ``onnx``: one ONNX graph from
+    """npz: weights and normalizer for the NumPy module; onnx: one ONNX graph from
     raw observations to actions and wheel-rate setpoints (normalizer, clip and the
-    baseline inside; needs the ``onnx`` extra)."""
+    baseline inside; needs the onnx extra)."""
     seed: int | None = None
     """Which of the run's training seeds (default: the first)."""
     epoch: int | None = None
@@ -64,9 +65,9 @@ class ExportArgs:
     model: bool = False
     """Write a model directory: the policy's checkpoint (no optimizer-free copy is made:
     the training state of that epoch, without the environment state), the resolved config,
-    ``provenance.json`` and the NumPy export (none for a teacher, which no robot can run)."""
+    provenance.json and the NumPy export (none for a teacher, which no robot can run)."""
     provenance: tuple[str, ...] = ()
-    """``--model``: KEY=VALUE pairs for provenance.json (e.g. command=..., device=...)."""
+    """--model: KEY=VALUE pairs for provenance.json (e.g. command=..., device=...)."""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -83,21 +84,28 @@ def main(argv: list[str] | None = None) -> int:
                 f"out = {args.out!r}: expected a {suffix} file name for --format {args.format}"
                 + (" (or --model)" if args.format == "npz" else "")
             )
-        if Path(args.out).exists():
-            raise ConfigError(f"out = {args.out!r}: already exists; never overwritten")
+        check_output(args.out, "out")
         extra = {}
         for item in args.provenance:
             key, sep, value = item.partition("=")
             if not sep or not key:
                 raise ConfigError(f"--provenance {item!r}: expected KEY=VALUE")
             extra[key] = value
-        run_dir, epoch = split_target(args.run)
+        run_dir, epoch = split_target(resolve_model(args.run))
         restored = restore_policy(run_dir, args.seed, epoch or args.epoch)
         if not args.model:  # a teacher's model directory holds its checkpoint, no export
             check_exportable(restored)
-    except (ConfigError, checkpoint.CheckpointError) as err:
+    except (ConfigError, checkpoint.CheckpointError, OSError) as err:
         _error(err)
         return 2
+    try:
+        return _write(args, restored, extra)
+    except OSError as err:  # the disk filled, or the folder went away, while writing
+        _error(err)
+        return 2
+
+
+def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) -> int:
     if args.model:
         teacher = restored.cfg.network.teacher
         out = package_model(restored, Path(args.out), {"teacher": teacher, **extra})

@@ -26,15 +26,16 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from mecanum_jax.config import ConfigError
+from mecanum_jax.config import ConfigError, find_config
 from mecanum_jax.sim.description import require_impl
-from train.config import TrainConfig, apply_flags, load_train_config
+from train.cli.paths import check_input_dir, check_output
+from train.config import TRAIN_CONFIG_DIR, TrainConfig, apply_flags, load_train_config
 from train.loop import compilation_cache, curve
 from train.loop.distributed import init_distributed
 from train.loop.progress import print_error
 from train.loop.run import Run, RunDirError, TrainingDiverged
 from train.loop.run_records import write_json
-from train.store import checkpoint
+from train.store import checkpoint, inputs
 
 console = Console(stderr=True)
 
@@ -87,6 +88,19 @@ def _fail(err: BaseException, code: int) -> int:
     return code
 
 
+def _check_meta(meta: argparse.Namespace) -> None:
+    """The options outside the config: a time limit is a positive number of minutes."""
+    m = meta.max_minutes
+    if m is not None and not 0 < m < math.inf:
+        raise ConfigError(f"--max-minutes = {m}: must be a positive number of minutes")
+
+
+def _copy_config_file(run: Run, name: str) -> None:
+    """The config file a run was given, copied into its inputs/ (train.store.inputs)."""
+    if run.is_writer:
+        inputs.add_file(run.dir, "config", find_config(name, TRAIN_CONFIG_DIR, "config", ""))
+
+
 def main(argv: list[str] | None = None) -> int:
     """``mecanum-train``: train one run (several seeds side by side), then evaluate it."""
     checkpoint.quiet_closed_loop_noise()
@@ -101,11 +115,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         # before anything touches JAX (loading a config may): jax.distributed requires it
+        _check_meta(meta)
         init_distributed(meta.distributed)
         if meta.resume and (meta.config or meta.run_dir):
             raise ConfigError("--resume: give either --resume or --config/--run-dir, not both")
         if meta.resume:
-            saved = Path(meta.resume) / "config.json"
+            saved = check_input_dir(meta.resume, "--resume") / "config.json"
             base = load_train_config(saved) if saved.exists() else TrainConfig()
             cfg = apply_flags(base, rest, prog, description)
             require_impl(cfg.env.physics_impl, "env.physics_impl")
@@ -130,11 +145,13 @@ def main(argv: list[str] | None = None) -> int:
                 )
             require_impl(cfg.env.physics_impl, "env.physics_impl")  # before the run dir
             run_dir = meta.run_dir or f"runs/{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+            check_output(run_dir, "--run-dir", empty_dir_ok=True)
             run = Run.create(cfg, run_dir, console=console)
+            _copy_config_file(run, meta.config or "quick")
         console.log(f"run directory: {run.dir}")
         limit = None if meta.max_minutes is None else 60 * meta.max_minutes
         summary = run.train(time_limit_s=limit)
-    except (ConfigError, RunDirError, checkpoint.CheckpointError) as err:
+    except (ConfigError, RunDirError, checkpoint.CheckpointError, OSError) as err:
         return _fail(err, 2)
     except TrainingDiverged as err:
         return _fail(err, 3)
@@ -170,6 +187,8 @@ def batch_main(argv: list[str] | None = None) -> int:
         "Config-field flags apply to every variant."
     )
     try:
+        _check_meta(meta)
+        check_output(out, "--out", empty_dir_ok=True)  # never over an earlier batch
         init_distributed(meta.distributed)
         if meta.distributed and not meta.out:
             raise ConfigError(
@@ -188,7 +207,9 @@ def batch_main(argv: list[str] | None = None) -> int:
         if len(set(names)) != len(names):
             raise ConfigError(f"--configs = {meta.configs}: variant names must be distinct")
         runs = [Run.create(cfg, out / name, console=console) for name, cfg in variants]
-    except (ConfigError, RunDirError) as err:
+        for run, name in zip(runs, meta.configs, strict=True):
+            _copy_config_file(run, name)
+    except (ConfigError, RunDirError, OSError) as err:
         return _fail(err, 2)
     summaries = []
     for run in runs:

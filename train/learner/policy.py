@@ -20,6 +20,7 @@ from typing import Any
 import jax
 
 from mecanum_jax.config import ConfigError
+from train.store import inputs
 from train.store.checkpoint import CHECKPOINT_DIR, checkpoint_path, read_checked, unpack_train
 from train.store.leaves import CheckpointError
 
@@ -66,7 +67,9 @@ def restore_policy(
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
-        raise CheckpointError(f"run directory {str(run_dir)!r}: no such directory")
+        what = "not a directory" if run_dir.exists() else "no such directory"
+        raise CheckpointError(f"run directory {str(run_dir)!r}: {what}")
+    check_saved_config(run_dir)
     packaged = _provenance(run_dir)
     if epoch is None and packaged.get("epoch") is not None:
         # a model directory evaluates the epoch it was packaged from, not a newer
@@ -80,7 +83,8 @@ def restore_policy(
     epoch, items = read_checked(run_dir, epoch, ("train", "meta"))
     meta = dict(items["meta"])
     try:
-        cfg = parse_train_config(meta["config"], f"{run_dir}/checkpoint meta")
+        saved = inputs.use_copies(meta["config"], run_dir)  # the robot it trained on, if copied
+        cfg = parse_train_config(saved, f"{run_dir}/checkpoint meta")
     except (KeyError, ConfigError) as err:
         raise CheckpointError(
             f"checkpoint {str(run_dir)!r}: bad config in metadata: {err}"
@@ -116,6 +120,18 @@ def restore_policy(
 PROVENANCE = "provenance.json"
 
 
+def check_saved_config(run_dir: Path) -> None:
+    """Refuse a run or model directory whose ``config.json`` is unreadable or invalid
+    (truncated, say): it is the task deploy-sim and a resumed run read, and a model
+    directory packed from the run would carry it."""
+    path = run_dir / "config.json"
+    if path.exists() or path.is_symlink():
+        try:
+            inputs.load_saved_config(run_dir, warn=False)  # the robot: the run's copy
+        except ConfigError as err:  # names the file
+            raise CheckpointError(str(err)) from None
+
+
 def _provenance(run_dir: Path) -> dict[str, Any]:
     """A model directory's ``provenance.json`` (empty for a run directory)."""
     path = run_dir / PROVENANCE
@@ -146,7 +162,9 @@ def package_model(restored: RestoredPolicy, out: Path, provenance: dict[str, Any
             shutil.copyfile(src / name, dst / name)
     config = restored.run_dir / "config.json"
     if config.exists():
+        check_saved_config(restored.run_dir)  # never a broken config.json into a model
         shutil.copyfile(config, tmp / "config.json")
+    inputs.copy_inputs(restored.run_dir, tmp)
     meta = restored.meta
     record = {
         "source_run": str(restored.run_dir),

@@ -42,7 +42,7 @@ from train.loop.distributed import barrier, restore_process
 from train.loop.loggers import MetricLogger, TensorBoardLogger, WandbLogger
 from train.loop.run_records import stacked, write_json
 from train.loop.session import Session
-from train.store import checkpoint
+from train.store import checkpoint, inputs
 
 # Fields a resumed run may change: its length, logging and evaluation cadence.
 RESUMABLE_CHANGES = {
@@ -102,6 +102,7 @@ class Run:
         if run.is_writer:
             run_dir.mkdir(parents=True, exist_ok=True)
             write_json(run_dir / "config.json", cfg.to_dict())
+            inputs.save_inputs(run_dir, cfg)
             run._status("created", epoch=0)
         return run
 

@@ -1,0 +1,157 @@
+"""A run's inputs, copied into it: the robot description and the config file it was given.
+
+A run directory (and a model directory that ``mecanum-export --model`` packs from it)
+holds::
+
+    inputs/robot.toml     the robot description TOML the run trained on (built-in or not)
+    inputs/config.toml    the train config file it was given (when it was a file)
+    inputs/inputs.json    where each came from, and its SHA-256
+
+so that it evaluates and exports after the user's TOML is moved, edited or deleted:
+:func:`use_copies` points a saved config's ``env.robot`` at the copy. An original that
+still exists but whose bytes changed is named in a warning beside the copy (the copy is
+used: it is what the run trained on); a deleted one is not mentioned.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import warnings
+from pathlib import Path
+from typing import Any
+
+from mecanum_jax.config import CONFIG_DIR, ConfigError, find_config
+
+INPUTS_DIR = "inputs"
+INDEX = "inputs.json"
+
+
+class EditedInputWarning(UserWarning):
+    """An input a run was trained with has been edited since; the run's copy is used."""
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def robot_file(robot: str) -> Path:
+    """The description file ``env.robot`` names (a path, or a built-in name)."""
+    return find_config(robot, CONFIG_DIR / "robots", "env.robot", "built-in description")
+
+
+def read_index(run_dir: Path) -> dict[str, Any]:
+    """``inputs/inputs.json`` of ``run_dir`` (empty when the run predates copied inputs)."""
+    path = run_dir / INPUTS_DIR / INDEX
+    if not path.is_file():
+        return {}
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as err:
+        raise ConfigError(f"{str(path)!r}: unreadable: {err}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{str(path)!r}: expected a JSON object")
+    return data
+
+
+def add_file(run_dir: Path, key: str, source: Path) -> None:
+    """Copy ``source`` into ``run_dir/inputs/<key><suffix>`` and record it in the index."""
+    folder = run_dir / INPUTS_DIR
+    folder.mkdir(parents=True, exist_ok=True)
+    copy = f"{key}{source.suffix or '.toml'}"
+    shutil.copyfile(source, folder / copy)
+    index = read_index(run_dir)
+    index[key] = {"source": str(source.resolve()), "copy": copy, "sha256": sha256(source)}
+    tmp = folder / (INDEX + ".partial")
+    tmp.write_text(json.dumps(index, indent=2) + "\n")
+    tmp.replace(folder / INDEX)
+
+
+def save_inputs(run_dir: str | Path, cfg: Any) -> None:
+    """Copy the robot description of ``cfg`` (a TrainConfig) into ``run_dir/inputs/``."""
+    add_file(Path(run_dir), "robot", robot_file(cfg.env.robot))
+
+
+def copy_inputs(src_dir: Path, dst_dir: Path) -> None:
+    """Carry a run's ``inputs/`` into a directory packed from it (a model directory)."""
+    if (src_dir / INPUTS_DIR / INDEX).is_file():
+        shutil.copytree(src_dir / INPUTS_DIR, dst_dir / INPUTS_DIR)
+
+
+def _original(entry: dict[str, Any], given: str) -> Path | None:
+    """Where the input is now, if anywhere: the recorded file, or what ``given`` names."""
+    recorded = Path(str(entry.get("source", "")))
+    if recorded.is_file():
+        return recorded
+    try:
+        return robot_file(given)
+    except ConfigError:
+        return None
+
+
+def robot_copy(run_dir: Path, given: str) -> Path | None:
+    """The run's copy of its robot description (``None`` for a run without one); warns
+    (:class:`EditedInputWarning`) when the original ``given`` still exists, edited."""
+    entry = read_index(run_dir).get("robot")
+    if not isinstance(entry, dict):
+        return None
+    copy = run_dir / INPUTS_DIR / str(entry.get("copy", "robot.toml"))
+    if not copy.is_file():
+        raise ConfigError(f"{str(run_dir / INPUTS_DIR / INDEX)!r}: names {copy.name}, missing")
+    if entry.get("sha256") != sha256(copy):
+        raise ConfigError(f"{str(copy)!r}: does not match its SHA-256 in {INDEX}")
+    original = _original(entry, given)
+    if original is not None and sha256(original) != entry.get("sha256"):
+        warnings.warn(
+            f"robot description {str(original)!r} has been edited since training; "
+            f"using the run's copy {str(copy)!r}",
+            EditedInputWarning,
+            stacklevel=2,
+        )
+    return copy
+
+
+def use_copies(data: Any, run_dir: Path, warn: bool = True) -> Any:
+    """A saved config mapping of ``run_dir`` (config.json's, or a checkpoint's) with
+    ``env.robot`` the run's copy, where it has one; parse it after this, since parsing
+    loads the description."""
+    env = data.get("env") if isinstance(data, dict) else None
+    if not (isinstance(env, dict) and isinstance(env.get("robot"), str)):
+        return data
+    with warnings.catch_warnings():
+        if not warn:
+            warnings.simplefilter("ignore", EditedInputWarning)
+        copy = robot_copy(run_dir, env["robot"])
+    if copy is None:
+        return data
+    return {**data, "env": {**env, "robot": str(copy.resolve())}}
+
+
+def load_saved_config(run_dir: Path, warn: bool = True) -> Any:
+    """``run_dir/config.json`` as a TrainConfig whose ``env.robot`` is the run's copy (if
+    it has one), so that it loads after the original is gone. Errors name the file."""
+    from train.config import parse_train_config
+
+    path = run_dir / "config.json"
+    try:
+        data = json.loads(path.read_text())
+    except ValueError as err:  # JSON, or not UTF-8 text
+        raise ConfigError(f"config file {str(path)!r}: invalid JSON: {err}") from None
+    except OSError as err:
+        raise ConfigError(f"config file {str(path)!r}: unreadable: {err.strerror}") from None
+    data = use_copies(data, run_dir, warn)
+    return parse_train_config(data, str(path))
+
+
+__all__ = [
+    "INPUTS_DIR",
+    "EditedInputWarning",
+    "add_file",
+    "copy_inputs",
+    "load_saved_config",
+    "read_index",
+    "robot_copy",
+    "save_inputs",
+    "use_copies",
+]
