@@ -198,6 +198,12 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"config file {str(path)!r}: no such file") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"config file {str(path)!r}: invalid TOML: {err}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"config file {str(path)!r}: not a text file (UTF-8)") from None
+    except IsADirectoryError:
+        raise ConfigError(f"config file {str(path)!r}: is a directory, not a file") from None
+    except OSError as err:
+        raise ConfigError(f"config file {str(path)!r}: cannot read it ({err.strerror})") from None
 
 
 def _config_dir() -> Path:

@@ -40,9 +40,6 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError(f"--speed = {args.speed!r}: must be a finite number > 0")
         desc = resolve_description(args.robot)
         geom = desc.build_geometry()
-    except UnicodeDecodeError:
-        print(f"error: robot = {args.robot!r}: not a text file (UTF-8)", file=sys.stderr)
-        return 2
     except (ConfigError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
