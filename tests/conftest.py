@@ -171,6 +171,8 @@ TINY_RUN_FILES = frozenset(
         "test_distributed.py",
         "test_eval.py",
         "test_first_hour.py",
+        "test_nan_guard.py",
+        "test_preemption.py",
         "test_progress.py",
         "test_train.py",
     }

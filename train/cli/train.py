@@ -10,7 +10,8 @@ Examples::
 Any config field can be overridden with a flag named by its dotted path
 (``--ppo.learning-rate 1e-3``, ``--env.randomization.friction 0.3 1.0``); see
 ``mecanum-train --help``. Exit codes: 2 bad config or run directory, 3 diverged,
-130 interrupted (a checkpoint was written).
+130 interrupted by Ctrl-C, 143 stopped by SIGTERM, 138 by SIGUSR1 (128 + the signal;
+a checkpoint was written: resume with --resume; train/loop/preemption.py).
 """
 
 from __future__ import annotations
@@ -155,9 +156,9 @@ def main(argv: list[str] | None = None) -> int:
         return _fail(err, 2)
     except TrainingDiverged as err:
         return _fail(err, 3)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as err:  # Ctrl-C, or a stop signal (train.loop.preemption)
         console.print("[yellow]interrupted[/]: checkpoint written; resume with --resume")
-        return 130
+        return getattr(err, "exit_code", 130)
     out = Console()
     out.print(results_table(summary, f"{summary['name']}: policy vs analytic baseline"))
     learned = curve.learned_table(run.dir, summary["name"])
@@ -221,9 +222,9 @@ def batch_main(argv: list[str] | None = None) -> int:
         except TrainingDiverged as err:
             print_error(console, err, f"{run.dir}: diverged")
             summaries.append({"name": run.cfg.name, "run_dir": str(run.dir), "diverged": str(err)})
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as err:
             console.print("[yellow]interrupted[/]: checkpoint written")
-            return 130
+            return getattr(err, "exit_code", 130)
     table = batch_table(summaries)
     Console().print(table)
     if runs[0].is_writer:

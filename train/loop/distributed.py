@@ -104,14 +104,19 @@ def barrier(name: str, timeout_s: float = 1800.0) -> None:
     (a warm compilation cache serves processes unevenly). ``jax.distributed`` has no
     public barrier; this is the client orbax and JAX's own serialization use.
     """
-    if jax.process_count() == 1:
-        return
-    from jax._src import distributed as jax_distributed
-
-    client = jax_distributed.global_state.client
-    if client is None:  # several processes without jax.distributed: nothing to wait on
+    client = coordination_client() if jax.process_count() > 1 else None
+    if client is None:
         return
     client.wait_at_barrier(f"mecanum/{name}/{next(_barriers)}", int(timeout_s * 1000))
+
+
+def coordination_client() -> Any:
+    """The ``jax.distributed`` coordination service's client (a key-value store and
+    barriers), or ``None`` where this process joined none (several processes without
+    jax.distributed: nothing to wait on)."""
+    from jax._src import distributed as jax_distributed
+
+    return jax_distributed.global_state.client
 
 
 PROCESS_DIR = "process_state"
@@ -162,6 +167,7 @@ def restore_process(
 __all__ = [
     "ENV_KEYS",
     "barrier",
+    "coordination_client",
     "distributed_args",
     "init_distributed",
     "restore_process",

@@ -7,8 +7,12 @@ env-step count; a user can add their own through ``Run(..., loggers=[...])``.
 from __future__ import annotations
 
 import hashlib
+import json
+import math
 from pathlib import Path
 from typing import Any, Protocol
+
+from train.loop import run_records as records
 
 
 class MetricLogger(Protocol):
@@ -31,12 +35,17 @@ class TensorBoardLogger:
     FLUSH_S = 10.0
     QUEUE = 4096  # events waiting for the writer thread before add_scalar would block
 
-    def __init__(self, run_dir: Path, seeds: tuple[int, ...]):
+    def __init__(self, run_dir: Path, seeds: tuple[int, ...], purge_step: int | None = None):
+        """``purge_step``: a resumed run's first step; TensorBoard hides the events of
+        earlier sessions from that step on (those of epochs after the checkpoint)."""
         from tensorboardX import SummaryWriter
 
         self._writers = {
             s: SummaryWriter(
-                str(run_dir / "tb" / f"seed_{s}"), max_queue=self.QUEUE, flush_secs=self.FLUSH_S
+                str(run_dir / "tb" / f"seed_{s}"),
+                purge_step=purge_step,
+                max_queue=self.QUEUE,
+                flush_secs=self.FLUSH_S,
             )
             for s in seeds
         }
@@ -77,4 +86,45 @@ class WandbLogger:
         self._run.finish()
 
 
-__all__ = ["MetricLogger", "TensorBoardLogger", "WandbLogger"]
+class EpochLog:
+    """A run's per-epoch log, written by process 0 alone (``enabled``): metrics.jsonl, one
+    line per seed, and the sinks: TensorBoard, W&B where ``run.wandb_project`` names a
+    project, and the user's ``extra`` loggers."""
+
+    def __init__(self, cfg: Any, run_dir: Path, extra: list[MetricLogger], enabled: bool):
+        self.cfg, self.dir, self.enabled = cfg, run_dir, enabled  # cfg: a TrainConfig
+        self._extra = list(extra)
+        self.sinks: list[MetricLogger] = []
+
+    def open(self, purge_step: int | None) -> None:
+        """Open the sinks; ``purge_step``: a resumed run's (:class:`TensorBoardLogger`)."""
+        if not self.enabled:
+            return
+        self.sinks = [TensorBoardLogger(self.dir, self.cfg.run.seeds, purge_step), *self._extra]
+        if self.cfg.run.wandb_project:
+            self.sinks.append(WandbLogger(self.cfg.run.wandb_project, self.dir, self.cfg.to_dict()))
+
+    def log(self, epoch: int, steps: int, walltime: float, rows: list[dict[str, Any]]) -> None:
+        if not self.enabled:
+            return
+        with (self.dir / "metrics.jsonl").open("a") as f:
+            for row in rows:
+                line = {"epoch": epoch, "env_steps": steps, "walltime": walltime, **row}
+                f.write(json.dumps(records.jsonable(line)) + "\n")
+        numbers = {
+            seed: {
+                k: v
+                for k, v in records.flatten(row).items()
+                if isinstance(v, int | float) and math.isfinite(v) and k != "seed"
+            }
+            for seed, row in zip(self.cfg.run.seeds, rows, strict=True)
+        }
+        for sink in self.sinks:
+            sink.log(steps, numbers)
+
+    def close(self) -> None:
+        for sink in self.sinks:
+            sink.close()
+
+
+__all__ = ["EpochLog", "MetricLogger", "TensorBoardLogger", "WandbLogger"]

@@ -3,8 +3,11 @@
 ``mecanum-train``, ``mecanum-train-batch`` and ``mecanum-eval`` draw a rich live display on
 their log stream (stderr). Where that stream is not a terminal (``> log 2>&1``, nohup,
 SLURM), a live display shows nothing until it ends; these lines stand in for it, on the
-same stream: one every ``every_s`` seconds, and one at each event (a periodic evaluation,
-a finished rollout chunk). On a terminal the live display is drawn and no line is printed.
+same stream: one every ``every_s`` seconds, and one at each event (a finished rollout
+chunk; the trainer's first and last epoch, and an evaluation, unless it comes less than
+``every_s`` after the last line: the timer's next line carries it). So a log grows at a
+human rate whatever the epoch's length. On a terminal the live display is drawn and no
+line is printed.
 What counts as a terminal is rich's decision (``Console.is_terminal``), so its overrides
 hold: ``TTY_COMPATIBLE=1`` forces the live display, ``TTY_COMPATIBLE=0`` the lines.
 
@@ -78,6 +81,7 @@ class Ticker:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._last = time.monotonic()
+        self._waiting = False  # (TrainLines) an evaluation no line has shown yet
 
     def __enter__(self) -> Ticker:
         if self.enabled:
@@ -102,6 +106,7 @@ class Ticker:
     def _print(self) -> None:
         self.console.out(self._describe(), highlight=False)
         self._last = time.monotonic()
+        self._waiting = False
 
     def _run(self) -> None:
         wait = self.every_s
@@ -142,18 +147,33 @@ class TrainLines(Ticker):
         self._first: tuple[float, int] | None = None  # time, steps after this session's first
         self._latest: tuple[float, int] | None = None  # ... and latest epoch
 
-    def update(self, epoch: int, done_steps: int, sps: float, evaluation: str | None) -> None:
+    def update(
+        self,
+        epoch: int,
+        done_steps: int,
+        sps: float,
+        evaluation: str | None,
+        final: bool = False,
+    ) -> None:
         """An epoch ended; ``evaluation``: its evaluation's figures (``None``: none ran).
-        An evaluation prints a line at once."""
+        A line at once for the first epoch, the ``final`` one (after the line of an
+        evaluation still waiting), and an evaluation ``every_s`` or more after the last
+        line; an earlier evaluation waits for the timer's next line (a newer one replaces
+        its figures)."""
+        if final and self._waiting:
+            self.now()  # the waiting evaluation, with its own epoch's figures
         now = time.time()
         with self._lock:
+            first = self._first is None
             self.epoch, self.done, self.sps = epoch, done_steps, sps
             self._latest = (now, done_steps)
             if self._first is None:
                 self._first = self._latest
             if evaluation is not None:
                 self.evaluation = evaluation
-        if evaluation is not None:
+                self._waiting = True
+            spaced = time.monotonic() - self._last >= self.every_s
+        if first or final or (evaluation is not None and spaced):
             self.now()
 
     def eta_s(self, now: float) -> tuple[float | None, str]:

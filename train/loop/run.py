@@ -3,22 +3,24 @@
 A run directory holds::
 
     config.json        the resolved configuration (written before anything compiles)
-    status.json        running | finished | interrupted | diverged, with the epoch
+    status.json        created | running | finished | stopped | interrupted | diverged, the
+                       epoch and its env steps, the last checkpoint (rewritten every epoch)
     metrics.jsonl      one line per seed per epoch (training, evaluation, baseline)
     tb/seed_<k>/       TensorBoard event files
     checkpoints/<e>/   orbax checkpoints (full state; see train.store.checkpoint)
     summary.json       final figures per seed (when finished)
     learning_curve.png the learning curve (written by mecanum-train; train.loop.curve)
 
-Rules: a run directory is never overwritten (an existing one is only *resumed*); a NaN
-stops the run with a message and keeps the last good checkpoint; Ctrl-C writes a
-checkpoint of the last completed epoch before exiting.
+Rules: a run directory is never overwritten (an existing one is only *resumed*, its logs
+cut back to the checkpoint's epoch); a NaN stops the run with a message naming the first
+non-finite quantity and keeps the last good checkpoint (train.loop.divergence); Ctrl-C
+writes a checkpoint of the last completed epoch before exiting, SIGTERM and SIGUSR1 one of
+the epoch in progress, once it ends (train.loop.preemption).
 """
 
 from __future__ import annotations
 
 import json
-import math
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -33,13 +35,13 @@ from mecanum_jax.config import ConfigError
 from mecanum_jax.precision import set_matmul_precision
 from train.config import TrainConfig, config_diff, load_train_config
 from train.learner.periodic import Result, beats, compare
-from train.learner.policy import check_compatible
 from train.learner.ppo import Learner, first_device, to_host
-from train.loop import aot
+from train.loop import aot, divergence
 from train.loop import run_records as records
 from train.loop.aot import first_runs_alone
-from train.loop.distributed import barrier, restore_process
-from train.loop.loggers import MetricLogger, TensorBoardLogger, WandbLogger
+from train.loop.distributed import barrier
+from train.loop.loggers import EpochLog, MetricLogger
+from train.loop.preemption import Preempted, StopSignals, agree
 from train.loop.run_records import stacked, write_json
 from train.loop.session import Session
 from train.store import checkpoint, inputs
@@ -53,6 +55,9 @@ RESUMABLE_CHANGES = {
     "run.wandb_project",
     "run.progress_every_s",
 }
+# ... and, resuming a run that diverged, the optimizer's and the loss's step sizes.
+STEP_SIZES = ("learning_rate", "max_grad_norm", "entropy_cost", "clipping_epsilon")
+AFTER_DIVERGENCE = {f"ppo.{name}" for name in STEP_SIZES}
 # Fields the compiled learner never reads: a learner built without them serves the run.
 LOGGING_ONLY = {"run.wandb_project", "run.progress_every_s"}
 
@@ -82,8 +87,7 @@ class Run:
         self.console = console or Console(stderr=True)
         self.is_writer = jax.process_index() == 0
         self.learner: Learner | None = None
-        self._extra_loggers = list(loggers or [])
-        self._writers: list[MetricLogger] = []
+        self._logs = EpochLog(cfg, run_dir, loggers or [], self.is_writer)
 
     # --- directories ------------------------------------------------------------------------
 
@@ -108,7 +112,9 @@ class Run:
 
     @classmethod
     def resume(cls, run_dir: str | Path, overrides: TrainConfig | None = None, **kw: Any) -> Run:
-        """Reopen a run directory; ``overrides`` may only lengthen it or change cadences."""
+        """Reopen a run directory; ``overrides`` may only lengthen it or change cadences
+        (after a divergence, also :data:`AFTER_DIVERGENCE`). A run stopped before its first
+        checkpoint starts again from epoch 0."""
         run_dir = Path(run_dir)
         path = run_dir / "config.json"
         if not path.exists():
@@ -116,16 +122,17 @@ class Run:
         saved = load_train_config(path)
         cfg = saved
         if overrides is not None:
-            changed = [f for f in config_diff(saved, overrides) if f not in RESUMABLE_CHANGES]
+            allowed = RESUMABLE_CHANGES | (
+                AFTER_DIVERGENCE if _state(run_dir) == "diverged" else set()
+            )
+            changed = [f for f in config_diff(saved, overrides) if f not in allowed]
             if changed:
                 raise ConfigError(
                     f"{changed[0]}: cannot change when resuming {str(run_dir)!r} "
                     f"(saved {_get(saved, changed[0])!r}, given {_get(overrides, changed[0])!r}); "
-                    f"only {sorted(RESUMABLE_CHANGES)} may change"
+                    f"only {sorted(allowed)} may change"
                 )
             cfg = overrides.validate()
-        if checkpoint.latest_epoch(run_dir) is None:
-            raise RunDirError(f"--resume {str(run_dir)!r}: no checkpoint to resume from")
         barrier("run-resume")  # every process has read it before process 0 rewrites it
         if cfg is not saved and jax.process_index() == 0:
             write_json(path, cfg.to_dict())
@@ -135,34 +142,9 @@ class Run:
         if self.is_writer:
             write_json(self.dir / "status.json", {"state": state, "time": time.time(), **extra})
 
-    # --- logging ----------------------------------------------------------------------------
-
-    def _open_logs(self) -> None:
-        if not self.is_writer:
-            return
-        self._writers = [TensorBoardLogger(self.dir, self.cfg.run.seeds), *self._extra_loggers]
-        if self.cfg.run.wandb_project:
-            self._writers.append(
-                WandbLogger(self.cfg.run.wandb_project, self.dir, self.cfg.to_dict())
-            )
-
-    def _log(self, epoch: int, steps: int, walltime: float, rows: list[dict[str, Any]]) -> None:
-        if not self.is_writer:
-            return
-        with (self.dir / "metrics.jsonl").open("a") as f:
-            for row in rows:
-                line = {"epoch": epoch, "env_steps": steps, "walltime": walltime, **row}
-                f.write(json.dumps(records.jsonable(line)) + "\n")
-        numbers = {
-            seed: {
-                k: v
-                for k, v in records.flatten(row).items()
-                if isinstance(v, int | float) and math.isfinite(v) and k != "seed"
-            }
-            for seed, row in zip(self.cfg.run.seeds, rows, strict=True)
-        }
-        for writer in self._writers:
-            writer.log(steps, numbers)
+    def _report(self, loop: Session, state: str, **extra: Any) -> None:
+        """status.json: ``state``, the epoch reached and the last checkpoint."""
+        self._status(state, **loop.status(), **extra)
 
     # --- training ---------------------------------------------------------------------------
 
@@ -178,11 +160,25 @@ class Run:
 
         ``learner`` reuses already compiled programs of a run with the same config.
         ``time_limit_s`` stops (resumably, with a checkpoint) after the first epoch that
-        ends past that many seconds of this session.
+        ends past that many seconds of this session. SIGTERM or SIGUSR1 (where called from
+        the main thread) stops it after the epoch in progress, with a checkpoint, raising
+        :class:`~train.loop.preemption.Preempted` (train.loop.preemption).
         """
-        loop = self._set_up(learner)
+        with StopSignals() as signals:
+            loop = self._set_up(learner)
+            self._epochs(loop, stop_after_epochs, time_limit_s, signals)
+            return self._finish(loop)
+
+    def _epochs(
+        self,
+        loop: Session,
+        stop_after: int | None,
+        time_limit_s: float | None,
+        signals: StopSignals,
+    ) -> None:
+        """The epochs of :meth:`train`, each evaluated, logged and saved when due."""
         total = self.cfg.num_epochs
-        last = total if stop_after_epochs is None else min(total, loop.epoch + stop_after_epochs)
+        last = total if stop_after is None else min(total, loop.epoch + stop_after)
         progress = records.TrainProgress(
             self.console,
             self.cfg.name,
@@ -199,20 +195,34 @@ class Run:
                     sps, metrics = self._train_epoch(loop)
                     is_last = loop.epoch == total
                     out_of_time = time_limit_s is not None and loop.session_s() > time_limit_s
-                    final = is_last or out_of_time  # evaluated, logged and saved like any other
-                    results = self._evaluate(loop) if loop.eval_due(final) else []
+                    signum, out_of_time = agree(loop.epoch, signals.signum, out_of_time)
+                    final = is_last or out_of_time or signum is not None
+                    # evaluated, logged and saved like any other; not evaluated when stopped
+                    # by a signal (its grace period is short)
+                    due = loop.eval_due(final) and (signum is None or is_last)
+                    results = self._evaluate(loop) if due else []
                     self._log_epoch(loop, metrics, results, sps)
                     done = loop.steps(loop.epoch)
-                    progress.update(loop.epoch, done, sps, results, loop.comparisons, loop.shown)
+                    info = loop.shown
+                    progress.update(loop.epoch, done, sps, results, loop.comparisons, info, final)
                     if loop.checkpoint_due(final):
                         loop.save()
+                    if signum is not None and not is_last:
+                        raise self._preempted(loop, signum)
+                    self._report(loop, "running")
                     if out_of_time and not is_last:
                         self.console.log(f"time limit reached after epoch {loop.epoch}")
                         break
         finally:
-            for w in self._writers:
-                w.close()
-        return self._finish(loop)
+            self._logs.close()
+
+    def _preempted(self, loop: Session, signum: int) -> Preempted:
+        """Stopped by a signal after the epoch it saved: the status and the error."""
+        where = f"checkpoint {checkpoint.checkpoint_path(self.dir, loop.epoch)}"
+        err = Preempted(signum, loop.epoch, f"{where}; resume with --resume {self.dir}")
+        self.console.log(str(err))
+        self._report(loop, "interrupted", signal=err.signal)
+        return err
 
     # --- the steps of train ------------------------------------------------------------------
 
@@ -227,14 +237,18 @@ class Run:
         learner = self.learner = self._learner(learner)
         loop = Session(self.cfg, self.dir, self.is_writer, learner, t_start, *self._fresh(learner))
         if checkpoint.latest_epoch(self.dir) is not None:
-            self._restore(loop)
+            loop.restore(self.console.log)
         loop.saved_epoch, loop.first_epoch = loop.epoch, loop.epoch + 1
+        if self.is_writer and (
+            dropped := records.keep_rows(self.dir / "metrics.jsonl", loop.epoch)
+        ):
+            self.console.log(f"metrics.jsonl: {dropped} rows after epoch {loop.epoch} dropped")
         if jax.process_count() > 1:
             # compile before any process runs the epoch's collectives (see barrier)
             learner.compile_epoch(loop.state, loop.env_state)
             barrier("epoch-compiled")
-        self._open_logs()
-        self._status("running", epoch=loop.epoch)
+        self._logs.open(loop.steps(loop.epoch) + 1 if (self.dir / "tb").exists() else None)
+        self._report(loop, "running")
         loop.baseline_job = _in_thread(learner.evaluate_baseline, first_device(loop.state))
         if first_runs_alone(learner):
             loop.baseline_job.result()
@@ -261,30 +275,6 @@ class Run:
             return learner.init(*aot.compile_together(learner))
         return learner.init()
 
-    def _restore(self, loop: Session) -> None:
-        """Continue from the newest checkpoint: state, robots, epoch, wall time, "beat at"."""
-        learner = loop.learner
-        host_state, host_env, meta = checkpoint.restore(
-            self.dir, to_host(loop.state), to_host(loop.env_state), log=self.console.log
-        )
-        check_compatible(meta, learner.env, f"checkpoint in {str(self.dir)!r}")
-        if jax.process_index() != 0:
-            # the checkpoint holds process 0's robots and loop keys; the others saved
-            # theirs beside it (train.loop.distributed.save_process)
-            own = restore_process(self.dir, int(meta["epoch"]), host_state.key, host_env)
-            if own is None:  # lost: this process's fresh robots and loop keys
-                self.console.log(
-                    f"[yellow]process {jax.process_index()}: no saved robots for epoch "
-                    f"{meta['epoch']}; they restart from fresh resets[/]"
-                )
-                own = to_host(loop.state.key), to_host(loop.env_state)
-            keys, host_env = own
-            host_state = host_state.replace(key=keys)
-        loop.state, loop.env_state = learner.place(host_state, host_env)
-        loop.epoch, loop.walltime_before = int(meta["epoch"]), float(meta["walltime"])
-        loop.beat_at = meta.get("beat_baseline", {})
-        self.console.log(f"resumed {self.dir} at epoch {loop.epoch} ({meta['env_steps']:,} steps)")
-
     def _train_epoch(self, loop: Session) -> tuple[float, dict[str, np.ndarray]]:
         """One compiled epoch: ``(env steps/s, per-seed metrics)``. Ctrl-C saves the last
         completed epoch; a non-finite loss or parameter saves it and stops the run."""
@@ -295,29 +285,35 @@ class Run:
         except KeyboardInterrupt:
             self.console.log(f"interrupted: saving epoch {loop.epoch}")
             loop.save()
-            self._status("interrupted", epoch=loop.epoch)
+            self._report(loop, "interrupted", signal="SIGINT")
             raise
         if loop.baseline is None:
             loop.baseline = loop.baseline_job.result()
             beside = "" if first_runs_alone(loop.learner) else ", with the baseline's evaluation"
             epoch_s = time.time() - t_epoch
             self.console.log(f"set-up {loop.setup_s:.0f} s; first epoch{beside}: {epoch_s:.0f} s")
-        if not np.all(metrics["finite"] > 0):
-            seeds = self.cfg.run.seeds
-            bad = [s for s, f in zip(seeds, metrics["finite"], strict=True) if not f]
-            loop.save()
-            rows = records.seed_rows(self.cfg.run.seeds, metrics, {}, loop.baseline.values)
-            self._log(loop.epoch + 1, loop.steps(loop.epoch + 1), loop.walltime(), rows)
-            self._status("diverged", epoch=loop.epoch, seeds=bad)
-            raise TrainingDiverged(
-                f"non-finite loss or parameters in epoch {loop.epoch + 1} for seeds {bad}; "
-                f"stopped, last good checkpoint: epoch {loop.epoch} "
-                f"in {self.dir / 'checkpoints'}"
-            )
+        if bad := divergence.bad_seeds(self.cfg.run.seeds, metrics):
+            self._diverged(loop, metrics, new_state, bad)
         loop.state, loop.env_state = new_state, new_env
         loop.epoch += 1
         sps = loop.steps(1) * len(self.cfg.run.seeds) / (time.time() - t_epoch)
         return sps, metrics
+
+    def _diverged(self, loop: Session, metrics: dict[str, Any], state: Any, bad: list[int]) -> None:
+        """The epoch after ``loop.epoch`` went non-finite (seeds ``bad``, indices): the last
+        good state saved (the bad one never is), the bad epoch's row logged, the status,
+        and the error naming the first non-finite quantity."""
+        seeds = self.cfg.run.seeds
+        what = divergence.first_non_finite(seeds, metrics, state, bad[0])
+        loop.save()
+        assert loop.baseline is not None  # awaited after the first epoch
+        rows = records.seed_rows(seeds, metrics, {}, loop.baseline.values)
+        self._logs.log(loop.epoch + 1, loop.steps(loop.epoch + 1), loop.walltime(), rows)
+        path = checkpoint.checkpoint_path(self.dir, loop.epoch)
+        text = divergence.message(loop.epoch + 1, what, loop.saved_epoch, self.dir, path)
+        seed_list = [seeds[i] for i in bad]
+        self._report(loop, "diverged", diverged_epoch=loop.epoch + 1, seeds=seed_list, error=text)
+        raise TrainingDiverged(text)
 
     def _evaluate(self, loop: Session) -> list[Result]:
         """Each seed's policy on the held-out episodes, compared with the baseline; records
@@ -344,7 +340,7 @@ class Run:
         rows = records.seed_rows(
             self.cfg.run.seeds, metrics, evals, loop.baseline.values, sps, comps
         )
-        self._log(loop.epoch, loop.steps(loop.epoch), loop.walltime(), rows)
+        self._logs.log(loop.epoch, loop.steps(loop.epoch), loop.walltime(), rows)
         if evals:
             loop.shown = records.shown(evals["randomized"], loop.baseline.values["randomized"])
 
@@ -370,7 +366,7 @@ class Run:
         if self.is_writer:
             write_json(self.dir / "summary.json", summary)
         done = loop.epoch >= self.cfg.num_epochs
-        self._status("finished" if done else "stopped", epoch=loop.epoch)
+        self._report(loop, "finished" if done else "stopped")
         return summary
 
 
@@ -382,10 +378,18 @@ def _in_thread(fn: Callable[..., Result], *args: Any) -> Future[Result]:
     return job
 
 
+def _state(run_dir: Path) -> str | None:
+    """The state status.json gives (``None``: none)."""
+    try:
+        return str(json.loads((run_dir / "status.json").read_text()).get("state"))
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
 def _get(cfg: Any, dotted: str) -> Any:
     for part in dotted.split("."):
         cfg = getattr(cfg, part)
     return cfg
 
 
-__all__ = ["Run", "RunDirError", "TrainingDiverged"]
+__all__ = ["Preempted", "Run", "RunDirError", "TrainingDiverged"]

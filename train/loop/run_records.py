@@ -41,6 +41,28 @@ def write_json(path: Path, data: Any) -> None:
     os.replace(tmp, path)
 
 
+def keep_rows(path: Path, epoch: int) -> int:
+    """Cut ``path`` (metrics.jsonl) back to its rows of epochs up to ``epoch``, the
+    checkpoint a run resumes from, so the epochs it trains again are not logged twice;
+    a line cut short by a killed process goes too. Atomic; returns how many lines went."""
+    if not path.exists():
+        return 0
+    lines = path.read_text().splitlines(keepends=True)
+    kept = []
+    for line in lines:
+        try:
+            row = json.loads(line)
+        except ValueError:
+            continue
+        if line.endswith("\n") and isinstance(row, dict) and row.get("epoch", 0) <= epoch:
+            kept.append(line)
+    if len(kept) < len(lines):
+        tmp = path.with_suffix(path.suffix + ".tmp")
+        tmp.write_text("".join(kept))
+        os.replace(tmp, path)
+    return len(lines) - len(kept)
+
+
 def machine_record(cfg: Any, physics_impl: str) -> dict[str, Any]:
     """Where and when a benchmark ran: device, platform, jax, date, config, physics."""
     return {
@@ -216,8 +238,9 @@ class TrainProgress:
         results: list[Result],
         comparisons: list[dict[str, Any]],
         info: str,
+        final: bool = False,
     ) -> None:
         steps = f"{_si(done)}/{_si(self.total)}"
         self.bar.update(self.task, completed=done, steps=steps, sps=_si(sps), info=info)
         figures = evaluation_text(done, stacked(results), comparisons) if results else None
-        self.lines.update(epoch, done, sps, figures)
+        self.lines.update(epoch, done, sps, figures, final)

@@ -1,10 +1,12 @@
 """One session of a training run (:class:`~train.loop.run.Run`): what it carries from
-epoch to epoch, when it evaluates and checkpoints, and the checkpoint it writes."""
+epoch to epoch, when it evaluates and checkpoints, the checkpoint it writes and the one it
+resumes from."""
 
 from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -13,8 +15,9 @@ import jax
 from mecanum_jax.sim.description import fingerprint
 from train.config import TrainConfig
 from train.learner.periodic import Result
+from train.learner.policy import check_compatible
 from train.learner.ppo import Learner, to_host
-from train.loop.distributed import save_process
+from train.loop.distributed import restore_process, save_process
 from train.store import checkpoint
 
 
@@ -80,6 +83,48 @@ class Session:
             "env_steps": self.steps(self.epoch),
             "walltime": self.walltime(),
             "beat_baseline": self.beat_at,
+        }
+
+    def restore(self, log: Callable[[str], None]) -> None:
+        """Continue from the newest checkpoint: state, robots, epoch, wall time, "beat at"."""
+        learner = self.learner
+        host_state, host_env, meta = checkpoint.restore(
+            self.dir, to_host(self.state), to_host(self.env_state), log=log
+        )
+        check_compatible(meta, learner.env, f"checkpoint in {str(self.dir)!r}")
+        if jax.process_index() != 0:
+            # the checkpoint holds process 0's robots and loop keys; the others saved
+            # theirs beside it (train.loop.distributed.save_process)
+            own = restore_process(self.dir, int(meta["epoch"]), host_state.key, host_env)
+            if own is None:  # lost: this process's fresh robots and loop keys
+                log(
+                    f"[yellow]process {jax.process_index()}: no saved robots for epoch "
+                    f"{meta['epoch']}; they restart from fresh resets[/]"
+                )
+                own = to_host(self.state.key), to_host(self.env_state)
+            keys, host_env = own
+            host_state = host_state.replace(key=keys)
+        self.state, self.env_state = learner.place(host_state, host_env)
+        self.epoch, self.walltime_before = int(meta["epoch"]), float(meta["walltime"])
+        self.beat_at = meta.get("beat_baseline", {})
+        log(f"resumed {self.dir} at epoch {self.epoch} ({meta['env_steps']:,} steps)")
+
+    def status(self) -> dict[str, Any]:
+        """status.json's figures besides the state: the epoch reached, its env steps per
+        seed, the run's length in epochs, and the last checkpoint (``None`` before one)."""
+        last = None
+        if self.saved_epoch > 0:  # restored or saved: a checkpoint of that epoch exists
+            path = checkpoint.checkpoint_path(self.dir, self.saved_epoch)
+            last = {
+                "epoch": self.saved_epoch,
+                "env_steps": self.steps(self.saved_epoch),
+                "path": str(path),
+            }
+        return {
+            "epoch": self.epoch,
+            "env_steps": self.steps(self.epoch),
+            "epochs": self.cfg.num_epochs,
+            "last_checkpoint": last,
         }
 
     def save(self) -> None:
