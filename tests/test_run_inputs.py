@@ -113,3 +113,24 @@ def test_a_run_on_a_deleted_custom_robot_evaluates_and_exports(tmp_path, monkeyp
     assert json.loads((tmp_path / "ev_model" / "report.json").read_text())["robot"] == "o_rectangle"
     assert deploy_sim.main(["model", "--episodes", "1", "--seconds", "0.2", "--out", "d.json"]) == 0
     capsys.readouterr()
+
+
+def test_a_run_resumes_after_its_custom_robot_is_deleted(tmp_path):
+    """--resume reads the run's copy; config.json keeps the robot as the user named it."""
+    from train.loop.run import Run
+
+    path = tmp_path / "my_robot.toml"
+    shutil.copyfile(ROBOT, path)
+    tiny = load_train_config("tiny")
+    cfg = dataclasses.replace(tiny, env=dataclasses.replace(tiny.env, robot=str(path)))
+    run_dir = tmp_path / "run"
+    Run.create(cfg, run_dir)
+    path.unlink()
+    longer = dataclasses.replace(cfg.ppo, num_timesteps=2 * cfg.ppo.num_timesteps)
+    saved = inputs.load_saved_config(run_dir)
+    run = Run.resume(run_dir, overrides=dataclasses.replace(saved, ppo=longer))
+    assert run.cfg.env.robot == str((run_dir / "inputs" / "robot.toml").resolve())
+    assert run.cfg.env.description().robot.name == "o_rectangle"
+    written = json.loads((run_dir / "config.json").read_text())
+    assert written["env"]["robot"] == str(path)
+    assert written["ppo"]["num_timesteps"] == longer.num_timesteps

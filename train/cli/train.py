@@ -122,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError("--resume: give either --resume or --config/--run-dir, not both")
         if meta.resume:
             saved = check_input_dir(meta.resume, "--resume") / "config.json"
-            base = load_train_config(saved) if saved.exists() else TrainConfig()
+            base = inputs.load_saved_config(saved.parent) if saved.exists() else TrainConfig()
             cfg = apply_flags(base, rest, prog, description)
             require_impl(cfg.env.physics_impl, "env.physics_impl")
             run = Run.resume(meta.resume, overrides=cfg, console=console)

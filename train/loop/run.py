@@ -33,7 +33,7 @@ from rich.console import Console
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.precision import set_matmul_precision
-from train.config import TrainConfig, config_diff, load_train_config
+from train.config import TrainConfig, config_diff
 from train.learner.periodic import Result, beats, compare
 from train.learner.ppo import Learner, first_device, to_host
 from train.loop import aot, divergence
@@ -119,7 +119,7 @@ class Run:
         path = run_dir / "config.json"
         if not path.exists():
             raise RunDirError(f"--resume {str(run_dir)!r}: not a run directory (no config.json)")
-        saved = load_train_config(path)
+        saved = inputs.load_saved_config(run_dir)  # its robot: the run's copy, if it has one
         cfg = saved
         if overrides is not None:
             allowed = RESUMABLE_CHANGES | (
@@ -135,7 +135,7 @@ class Run:
             cfg = overrides.validate()
         barrier("run-resume")  # every process has read it before process 0 rewrites it
         if cfg is not saved and jax.process_index() == 0:
-            write_json(path, cfg.to_dict())
+            write_json(path, inputs.as_given(cfg.to_dict(), json.loads(path.read_text())))
         return cls(cfg, run_dir, **kw)
 
     def _status(self, state: str, **extra: Any) -> None:

@@ -128,6 +128,16 @@ def use_copies(data: Any, run_dir: Path, warn: bool = True) -> Any:
     return {**data, "env": {**env, "robot": str(copy.resolve())}}
 
 
+def as_given(data: dict[str, Any], saved: dict[str, Any]) -> dict[str, Any]:
+    """A config mapping to write back as ``config.json``, its ``env.robot`` as ``saved``
+    (the config.json it replaces) named it, not the run's copy that :func:`use_copies`
+    substituted."""
+    robot = saved.get("env", {}).get("robot") if isinstance(saved, dict) else None
+    if not isinstance(robot, str) or not isinstance(data.get("env"), dict):
+        return data
+    return {**data, "env": {**data["env"], "robot": robot}}
+
+
 def load_saved_config(run_dir: Path, warn: bool = True) -> Any:
     """``run_dir/config.json`` as a TrainConfig whose ``env.robot`` is the run's copy (if
     it has one), so that it loads after the original is gone. Errors name the file."""
@@ -148,6 +158,7 @@ __all__ = [
     "INPUTS_DIR",
     "EditedInputWarning",
     "add_file",
+    "as_given",
     "copy_inputs",
     "load_saved_config",
     "read_index",
