@@ -8,7 +8,8 @@
 - MuJoCo renders headless through whichever of OSMesa and EGL is installed; tests marked
   ``render`` are skipped, with the reason, where neither works.
 - Tiers: the default run leaves out tests marked ``full`` (slow end-to-end runs);
-  ``--full`` (what ``.ci/run`` passes) runs them too. The fast tier compiles with
+  ``--full`` (what ``.ci/run`` passes) runs them too. ``./dev test`` runs either tier in
+  two pytest-xdist workers (``pytest_xdist_make_scheduler``). The fast tier compiles with
   XLA:CPU's backend optimizations and its newer fusion emitters off
   (``FAST_TIER_XLA_FLAGS``): its programs run for moments and compile for tens of
   seconds, and unoptimized code compiles about 30% faster; the older emitters about as
@@ -83,8 +84,30 @@ def pytest_configure(config: pytest.Config) -> None:
         settings.load_profile("fast")
 
 
+# Full-tier files that run for minutes on 2 cores (fresh training processes, a wheel
+# install, Warp's kernels): under pytest-xdist they start first, after the tiny run's
+# files, so that no worker is left with one of them at the end while the other idles.
+LONG_FILES = (
+    "test_distributed.py",
+    "test_warp_training.py",
+    "test_distill.py",
+    "test_wheel.py",
+    "test_physics.py",
+    "test_teacher.py",
+)
+
+
+def _start_order(item: pytest.Item) -> int:
+    name = item.path.name
+    if name in TINY_RUN_FILES:
+        return -1
+    return LONG_FILES.index(name) if name in LONG_FILES else len(LONG_FILES)
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     full = config.getoption("--full")
+    if full:  # (a stable sort: each file's tests keep their order)
+        items.sort(key=_start_order)
     skip_full = pytest.mark.skip(reason="full tier: run with ./dev test --full")
     gl_reason: list[str | None] = []
     for item in items:
@@ -187,15 +210,22 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log):
     imports run once. File by file, a second worker
     that needed them waited for the first to train the tiny run (``full_run``), then
     compiled them again to train runs of its own: a minute of the fast tier's 4. Every
-    other file is a work unit of its own, as usual."""
+    other file is a work unit of its own, as usual; in the full tier (``--full``, which
+    ``./dev test --full`` also runs in two workers) test_distributed.py is one too: its
+    two-process runs take minutes and use no learner of the worker's."""
     if config.getoption("dist") != "loadfile":
         return None
     from xdist.scheduler import LoadFileScheduling
 
+    # the full tier's two-process runs (minutes) need no learner of this process's
+    together = (
+        TINY_RUN_FILES - {"test_distributed.py"} if config.getoption("--full") else TINY_RUN_FILES
+    )
+
     class TinyRunTogether(LoadFileScheduling):
         def _split_scope(self, nodeid: str) -> str:
             file = super()._split_scope(nodeid)
-            return "tiny run" if Path(file).name in TINY_RUN_FILES else file
+            return "tiny run" if Path(file).name in together else file
 
     return TinyRunTogether(config, log)
 

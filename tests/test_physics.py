@@ -438,7 +438,7 @@ def test_select_takes_fresh_robots_where_done(fast_robot):
     cmd = jnp.full((3, 4), 10.0)
     moved = step(step(fresh, cmd, p), cmd, p)
     done = jnp.array([True, False, True])
-    merged = jax.vmap(physics.select)(done, fresh, moved)
+    merged = jax.jit(jax.vmap(physics.select))(done, fresh, moved)  # one program, not op by op
     for leaf_m, leaf_f, leaf_s in zip(
         jax.tree.leaves(merged), jax.tree.leaves(fresh), jax.tree.leaves(moved), strict=True
     ):
