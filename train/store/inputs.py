@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from mecanum_jax.config import CONFIG_DIR, ConfigError, find_config
+from mecanum_jax.sim.description import fingerprint
 
 INPUTS_DIR = "inputs"
 INDEX = "inputs.json"
@@ -128,6 +129,12 @@ def use_copies(data: Any, run_dir: Path, warn: bool = True) -> Any:
     return {**data, "env": {**env, "robot": str(copy.resolve())}}
 
 
+def same_robot(a: Any, b: Any) -> bool:
+    """Whether two TrainConfigs name robot descriptions of the same content (a file and
+    the run's copy of it)."""
+    return bool(fingerprint(a.env.description()) == fingerprint(b.env.description()))
+
+
 def as_given(data: dict[str, Any], saved: dict[str, Any]) -> dict[str, Any]:
     """A config mapping to write back as ``config.json``, its ``env.robot`` as ``saved``
     (the config.json it replaces) named it, not the run's copy that :func:`use_copies`
@@ -163,6 +170,7 @@ __all__ = [
     "load_saved_config",
     "read_index",
     "robot_copy",
+    "same_robot",
     "save_inputs",
     "use_copies",
 ]
