@@ -133,13 +133,19 @@ def test_mecanum_train_passes_the_other_flags_on(tmp_path, capsys, restore_jax_c
     assert not jax.config.jax_enable_compilation_cache
 
 
-def test_warp_physics_leaves_the_persistent_cache(tmp_path, restore_jax_cache_options, capsys):
+def test_warp_physics_leaves_the_persistent_cache(
+    tmp_path, restore_jax_cache_options, capsys, monkeypatch
+):
     """XLA:CPU crashed writing MuJoCo Warp's programs to the cache (mecanum_jax/sim/
     warp_cache.py): once a process builds Warp physics on the CPU, nothing more is written
     or read; on a GPU the cache stays on."""
     from jax.experimental.compilation_cache import compilation_cache as jax_cache
 
+    from mecanum_jax.sim import warp_cache
     from mecanum_jax.sim.warp_cache import leave_the_persistent_cache
+
+    # it says so once a process: another test of this worker may have had it said
+    monkeypatch.setattr(warp_cache, "_warned", False)
 
     jax.config.update("jax_enable_compilation_cache", True)
     jax.config.update("jax_compilation_cache_dir", str(tmp_path))
