@@ -55,6 +55,17 @@ def test_the_copy_serves_when_the_original_is_deleted_silently(custom):
     assert cfg.env.description().robot.name == "o_rectangle"
 
 
+def test_an_intact_original_keeps_its_name(custom):
+    """Where the saved name still gives the bytes the run trained on, the config is left as
+    saved, so it compares equal to the user's (a teacher's, a resumed run's)."""
+    path, run = custom
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        cfg = _restored(str(path), run)
+    assert cfg.env.robot == str(path)
+    assert inputs.robot_copy(run, str(path)) is None
+
+
 def test_an_edited_original_is_named_beside_the_copy(custom):
     path, run = custom
     path.write_text(path.read_text().replace("wheel_radius = 0.05", "wheel_radius = 0.06"))

@@ -32,7 +32,6 @@ from mecanum_jax.task import observations as obs_
 from mecanum_jax.task.env import MecanumEnv
 from train.config import TrainConfig, config_diff
 from train.learner.policy import restore_policy
-from train.store import inputs
 from train.store.leaves import CheckpointError
 
 WHERE = "ppo.distill.teacher"
@@ -90,8 +89,6 @@ def load_teacher(cfg: TrainConfig, env: MecanumEnv) -> Teacher:
         raise ConfigError(f"{WHERE} = {path!r}: {err}") from None
     tcfg = restored.cfg
     differs = [f for f in config_diff(tcfg.env, cfg.env, "env") if f not in FREE]
-    if "env.robot" in differs and inputs.same_robot(tcfg, cfg):
-        differs.remove("env.robot")  # the teacher's copy of the same robot file
     if differs:
         raise ConfigError(
             f"{WHERE} = {path!r}: the teacher trained another task; it differs from this run "

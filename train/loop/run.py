@@ -126,8 +126,6 @@ class Run:
                 AFTER_DIVERGENCE if _state(run_dir) == "diverged" else set()
             )
             changed = [f for f in config_diff(saved, overrides) if f not in allowed]
-            if "env.robot" in changed and inputs.same_robot(saved, overrides):
-                changed.remove("env.robot")
             if changed:
                 raise ConfigError(
                     f"{changed[0]}: cannot change when resuming {str(run_dir)!r} "
@@ -261,8 +259,6 @@ class Run:
         """``learner`` where it was built for this run's config, else a new one."""
         if learner is not None:
             differs = [f for f in config_diff(learner.cfg, self.cfg) if f not in LOGGING_ONLY]
-            if differs == ["env.robot"] and inputs.same_robot(learner.cfg, self.cfg):
-                differs = []  # the run's copy of the same file
             if differs:
                 raise ValueError(f"learner was built for another config: {differs}")
         learner = learner or Learner(self.cfg)

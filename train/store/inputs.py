@@ -7,10 +7,12 @@ holds::
     inputs/config.toml    the train config file it was given (when it was a file)
     inputs/inputs.json    where each came from, and its SHA-256
 
-so that it evaluates and exports after the user's TOML is moved, edited or deleted:
-:func:`use_copies` points a saved config's ``env.robot`` at the copy. An original that
-still exists but whose bytes changed is named in a warning beside the copy (the copy is
-used: it is what the run trained on); a deleted one is not mentioned.
+so that it evaluates, exports and resumes after the user's TOML is moved, edited or
+deleted: :func:`use_copies` points a saved config's ``env.robot`` at the copy where the
+name no longer gives the bytes the run trained on (and leaves it alone where it does, so
+configs compare equal). An original that still exists but whose bytes changed is named in
+a warning beside the copy (the copy is used: it is what the run trained on); a deleted one
+is not mentioned.
 """
 
 from __future__ import annotations
@@ -23,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 from mecanum_jax.config import CONFIG_DIR, ConfigError, find_config
-from mecanum_jax.sim.description import fingerprint
 
 INPUTS_DIR = "inputs"
 INDEX = "inputs.json"
@@ -80,20 +81,11 @@ def copy_inputs(src_dir: Path, dst_dir: Path) -> None:
         shutil.copytree(src_dir / INPUTS_DIR, dst_dir / INPUTS_DIR)
 
 
-def _original(entry: dict[str, Any], given: str) -> Path | None:
-    """Where the input is now, if anywhere: the recorded file, or what ``given`` names."""
-    recorded = Path(str(entry.get("source", "")))
-    if recorded.is_file():
-        return recorded
-    try:
-        return robot_file(given)
-    except ConfigError:
-        return None
-
-
 def robot_copy(run_dir: Path, given: str) -> Path | None:
-    """The run's copy of its robot description (``None`` for a run without one); warns
-    (:class:`EditedInputWarning`) when the original ``given`` still exists, edited."""
+    """The run's copy of its robot description where the saved config's ``given`` no longer
+    names the bytes it trained on (moved, deleted or edited; an edited original, or one
+    still at the recorded source, is named in an :class:`EditedInputWarning`); ``None`` for
+    a run without a copy, or where ``given`` still names the very file."""
     entry = read_index(run_dir).get("robot")
     if not isinstance(entry, dict):
         return None
@@ -102,8 +94,15 @@ def robot_copy(run_dir: Path, given: str) -> Path | None:
         raise ConfigError(f"{str(run_dir / INPUTS_DIR / INDEX)!r}: names {copy.name}, missing")
     if entry.get("sha256") != sha256(copy):
         raise ConfigError(f"{str(copy)!r}: does not match its SHA-256 in {INDEX}")
-    original = _original(entry, given)
-    if original is not None and sha256(original) != entry.get("sha256"):
+    try:
+        named: Path | None = robot_file(given)
+    except ConfigError:
+        named = None
+    if named is not None and sha256(named) == entry["sha256"]:
+        return None
+    recorded = Path(str(entry.get("source", "")))
+    original = named or (recorded if recorded.is_file() else None)
+    if original is not None and sha256(original) != entry["sha256"]:
         warnings.warn(
             f"robot description {str(original)!r} has been edited since training; "
             f"using the run's copy {str(copy)!r}",
@@ -127,12 +126,6 @@ def use_copies(data: Any, run_dir: Path, warn: bool = True) -> Any:
     if copy is None:
         return data
     return {**data, "env": {**env, "robot": str(copy.resolve())}}
-
-
-def same_robot(a: Any, b: Any) -> bool:
-    """Whether two TrainConfigs name robot descriptions of the same content (a file and
-    the run's copy of it)."""
-    return bool(fingerprint(a.env.description()) == fingerprint(b.env.description()))
 
 
 def as_given(data: dict[str, Any], saved: dict[str, Any]) -> dict[str, Any]:
@@ -170,7 +163,6 @@ __all__ = [
     "load_saved_config",
     "read_index",
     "robot_copy",
-    "same_robot",
     "save_inputs",
     "use_copies",
 ]
