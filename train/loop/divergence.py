@@ -56,19 +56,11 @@ def first_non_finite(
                 continue
             x = x[:, i]  # (D, S, ...): seed i on every device
             if not np.isfinite(x).all():
-                name = _name(path)
+                name = jax.tree_util.keystr(path, simple=True, separator="/")
                 network, _, rest = name.partition("/")
                 label = f"{network} {what} {rest}" if what == "parameter" else f"{what} {name}"
                 return f"{label} is {_kind(x)} in seed {seed}"
     return f"parameters or normalizer non-finite in seed {seed}"
-
-
-def _name(path: tuple[Any, ...]) -> str:
-    parts = []
-    for key in path:
-        part = getattr(key, "name", getattr(key, "key", getattr(key, "idx", key)))
-        parts.append(str(part))
-    return "/".join(parts)
 
 
 def message(epoch: int, what: str, last_good: int, run_dir: Path, checkpoint: Path) -> str:
