@@ -206,12 +206,13 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"config file {str(path)!r}: cannot read it ({err.strerror})") from None
 
 
-def _config_dir() -> Path:
-    """The built-in configs (robots, run configs, scenarios): inside the installed package
-    (a wheel ships ``configs/`` as ``mecanum_jax/configs``), else the clone's ``configs/``
-    (a checkout, or an editable install of one)."""
-    packaged = Path(str(importlib.resources.files("mecanum_jax"))) / "configs"
-    return packaged if packaged.is_dir() else Path(__file__).resolve().parent.parent / "configs"
+def package_data(packaged: str, in_clone: str) -> Path:
+    """A folder of data the wheel ships inside the package as ``mecanum_jax/<packaged>``
+    (pyproject.toml's force-include), else the clone's ``<in_clone>`` (a checkout, or an
+    editable install of one)."""
+    inside = Path(str(importlib.resources.files("mecanum_jax"))) / packaged
+    return inside if inside.is_dir() else Path(__file__).resolve().parent.parent / in_clone
 
 
-CONFIG_DIR = _config_dir()
+CONFIG_DIR = package_data("configs", "configs")
+"""The built-in configs: robots, run configs, scenarios."""

@@ -3,12 +3,11 @@ writable), and the shipped model found wherever the package is installed."""
 
 from __future__ import annotations
 
-import importlib.resources
 import os
 import tempfile
 from pathlib import Path
 
-from mecanum_jax.config import ConfigError
+from mecanum_jax.config import ConfigError, package_data
 
 SHIPPED = ("o_rectangle",)
 """The shipped models: ``models/<name>`` in a clone, ``mecanum_jax/shipped/<name>`` in a
@@ -52,10 +51,7 @@ def check_input_dir(path: str | Path, field: str) -> Path:
 
 def shipped_dir() -> Path:
     """Where the shipped models are: inside the installed package, else the clone's models/."""
-    packaged = Path(str(importlib.resources.files("mecanum_jax"))) / "shipped"
-    if packaged.is_dir():
-        return packaged
-    return Path(__file__).resolve().parents[2] / "models"
+    return package_data("shipped", "models")
 
 
 def resolve_model(target: str) -> str:
