@@ -17,7 +17,7 @@
 #                           each packaged as /tmp/model_sK/o_rectangle and $OUT/model_sK.tgz
 #   tune [MODEL...]         each MODEL (default /tmp/model/o_rectangle) and models/o_rectangle
 #                           on the tuning episodes (configs/eval/tuning.toml, a seed of its own),
-#                           TUNE_JOBS at a time (default 1; on an H100 2 fit: with the six
+#                           TUNE_JOBS at a time (default: one per GPU, round robin; 2 per GPU fit on an H100: with the six
 #                           tuning scenarios 3 ran out of memory; TUNE_SHIPPED=0 leaves
 #                           models/o_rectangle out, e.g. for a screen whose recipe variant
 #                           stands in for it); then
@@ -48,7 +48,8 @@
 #                           reference --physics-impl jax, then scripts/eval_agreement.py):
 #                           $OUT/reference_NAME_{default,randomized}.json (NAME: the
 #                           model's folder's folder, "shipped" for models/o_rectangle)
-#   ab MIN 'name|flags'...  variants trained concurrently for MIN minutes on one GPU, each
+#   ab MIN 'name|flags'...  variants trained concurrently for MIN minutes, variant i on GPU i
+#                           mod the GPUs (several share one where there are fewer GPUs), each
 #                           packaged as /tmp/model_NAME/o_rectangle and $OUT/model_NAME.tgz
 #                           (compare them next with: tune /tmp/model_NAME/o_rectangle ...); a
 #                           variant of several --run.seeds K... as /tmp/model_NAME_sK/o_rectangle,
@@ -177,22 +178,35 @@ seeds() {  # MINUTES SEEDS [flags]: one run training the seeds (e.g. "0 1 2") si
   cp /tmp/gpu/metrics.jsonl /tmp/gpu/summary.json "$O/"
 }
 
-ab() {  # MINUTES 'name|flags'...: trained side by side on one GPU, each packaged
+gpus() { nvidia-smi -L | wc -l; }
+
+ab() {  # MINUTES 'name|flags'...: trained side by side, variant i on GPU i mod the GPUs
   local min=$1; shift
-  local spec name evals=$((2048 / $#))  # the periodic evaluations share the GPU's memory
+  local spec name i=0 n
+  n=$(gpus)
+  local evals=$((2048 / (($# + n - 1) / n)))  # the periodic evaluations share a GPU's memory
   for spec in "$@"; do
     name="${spec%%|*}"
     rm -rf "/tmp/run_$name"
-    echo "== variant $name: ${spec#*|}"
+    echo "== variant $name on GPU $((i % n)): ${spec#*|}"
     # shellcheck disable=SC2086
-    train "/tmp/run_$name" "$min" --run.num-eval-envs "$evals" ${spec#*|} \
-      > "/tmp/train_$name.log" 2>&1 &
+    CUDA_VISIBLE_DEVICES=$((i % n)) train "/tmp/run_$name" "$min" --run.num-eval-envs "$evals" \
+      ${spec#*|} > "/tmp/train_$name.log" 2>&1 &
+    i=$((i + 1))
   done
   wait
-  local seeds k
   for spec in "$@"; do
-    name="${spec%%|*}"
-    echo "== $name"; quiet < "/tmp/train_$name.log" | tail -8
+    name="${spec%%|*}"; echo "== $name"; quiet < "/tmp/train_$name.log" | tail -8
+    ab_package "$min" "$spec" > "/tmp/package_$name.log" 2>&1 &
+  done
+  wait
+  for spec in "$@"; do cat "/tmp/package_${spec%%|*}.log"; done
+}
+
+ab_package() {  # MINUTES 'name|flags': a variant's policy (each of its seeds) packaged
+  local min=$1 spec=$2 name seeds k
+  name="${spec%%|*}"
+  {
     seeds=$(python3 -c "import json, sys; print(*json.load(open(sys.argv[1]))['run']['seeds'])" \
       "/tmp/run_$name/config.json" 2>/dev/null)
     if [ "$(wc -w <<< "$seeds")" -gt 1 ]; then  # every seed: /tmp/model_NAME_sK/o_rectangle
@@ -205,7 +219,7 @@ ab() {  # MINUTES 'name|flags'...: trained side by side on one GPU, each package
         && tar czf "$O/model_$name.tgz" -C "/tmp/model_$name" o_rectangle
     fi
     cp "/tmp/run_$name/metrics.jsonl" "$O/${name}_metrics.jsonl" || true
-  done
+  }
 }
 
 student() {  # TEACHER_MIN STUDENT_MIN 'recipe flags' 'name|flags'...: a teacher, then students
@@ -373,14 +387,15 @@ case "$TASK" in
   fidelity) fidelity "$@" ;;
   reference-table) reference_table "$@" ;;
   tune)  # TUNE_JOBS=N: N evaluations at once (they share the GPU; compiling is most of each)
-    i=0; names=(); rm -rf /tmp/tune-reports; mkdir -p /tmp/tune-reports
+    i=0; names=(); rm -rf /tmp/tune-reports; mkdir -p /tmp/tune-reports; ngpu=$(gpus)
     shipped=(models/o_rectangle); [ "${TUNE_SHIPPED:-1}" = 0 ] && shipped=()
     for model in "${@:-/tmp/model/o_rectangle}" "${shipped[@]}"; do
       i=$((i + 1)); name=$(basename "$(dirname "$model")")_$i
       [ "$model" = models/o_rectangle ] && name=shipped
       names+=("$name")
-      evaluate "$model" tuning "/tmp/tune-$name" --no-plots > "/tmp/tune-$name.log" 2>&1 &
-      throttle "${TUNE_JOBS:-1}"
+      CUDA_VISIBLE_DEVICES=$((i % ngpu)) evaluate "$model" tuning "/tmp/tune-$name" --no-plots \
+        > "/tmp/tune-$name.log" 2>&1 &
+      throttle "${TUNE_JOBS:-$ngpu}"
     done
     wait
     for name in "${names[@]}"; do
