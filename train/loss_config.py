@@ -66,14 +66,11 @@ class AnchorConfig:
     translations: bool = False
     """Also every component on the nominal robot's steady pure translations within reach,
     where the base's setpoints are analytic's; off: only their ωz."""
-    everywhere: bool = False
-    """Every component on every state of the nominal robot (transients and any command):
-    the policy is its base there (spins and translations then add nothing)."""
 
     def validate(self, where: str = "ppo.anchor") -> None:
         """Check values; raise :class:`ConfigError` naming the field."""
         require(self, where, ("weight",), lambda v: v >= 0, "must be >= 0 (0: off)")
-        flags = ("spins", "translations", "everywhere")
+        flags = ("spins", "translations")
         require(self, where, flags, lambda v: isinstance(v, bool), "must be true or false")
 
     @property

@@ -48,18 +48,13 @@ def exact_components(
     hold_steps: int,
     spins: bool = False,
     translations: bool = False,
-    everywhere: bool = False,
 ) -> jax.Array:
     """(3,) float mask of one robot's state: 1.0 for each twist component (vx, vy, ωz) the
     base holds exactly (see the module), else 0.0. Steady: the command is at least
     ``hold_steps`` old, the feedback controller's hold window (every step counts without
     one). ``spins`` adds steady pure spins within reach and stops, on every component;
     ``translations`` steady pure translations within reach, on every component; without
-    them only ωz of steady no-yaw commands; ``everywhere`` marks every component of every
-    state of the nominal robot, transients and any command, so that the policy is its base
-    there and spends its authority only on robots that differ."""
-    if everywhere:
-        return jnp.broadcast_to(is_nominal(robot, info), (3,)).astype(jnp.float32)
+    them only ωz of steady no-yaw commands."""
     command = info["command"]
     steady = info["command_age"] >= hold_steps if hold_steps > 0 else jnp.asarray(True)
     base = is_nominal(robot, info) & steady

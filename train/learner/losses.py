@@ -71,7 +71,6 @@ def state_extras(
             hold_steps=hold,
             spins=anchor.spins,
             translations=anchor.translations,
-            everywhere=anchor.everywhere,
         )
         extras["anchor"] = jax.vmap(exact)(info)
     return extras
