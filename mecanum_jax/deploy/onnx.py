@@ -129,9 +129,7 @@ def to_onnx(policy: NumpyPolicy) -> Any:
         base = g.op("Div", rates, g.op("Max", excess, "one"))
     scale = np.float32(meta["residual_scale"])
     if meta["residual"] and meta.get("residual_space", "wheel") == "twist":
-        twist = g.op(
-            "Mul", action, g.const("twist_step", policy.twist_bound * policy.command_scale)
-        )
+        twist = g.op("Mul", action, g.const("twist_step", scale * policy.command_scale))
         raw = g.op("Add", base, g.op("MatMul", twist, jt))
     elif meta["residual"]:
         raw = g.op("Add", base, g.op("Mul", action, g.const("wheel_step", scale * max_rates)))

@@ -94,13 +94,6 @@ class NumpyPolicy:
         is a stop (every component exactly 0), before the filter (true in older exports)."""
         return bool(self.meta.get("residual_at_stop", True))
 
-    @property
-    def twist_bound(self) -> np.ndarray:
-        """A twist residual's bound per component (vx, vy, ωz), as fractions of the largest
-        feasible twist (one bound for all three in older exports)."""
-        s = self.meta["residual_scale"]
-        return np.array([s, s, self.meta.get("residual_yaw_scale", s)], np.float32)
-
     def entry(self, name: str) -> slice:
         """Where the observation entry ``name`` lies in the observation vector."""
         start = 0
@@ -316,7 +309,7 @@ class NumpyPolicy:
         answered; needed when the residual corrects the ``feedback`` controller)."""
         a = np.clip(np.asarray(action, np.float32), -1.0, 1.0)
         if self.meta["residual"] and self.meta.get("residual_space", "wheel") == "twist":
-            correction = a * (self.twist_bound * self.command_scale)
+            correction = a * (np.float32(self.meta["residual_scale"]) * self.command_scale)
             rates = self.base_rates(command, obs) + correction @ self.jacobian.T
         elif self.meta["residual"]:
             rates = self.base_rates(command, obs) + a * (

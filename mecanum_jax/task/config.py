@@ -86,8 +86,6 @@ class EnvConfig:
     """Actions correct the analytic baseline's setpoints (false: actions are setpoints)."""
     residual_scale: float = 0.1
     """Largest residual correction, as a fraction of the largest wheel rate or twist (> 0)."""
-    residual_yaw_scale: float | None = None
-    """A twist residual's ωz bound, a fraction of the largest ωz (>= 0; None: residual_scale)."""
     residual_space: str = "wheel"
     """Where the residual acts: "wheel" (one per wheel) or "twist" (vx, vy, ωz)."""
     residual_base: str = "analytic"
@@ -126,14 +124,6 @@ class EnvConfig:
             )
         if self.residual_space == "twist" and not self.residual:
             raise invalid(f"{where}.residual_space", self.residual_space, "needs residual = true")
-        if self.residual_yaw_scale is not None:
-            if self.residual_space != "twist":
-                raise invalid(
-                    f"{where}.residual_yaw_scale",
-                    self.residual_yaw_scale,
-                    'needs residual_space = "twist"',
-                )
-            require(self, where, ("residual_yaw_scale",), lambda v: v >= 0, "must be >= 0")
         if self.residual_base not in RESIDUAL_BASES:
             raise invalid(
                 f"{where}.residual_base", self.residual_base, f"expected one of {RESIDUAL_BASES}"
@@ -151,13 +141,6 @@ class EnvConfig:
         self.feedback.validate(f"{where}.feedback")
         self.description(where)  # the robot must load
         return self
-
-    @property
-    def twist_residual_scale(self) -> tuple[float, float, float]:
-        """The twist residual's bound per component (vx, vy, ωz), as fractions of the largest
-        feasible twist."""
-        yaw = self.residual_scale if self.residual_yaw_scale is None else self.residual_yaw_scale
-        return (self.residual_scale, self.residual_scale, yaw)
 
     def _validate_timing(self, where: str) -> None:
         require(

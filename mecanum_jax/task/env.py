@@ -226,8 +226,7 @@ class MecanumEnv(Env):
         elif self.config.residual:
             base = refs.baseline_rates(self.constants, command)
         if self.twist_residual:
-            bound = jnp.asarray(self.config.twist_residual_scale, jnp.float32)
-            correction = action * (bound * self.command_scale)
+            correction = action * (self.config.residual_scale * self.command_scale)
             rates = base + kinematics.apply_rows(self.jacobian, correction)
         elif self.config.residual:
             rates = base + action * (self.config.residual_scale * self.max_rates)

@@ -169,7 +169,6 @@ def task_meta(env: MecanumEnv) -> dict[str, Any]:
         "observation_layout": [list(x) for x in env.layout],
         "residual": cfg.residual,
         "residual_scale": cfg.residual_scale,
-        "residual_yaw_scale": cfg.twist_residual_scale[2],
         "residual_space": cfg.residual_space,
         "residual_base": cfg.residual_base,
         "feedback": dataclasses.asdict(cfg.feedback),
