@@ -4,8 +4,9 @@ Reads ``mecanum-eval`` reports of ``configs/eval/tuning.toml`` (``run.sh tune`` 
 them as ``/tmp/tune-reports/tune_NAME.json``) and ranks every candidate against
 ``analytic`` on the same episodes:
 
-1. fewest **losses** (``train.cli.eval_output.score``: the paired 95% interval on the worse
-   side and an excess above the metric's margin) over the six tuning scenarios;
+1. fewest **losses** against ``analytic`` and against ``feedback`` together
+   (``train.cli.eval_output.score``: the paired 95% interval on the worse side and an excess
+   above the metric's margin) over the tuning scenarios;
 2. then the lowest **geometric mean of the ratios** to ``analytic`` over the figures the
    product is judged on: the training mix's ss v, ss ωz, settling of v and ωz and energy;
    the nominal robot's ss ωz and settling of ωz; the translations' ss ωz and energy; the
@@ -32,6 +33,9 @@ from pathlib import Path
 from typing import Any
 
 from train.cli.eval_output import score
+
+JUDGED_AGAINST = ("analytic", "feedback")
+"""The references a loss counts against (a report without one counts none against it)."""
 
 FIGURES = (
     ("tuning_randomized", "ss_lin"),
@@ -61,7 +65,11 @@ def rank_key(report: dict[str, Any]) -> tuple[int, float, dict[str, float]]:
     missing = [s for s, _ in FIGURES if s not in scenarios]
     if missing:
         raise ValueError(f"report of {report.get('target')!r} lacks scenarios {missing}")
-    losses = sum(len(card["losses"]) for card in score(scenarios, "policy/analytic").values())
+    losses = sum(
+        len(card["losses"])
+        for ref in JUDGED_AGAINST
+        for card in score(scenarios, f"policy/{ref}").values()
+    )
     ratios = {}
     for name, key in FIGURES:
         a, b = scenarios[name]["policy"].get(key), scenarios[name]["analytic"].get(key)

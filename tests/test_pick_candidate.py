@@ -12,9 +12,12 @@ from scripts.pick_candidate import FIGURES, main, rank_key
 SCENARIOS = sorted({s for s, _ in FIGURES})
 
 
-def report(target: str, ratio: float, lost_key: str | None = None) -> dict:
-    """A tuning report whose policy reads ``ratio`` x analytic on every figure; where
-    ``lost_key`` is given, that metric of the training mix is lost (worse by 0.1)."""
+def report(
+    target: str, ratio: float, lost_key: str | None = None, against: str = "analytic"
+) -> dict:
+    """A tuning report whose policy reads ``ratio`` x analytic (and x feedback, which reads
+    as analytic) on every figure; where ``lost_key`` is given, that metric of the training
+    mix is lost (worse by 0.1) against ``against``."""
     scenarios = {}
     for name in SCENARIOS:
         base = {k: 1.0 for _, k in FIGURES} | {"ss_lin": 1.0, "settle_lin_s": 1.0}
@@ -23,13 +26,16 @@ def report(target: str, ratio: float, lost_key: str | None = None) -> dict:
             k: {"ratio": ratio, "lo": ratio - 0.01, "hi": ratio + 0.01, "verdict": "tie"}
             for k in base
         }
+        compared = {"analytic": compare, "feedback": dict(compare)}
         if lost_key and name == "tuning_randomized":
             policy[lost_key] = base[lost_key] + 0.1
-            compare[lost_key] = {"ratio": 1.1, "lo": 1.05, "hi": 1.15, "verdict": "worse"}
+            lost = {"ratio": 1.1, "lo": 1.05, "hi": 1.15, "verdict": "worse"}
+            compared[against] = compared[against] | {lost_key: lost}
         scenarios[name] = {
             "policy": policy,
             "analytic": base,
-            "compare": {"policy/analytic": compare},
+            "feedback": base,
+            "compare": {f"policy/{ref}": c for ref, c in compared.items()},
         }
     return {"target": target, "scenarios": scenarios}
 
@@ -56,6 +62,10 @@ def test_the_geometric_mean_is_over_every_figure() -> None:
     assert len(ratios) == len(FIGURES)
     assert gmean == pytest.approx(0.9)
     assert rank_key(report("Y", 0.9, lost_key="ss_wz"))[0] == 1
+
+
+def test_a_loss_against_feedback_counts_as_one_against_analytic_does() -> None:
+    assert rank_key(report("Z", 0.9, lost_key="ss_lin", against="feedback"))[0] == 1
 
 
 def test_a_report_without_the_tuning_scenarios_is_refused() -> None:

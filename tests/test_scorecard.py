@@ -32,7 +32,18 @@ def test_a_loss_needs_the_interval_and_the_margin():
     assert card["ties"] == ["ss_wz"]
 
 
-def test_the_table_names_the_metrics_lost():
-    table = scorecard_table(_results(0.15, "worse"), "policy/analytic")
+def test_the_table_judges_against_every_reference_and_names_the_metrics_lost():
+    results = _results(0.15, "worse")
+    nominal = results["nominal"]
+    nominal["feedback"] = {"ss_wz": 0.16, "ss_lin": 0.10}
+    tie = {"ratio": 0.94, "lo": 0.9, "hi": 1.0, "verdict": "tie"}
+    nominal["compare"]["policy/feedback"] = {"ss_wz": tie, "ss_lin": tie}
+    table = scorecard_table(results, "policy", ["analytic", "feedback"])
     assert table.row_count == 1
-    assert "ss_wz" in next(iter(table.columns[-1].cells))
+    assert [c.header for c in table.columns] == [
+        "scenario", "vs analytic", "vs feedback", "lost"
+    ]  # fmt: skip
+    cells = [next(iter(c.cells)) for c in table.columns]
+    assert cells[1] == "1/0/[red]1[/]"  # a win (ss_lin), a loss (ss_wz) against analytic
+    assert cells[2] == "0/2/0"  # two ties against feedback
+    assert cells[3] == "analytic:ss_wz"

@@ -6,6 +6,7 @@ scenario, each controller's summary and the paired comparisons.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -120,17 +121,29 @@ def score(results: dict[str, Any], pair: str) -> dict[str, dict[str, list[str]]]
     return out
 
 
-def scorecard_table(results: dict[str, Any], pair: str) -> Table:
-    """:func:`score` as a table: counts per scenario and the metrics lost."""
-    table = Table(title=f"{pair}: wins, ties and losses of the tracking metrics")
-    for column in ("scenario", "wins", "ties", "losses", "lost"):
-        table.add_column(column, justify="left" if column in ("scenario", "lost") else "right")
-    for name, card in score(results, pair).items():
-        lost = ", ".join(card["losses"]) or "-"
-        table.add_row(
-            name, str(len(card["wins"])), str(len(card["ties"])),
-            f"[red]{len(card['losses'])}[/]" if card["losses"] else "0", lost,
-        )  # fmt: skip
+def scorecard_table(results: dict[str, Any], who: str, refs: Sequence[str]) -> Table:
+    """:func:`score` of ``who`` against each of ``refs`` as one table: per scenario, the
+    wins/ties/losses against each reference, and the metrics lost (``ref:metric``)."""
+    refs = [r for r in refs if r != who]
+    title = f"{who} against {' and '.join(refs)}: wins/ties/losses of the tracking metrics"
+    table = Table(title=title)
+    table.add_column("scenario")
+    for ref in refs:
+        table.add_column(f"vs {ref}", justify="right")
+    table.add_column("lost")
+    cards = {ref: score(results, f"{who}/{ref}") for ref in refs}
+    for name in results:
+        row, lost = [name], []
+        for ref in refs:
+            card = cards[ref].get(name)
+            if card is None:
+                row.append("-")
+                continue
+            n = len(card["losses"])
+            counts = f"{len(card['wins'])}/{len(card['ties'])}/"
+            row.append(counts + (f"[red]{n}[/]" if n else "0"))
+            lost += [f"{ref}:{key}" for key in card["losses"]]
+        table.add_row(*row, ", ".join(lost) or "-")
     return table
 
 

@@ -244,8 +244,9 @@ def main(argv: list[str] | None = None) -> int:
     for ref in args.references:
         if ref != first:
             out_console.print(comparison_table(results, f"{first}/{ref}"))
-    if first == "policy" and "analytic" in args.references:
-        out_console.print(scorecard_table(results, "policy/analytic"))
+    judged = [r for r in ("analytic", "feedback") if r in args.references]
+    if first == "policy" and judged:  # the scorecard: against the baseline and the PI loop
+        out_console.print(scorecard_table(results, "policy", judged))
     console.log(f"report: {out / 'report.json'} ({time.time() - t_start:.0f} s)")
     return 0
 
