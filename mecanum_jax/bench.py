@@ -103,13 +103,13 @@ def time_physics(
 ) -> list[dict[str, Any]]:
     """Time ``robot`` (a :class:`physics.Robot`): one jitted, vmapped call of ``steps``
     physics steps per batch size, median of ``repeats`` after a compiling call."""
-    from mecanum_jax.sim import physics
+    from mecanum_jax.sim.batching import chunked_vmap, cpu_chunk
 
     params1 = robot.nominal_params()
     cmd1 = kinematics.inverse(robot.geometry, jnp.array([0.3, 0.1, 0.5]))
-    chunk = physics.cpu_chunk(robot.fidelity, robot.impl)  # CPU: jaxlib's LAPACK deadlock
-    run = jax.jit(physics.chunked_vmap(functools.partial(robot.step, substeps=steps), chunk))
-    reset = jax.jit(physics.chunked_vmap(robot.reset, chunk))
+    chunk = cpu_chunk(robot.fidelity, robot.impl)  # CPU: jaxlib's LAPACK deadlock
+    run = jax.jit(chunked_vmap(functools.partial(robot.step, substeps=steps), chunk))
+    reset = jax.jit(chunked_vmap(robot.reset, chunk))
     rows = []
     for size in sizes:
         p = jax.tree_util.tree_map(lambda x, n=size: jnp.broadcast_to(x, (n, *x.shape)), params1)

@@ -18,7 +18,7 @@ from loops import network_free
 from mecanum_jax.deploy import loop, policy
 from mecanum_jax.deploy.loop import Controller, policy_state
 from mecanum_jax.deploy.plant import Plant, PlantParams, SensorChannel
-from mecanum_jax.sim.physics import Sensors
+from mecanum_jax.sim.state import Sensors
 from mecanum_jax.task import MecanumEnv
 from train.cli import deploy_sim
 from train.config import load_train_config

@@ -10,8 +10,8 @@ import pytest
 from mecanum_jax.config import ConfigError, from_mapping
 from mecanum_jax.kinematics import limits
 from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.sim.batching import CPU_CHUNK, chunked_vmap, cpu_chunk
 from mecanum_jax.sim.description import builtin_description
-from mecanum_jax.sim.physics import CPU_CHUNK, chunked_vmap, cpu_chunk
 from mecanum_jax.task import (
     REWARD_TERMS,
     EnvConfig,

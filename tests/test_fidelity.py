@@ -14,7 +14,7 @@ from mecanum_jax.config import ConfigError
 from mecanum_jax.kinematics.geometry import SingularLayoutWarning
 from mecanum_jax.sim import mjcf
 from mecanum_jax.sim.description import builtin_description
-from mecanum_jax.sim.physics import RobotParams
+from mecanum_jax.sim.state import RobotParams
 from mecanum_jax.task import EnvConfig, MecanumEnv
 from mecanum_jax.task import fidelity as fid
 from train.cli import evaluate as cli

@@ -21,6 +21,8 @@ from mecanum_jax.sim.description import (
     check_physics,
     parse_description,
 )
+from mecanum_jax.sim.servo import ServoModel
+from mecanum_jax.sim.state import SimState, select, stack_params, unstable_robots
 
 ROBOTS = sorted(p.stem for p in (CONFIG_DIR / "robots").glob("*.toml"))
 
@@ -140,7 +142,7 @@ def test_reference_fidelity_forward_within_5_percent():
 @pytest.mark.full
 def test_batched_api_per_robot_params_and_nan_isolation(fast_robot):
     reset, step, sensors = fast_robot.batched(substeps=5)
-    p = physics.stack_params(
+    p = stack_params(
         [fast_robot.nominal_params(), fast_robot.nominal_params(payload_mass=2.0, friction=0.05)]
     )
     state = reset(p, jnp.zeros((2, 3)))
@@ -163,7 +165,7 @@ def test_batched_api_per_robot_params_and_nan_isolation(fast_robot):
     state = state.replace(data=state.data.replace(qvel=bad))
     state = step(state, cmd, p)
     assert bool(jnp.all(jnp.isfinite(state.data.qpos)))
-    report = physics.unstable_robots(state, p)
+    report = unstable_robots(state, p)
     assert [r["robot"] for r in report] == [1]
     assert report[0]["params"]["payload_mass"] == 2.0
     assert float(sensors(state).twist[0, 0]) > 0.1
@@ -227,7 +229,7 @@ def test_radius_error_changes_speed(fast_robot):
     assert math.isfinite(float(got[1]))
 
 
-def _robot_4ms(servo: physics.ServoModel = "chord", max_torque: float = 3.0) -> physics.Robot:
+def _robot_4ms(servo: ServoModel = "chord", max_torque: float = 3.0) -> physics.Robot:
     """The training environment's physics: 4 ms step, 8 ms contact time constant."""
     base = builtin_description("o_rectangle")
     return physics.Robot(
@@ -288,7 +290,7 @@ def test_torque_limited_spin_start_does_not_overshoot():
     params = robot.nominal_params()
     rates = kinematics.inverse(robot.geometry, jnp.array([0.0, 0.0, -5.5]))
 
-    def body(s: physics.SimState, _: None) -> tuple[physics.SimState, jax.Array]:
+    def body(s: SimState, _: None) -> tuple[SimState, jax.Array]:
         s = robot.step(s, rates, params, 1)
         return s, jnp.stack([robot.sensors(s).twist[2], s.data.qpos[robot.index.free_qpos + 2]])
 
@@ -310,7 +312,7 @@ def test_slippery_floor_with_aggressive_commands_stays_stable():
     n = 64
     rng = np.random.default_rng(0)
     friction = rng.uniform(0.12, 0.2, (n, 1)) + rng.uniform(-0.015, 0.015, (n, 4))
-    p = physics.stack_params([robot.nominal_params(friction=f) for f in friction])
+    p = stack_params([robot.nominal_params(friction=f) for f in friction])
     reset, step, sensors = robot.batched(substeps=5)
     state = reset(p, jnp.zeros((n, 3)))
     limit = float(np.asarray(robot.desc.max_wheel_rates(robot.geometry)).min())
@@ -433,12 +435,12 @@ def test_warp_without_its_extra_is_refused_naming_the_field(capsys, tmp_path, mo
 @pytest.mark.full  # compiles a batched step of its own: ten seconds on 2 cores
 def test_select_takes_fresh_robots_where_done(fast_robot):
     reset, step, _ = fast_robot.batched(substeps=2)
-    p = physics.stack_params([fast_robot.nominal_params()] * 3)
+    p = stack_params([fast_robot.nominal_params()] * 3)
     fresh = reset(p, jnp.zeros((3, 3)))
     cmd = jnp.full((3, 4), 10.0)
     moved = step(step(fresh, cmd, p), cmd, p)
     done = jnp.array([True, False, True])
-    merged = jax.jit(jax.vmap(physics.select))(done, fresh, moved)  # one program, not op by op
+    merged = jax.jit(jax.vmap(select))(done, fresh, moved)  # one program, not op by op
     for leaf_m, leaf_f, leaf_s in zip(
         jax.tree.leaves(merged), jax.tree.leaves(fresh), jax.tree.leaves(moved), strict=True
     ):
@@ -461,7 +463,7 @@ def test_warp_steps_the_robot_as_jax_does():
     twists = {}
     for impl in ("jax", "warp"):
         robot = physics.Robot(_with_impl(base, impl), "fast", robots=len(cases))
-        p = physics.stack_params(
+        p = stack_params(
             [robot.nominal_params(friction=f, radius_scale=r, payload_mass=m) for f, r, m in cases]
         )
         reset, step, sensors = robot.batched(substeps=10)

@@ -36,14 +36,14 @@ import numpy as np
 from mecanum_jax.sim import mjcf
 from mecanum_jax.sim.description import RobotDescription
 
-GRAVITY = 9.81  # as mecanum_jax.sim.physics.GRAVITY (that module imports JAX)
-CHORD_RANGE = 2.0  # as mecanum_jax.sim.physics.CHORD_WARP_RANGE
+GRAVITY = 9.81  # as mecanum_jax.sim.state.GRAVITY (that module imports JAX)
+CHORD_RANGE = 2.0  # as mecanum_jax.sim.servo.CHORD_WARP_RANGE
 MAX_ABS_QVEL = 2.0e3  # as mecanum_jax.sim.physics: beyond this a state counts as unstable
 
 
 @dataclasses.dataclass(frozen=True)
 class PlantParams:
-    """One robot's physical parameters, as :class:`mecanum_jax.sim.physics.RobotParams`
+    """One robot's physical parameters, as :class:`mecanum_jax.sim.state.RobotParams`
     (NumPy arrays; per wheel where (n,))."""
 
     friction: np.ndarray
@@ -272,7 +272,7 @@ def _model_for(
 
 
 def _axle_inverse_inertia(m: mujoco.MjModel, axle_dof: np.ndarray) -> np.ndarray:
-    """``(M⁻¹)[a, a]`` per axle at the reset pose (``physics._axle_inverse_inertia``)."""
+    """``(M⁻¹)[a, a]`` per axle at the reset pose (``servo.axle_inverse_inertia``)."""
     d = mujoco.MjData(m)
     mujoco.mj_forward(m, d)
     full = np.zeros((m.nv, m.nv))

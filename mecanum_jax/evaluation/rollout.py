@@ -101,7 +101,7 @@ class Evaluator:
     episode axis (each episode with its own controller code) and cut into chunks of at most
     ``max_batch`` robots, the last one padded, so a whole evaluation is a few calls of one
     compiled program. On a GPU one chunk holds everything; on CPU keep ``max_batch`` at 64
-    (``physics.CPU_CHUNK``: larger vmapped MJX batches deadlock jaxlib 0.10.2's CPU backend).
+    (``batching.CPU_CHUNK``: larger vmapped MJX batches deadlock jaxlib 0.10.2's CPU backend).
     """
 
     def __init__(self, env: MecanumEnv, apply: PolicyApply | None = None, max_batch: int = 64):

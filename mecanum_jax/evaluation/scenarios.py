@@ -62,7 +62,7 @@ from mecanum_jax.config import (
 from mecanum_jax.host import host_side
 from mecanum_jax.kinematics import limits, singularity
 from mecanum_jax.kinematics.modes import SIX_MODES
-from mecanum_jax.sim.physics import RobotParams
+from mecanum_jax.sim.state import RobotParams
 from mecanum_jax.task import CommandConfig, EnvConfig, MecanumEnv, NoiseConfig, RandomizationConfig
 from mecanum_jax.task.commands import command_schedule
 from mecanum_jax.task.randomization import sample_params

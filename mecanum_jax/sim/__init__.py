@@ -1,6 +1,7 @@
 """The simulated robot: descriptions (:mod:`.description`), the MJCF model (:mod:`.mjcf`),
-the batched MJX robot (:mod:`.physics`), validation against the kinematics
-(:mod:`.validation`) and rendering (:mod:`.render`).
+the batched MJX robot (:mod:`.physics`) with its parameters and state (:mod:`.state`),
+wheel servos (:mod:`.servo`) and CPU batching (:mod:`.batching`), validation against the
+kinematics (:mod:`.validation`) and rendering (:mod:`.render`).
 
 Descriptions import eagerly; the names that need MJX import on first use.
 """
@@ -20,11 +21,15 @@ from mecanum_jax.sim.description import (
 )
 
 if TYPE_CHECKING:
-    from mecanum_jax.sim.physics import Robot, RobotParams, Sensors, SimState, steady_twist
+    from mecanum_jax.sim.physics import Robot, steady_twist
+    from mecanum_jax.sim.state import RobotParams, Sensors, SimState
 
 __getattr__, __dir__ = exports(
     __name__,
-    {name: ".physics" for name in ("Robot", "RobotParams", "Sensors", "SimState", "steady_twist")},
+    {
+        **{name: ".physics" for name in ("Robot", "steady_twist")},
+        **{name: ".state" for name in ("RobotParams", "Sensors", "SimState")},
+    },
 )
 
 __all__ = [

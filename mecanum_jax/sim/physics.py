@@ -1,18 +1,15 @@
 """Batched MJX physics of a mecanum robot: reset, step, sensors, per-robot parameters.
 
 The functions here simulate **one** robot; batch them with ``jax.vmap`` (see
-:meth:`Robot.batched`). Per-robot physical parameters (:class:`RobotParams`: floor
+:meth:`Robot.batched`; on the CPU in chunks, :mod:`mecanum_jax.sim.batching`). Per-robot
+physical parameters (:class:`~mecanum_jax.sim.state.RobotParams`: floor
 friction per wheel, payload mass and centre of mass, wheel-radius error, torque limit,
 servo gains, setpoint slew limit) are arguments, so domain randomisation varies them per
 robot without rebuilding the model: they are written into that robot's copy of the
 ``mjx.Model`` inside the vmapped step.
 
-Actuation, as on seed 004's robot: each wheel has a speed servo with a torque limit. The
-proportional part is MuJoCo's velocity actuator (``kv``), which the implicit integrator
-treats implicitly, so stiff gains stay stable at a 2 ms step; the integral part adds
-``ki/kp · ∫(setpoint − ω) dt`` to the actuator's setpoint, with the integral clamped so
-the I-term alone never exceeds the torque limit (anti-windup). Commands are wheel-rate
-setpoints in rad/s, slewed at ``max_accel`` rad/s² when that is > 0.
+Actuation, as on seed 004's robot: each wheel has a speed servo with a torque limit
+(:mod:`mecanum_jax.sim.servo`). Commands are wheel-rate setpoints in rad/s.
 
 Sensors (:func:`Robot.sensors`): wheel encoders (angle, rate), an IMU (gyro z and the
 accelerometer's specific force, finite-differenced over the control step, body frame),
@@ -20,14 +17,14 @@ and, for evaluation only, the true pose and body twist.
 
 A robot whose state turns non-finite is reset to its initial state in the same step and
 its ``unstable`` counter incremented, so it never poisons the batch; see
-:func:`unstable_robots` to report which robots and with which parameters.
+:func:`~mecanum_jax.sim.state.unstable_robots` to report which robots and with which
+parameters.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
-from typing import Any, Literal, NamedTuple
+from typing import Any
 
 # isort: split
 import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
@@ -35,96 +32,28 @@ import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quie
 # isort: split
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 from mujoco import mjx
 
 from mecanum_jax.kinematics.geometry import WheelGeometry
 from mecanum_jax.precision import HIGHEST
 from mecanum_jax.sim import mjcf
+from mecanum_jax.sim.batching import chunked_vmap, cpu_chunk
 from mecanum_jax.sim.description import RobotDescription, require_impl
+from mecanum_jax.sim.servo import (
+    CHORD_WARP_RANGE,
+    ServoModel,
+    axle_inverse_inertia,
+    chord_servo,
+    servo_control,
+)
+from mecanum_jax.sim.state import GRAVITY, RobotParams, Sensors, SimState
 from mecanum_jax.sim.warp_cache import leave_the_persistent_cache
 from mecanum_jax.sim.warp_streams import pin_external_streams
 
-ServoModel = Literal["chord", "mjx"]
-"""How a saturated servo is integrated: ``"chord"`` (default, see
-:meth:`Robot._chord_servo`) or ``"mjx"`` (MJX's own, with the spurious ``−kp·Δω``)."""
-
-GRAVITY = 9.81
 MAX_ABS_QVEL = 2.0e3  # rad/s or m/s: beyond this a state counts as unstable
 TIPPED_UP_Z = 0.7  # a chassis whose up axis has a world z below this (tilt > 45.6°) has tipped
 MAX_ABS_QPOS = 1.0e5  # m or rad (wheel angles accumulate; 1e5 rad is > 1 h at 20 rad/s)
-
-
-class RobotParams(NamedTuple):
-    """Per-robot physical parameters (leaves may carry a leading batch axis under vmap).
-
-    Attributes:
-      friction: (n,) sliding friction coefficient at each wheel.
-      payload_mass: () kg added to the chassis.
-      payload_com: (3,) m, where the payload sits in the body frame.
-      radius_scale: (n,) actual wheel radius / nominal radius (wheel-radius error).
-      torque_limit: (n,) N·m.
-      kp: (n,) servo proportional gain, N·m per rad/s.
-      ki: (n,) servo integral gain, N·m per rad.
-      max_accel: () setpoint slew limit, rad/s² (0: none).
-    """
-
-    friction: jax.Array
-    payload_mass: jax.Array
-    payload_com: jax.Array
-    radius_scale: jax.Array
-    torque_limit: jax.Array
-    kp: jax.Array
-    ki: jax.Array
-    max_accel: jax.Array
-
-
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class SimState:
-    """One robot's simulation state.
-
-    Attributes:
-      data: the MJX data.
-      setpoint: (n,) the servos' current (slewed) rate setpoints, rad/s.
-      integral: (n,) the servos' integrated rate error, rad.
-      accel: (3,) specific force in the body frame over the last control step, m/s².
-      initial_qpos: (nq,) the reset configuration, restored if the state goes non-finite.
-      unstable: () how many times this robot went non-finite and was reset.
-    """
-
-    data: mjx.Data
-    setpoint: jax.Array
-    integral: jax.Array
-    accel: jax.Array
-    initial_qpos: jax.Array
-    unstable: jax.Array
-
-    def replace(self, **changes: Any) -> SimState:
-        return dataclasses.replace(self, **changes)
-
-
-class Sensors(NamedTuple):
-    """What a real base measures (first five) and the ground truth (last two).
-
-    Attributes:
-      wheel_angle: (n,) rad, encoder angles (positive rolls forward).
-      wheel_rate: (n,) rad/s, encoder rates.
-      gyro_z: () rad/s, yaw rate in the body frame.
-      accel: (3,) m/s², accelerometer (specific force, body frame; +9.81 z at rest).
-      wheel_torque: (n,) N·m, the servos' applied torques.
-      pose: (3,) true world pose (x, y, yaw), for evaluation only.
-      twist: (3,) true body twist (vx, vy, wz), for evaluation only.
-    """
-
-    wheel_angle: jax.Array
-    wheel_rate: jax.Array
-    gyro_z: jax.Array
-    accel: jax.Array
-    wheel_torque: jax.Array
-    pose: jax.Array
-    twist: jax.Array
 
 
 def _quat_to_yaw(q: jax.Array) -> jax.Array:
@@ -208,7 +137,7 @@ class Robot:
         self._roller_bodies = jnp.asarray(idx.roller_bodies)
         self._body_pos = jnp.asarray(m.body_pos)
         self._qpos0 = jnp.asarray(m.qpos0)
-        self._axle_inv_inertia = jnp.asarray(_axle_inverse_inertia(m, idx.axle_dof), jnp.float32)
+        self._axle_inv_inertia = jnp.asarray(axle_inverse_inertia(m, idx.axle_dof), jnp.float32)
 
     # --- parameters -------------------------------------------------------------------
 
@@ -336,17 +265,14 @@ class Robot:
         data = state.data
         if self.fidelity == "fast":  # re-zero the carriers: the axle never tilts (mjx-model.md §2)
             data = data.replace(qpos=data.qpos.at[self._carrier_qpos].set(0.0))
-        dt = self.dt
-        slew = params.max_accel * dt
-        delta = command - state.setpoint
-        setpoint = jnp.where(slew > 0, state.setpoint + jnp.clip(delta, -slew, slew), command)
         rate = data.qvel[self._axle_dof]
-        has_i = params.ki > 0
-        bound = jnp.where(has_i, params.torque_limit / jnp.where(has_i, params.ki, 1.0), 0.0)
-        integral = jnp.clip(state.integral + (setpoint - rate) * dt, -bound, bound)
-        ctrl = setpoint + jnp.where(has_i, params.ki / params.kp, 0.0) * integral
+        setpoint, integral, ctrl = servo_control(
+            state.setpoint, state.integral, command, rate, params, self.dt
+        )
         if self.servo == "chord":
-            model = self._chord_servo(model, ctrl - rate, params)
+            model = chord_servo(
+                model, self._acts, ctrl - rate, params, self.dt, self._axle_inv_inertia
+            )
         with jax.numpy_rank_promotion("allow"):  # MJX relies on implicit rank promotion
             data = mjx.step(model, data.replace(ctrl=data.ctrl.at[self._acts].set(ctrl)))
         # Non-finite, or blown up while still finite (a diverging solve passes through huge
@@ -364,42 +290,6 @@ class Robot:
             setpoint=jnp.where(finite, setpoint, 0.0),
             integral=jnp.where(finite, integral, 0.0),
             unstable=state.unstable + (~finite).astype(jnp.int32),
-        )
-
-    def _chord_servo(self, model: mjx.Model, error: jax.Array, params: RobotParams) -> mjx.Model:
-        """The servo for this step, linearised so that a saturated one stays at its limit.
-
-        A velocity servo's torque is ``f(Δω) = clip(kp·(e − Δω), ±limit)`` for a rate error
-        ``e`` and a change ``Δω`` over the step. The implicit integrator uses the tangent
-        ``f(0) − kp·Δω``; MJX keeps that ``−kp·Δω`` even when ``f(0)`` is clamped (C MuJoCo
-        drops it), so a saturated wheel spins up as if its inertia were ``I + kp·dt``,
-        11-22x the hub's, while its contact still drives the chassis (docs/physics_model.md).
-
-        Here a saturated servo gets the chord of ``f`` from ``Δω = 0`` to ``D``, the most its
-        wheel can gain in one step (the limit torque on the free wheel, ``limit·dt/I``, at
-        most ``e``): the force starts at exactly the limit, stays at it while the servo
-        would stay saturated for the whole step (slope 0: a constant torque), and bends
-        toward ``kp``'s line only when the step may reach the setpoint. ``f`` is concave on
-        ``[0, e]``, so the chord lies under it: no step exceeds the limit or overshoots the
-        setpoint. Unsaturated servos keep the tangent ``kp``. Written into the actuator's
-        gain and bias (``force = g·ctrl + b₀ − g·ω``), so MJX integrates the slope
-        implicitly.
-        """
-        limit, kp = params.torque_limit, params.kp
-        mag = jnp.abs(error)
-        saturated = kp * mag > limit
-        reach = jnp.minimum(limit * self.dt * self._axle_inv_inertia, mag)
-        reach = jnp.where(saturated, reach, 1.0)
-        at_reach = jnp.minimum(limit, kp * jnp.maximum(mag - reach, 0.0))
-        slope = (limit - at_reach) / reach
-        gain = jnp.where(saturated, slope, kp)
-        offset = jnp.where(saturated, jnp.sign(error) * limit - slope * error, 0.0)
-        return model.replace(
-            actuator_gainprm=model.actuator_gainprm.at[self._acts, 0].set(gain),
-            actuator_biasprm=model.actuator_biasprm.at[self._acts, 0]
-            .set(offset)
-            .at[self._acts, 2]
-            .set(-gain),
         )
 
     def step(
@@ -461,62 +351,10 @@ class Robot:
         return reset, step, sensors
 
 
-def select(done: jax.Array, fresh: SimState, state: SimState) -> SimState:
-    """``fresh`` where ``done``, else ``state`` (one robot, or a batch with ``done`` per
-    robot). MuJoCo Warp's contact and constraint buffers are shared by the whole batch, so
-    they are kept as they are (``mjx.Data.where``), never selected leaf by leaf."""
-
-    def where(a: jax.Array, b: jax.Array) -> jax.Array:
-        return jnp.where(done, a, b)
-
-    return SimState(
-        data=state.data.where(done, fresh.data),
-        setpoint=where(fresh.setpoint, state.setpoint),
-        integral=where(fresh.integral, state.integral),
-        accel=where(fresh.accel, state.accel),
-        initial_qpos=where(fresh.initial_qpos, state.initial_qpos),
-        unstable=where(fresh.unstable, state.unstable),
-    )
-
-
-CHORD_WARP_RANGE = 2.0
-"""Under ``warp``, the chord servo's actuators get this multiple of the torque limit as
-their force range (see :meth:`Robot.model_for`)."""
-
 WARP_CONTACTS = {"fast": 2, "reference": 6}
 """Contact capacity per wheel and robot under ``sim.impl = "warp"``, per fidelity: a fast
 wheel (a sphere) touches the floor at one point, a reference wheel with two or three of its
 roller spheres; twice that leaves headroom for the moments rollers change over."""
-
-CPU_CHUNK = {"fast": 64, "reference": 16}
-"""Robots per vmapped physics call on CPU, per fidelity: jaxlib 0.10's batched LAPACK (the
-Cholesky of MJX's Newton solver) deadlocks the 2-core CPU's thread pool from a batch of
-256 fast robots on (34 reference ones): its batch tasks wait for pool threads that the
-batch itself holds. 64 fast robots run, and are the fastest chunk measured
-(docs/benchmarks.md)."""
-
-
-def cpu_chunk(fidelity: str = "fast", impl: str = "jax") -> int:
-    """:data:`CPU_CHUNK` for the ``jax`` implementation on the CPU backend; 0 (no chunking)
-    on accelerators and for ``warp`` (whose batch shares one contact buffer, and which does
-    not use LAPACK)."""
-    return CPU_CHUNK[fidelity] if jax.default_backend() == "cpu" and impl == "jax" else 0
-
-
-def chunked_vmap(fn: Callable[..., Any], chunk: int) -> Callable[..., Any]:
-    """``jax.vmap(fn)``, but over at most ``chunk`` items at a time (a ``lax.map`` over
-    chunks; 0: one vmap). The chunk is the largest divisor of the batch up to ``chunk``."""
-
-    def mapped(*xs: Any) -> Any:
-        n = jax.tree.leaves(xs)[0].shape[0]
-        c = max(d for d in range(1, min(chunk, n) + 1) if n % d == 0) if chunk else n
-        if c == n:
-            return jax.vmap(fn)(*xs)
-        split = jax.tree.map(lambda x: x.reshape((n // c, c, *x.shape[1:])), xs)
-        out = jax.lax.map(lambda ys: jax.vmap(fn)(*ys), split)
-        return jax.tree.map(lambda x: x.reshape((n, *x.shape[2:])), out)
-
-    return mapped
 
 
 def _quiet_solver_limits(model: mjx.Model) -> mjx.Model:
@@ -528,31 +366,6 @@ def _quiet_solver_limits(model: mjx.Model) -> mjx.Model:
     quiet = OverflowType.ALL & ~(OverflowType.ITERATIONS | OverflowType.LS_ITERATIONS)
     impl = dataclasses.replace(model.opt._impl, warn_overflow=int(quiet))
     return model.replace(opt=model.opt.replace(_impl=impl))
-
-
-def _axle_inverse_inertia(m: Any, axle_dof: np.ndarray) -> np.ndarray:
-    """``(M⁻¹)[a, a]`` per axle at the reset pose: how fast a torque spins the free wheel."""
-    d = mujoco.MjData(m)
-    mujoco.mj_forward(m, d)
-    full = np.zeros((m.nv, m.nv))
-    mujoco.mj_fullM(m, d, full)
-    inv = np.linalg.inv(full)
-    return inv[axle_dof, axle_dof]
-
-
-def stack_params(params: list[RobotParams]) -> RobotParams:
-    """Stack single-robot parameters into a batch."""
-    return RobotParams(*(jnp.stack(xs) for xs in zip(*params, strict=True)))
-
-
-def unstable_robots(states: SimState, params: RobotParams) -> list[dict[str, Any]]:
-    """Robots (of a batch) that went non-finite and were reset: index, count and parameters."""
-    counts = np.asarray(states.unstable)
-    out = []
-    for i in np.flatnonzero(counts):
-        fields = {k: np.asarray(v[i]).round(6).tolist() for k, v in params._asdict().items()}
-        out.append({"robot": int(i), "resets": int(counts[i]), "params": fields})
-    return out
 
 
 def steady_twist(
@@ -576,17 +389,8 @@ def steady_twist(
 
 
 __all__ = [
-    "CPU_CHUNK",
     "TIPPED_UP_Z",
     "WARP_CONTACTS",
     "Robot",
-    "RobotParams",
-    "Sensors",
-    "SimState",
-    "chunked_vmap",
-    "cpu_chunk",
-    "select",
-    "stack_params",
     "steady_twist",
-    "unstable_robots",
 ]

@@ -49,6 +49,7 @@ from mecanum_jax.sim.description import (
     check_physics,
 )
 from mecanum_jax.sim.mjcf import Fidelity
+from mecanum_jax.sim.state import RobotParams, SimState, stack_params
 
 RECORD_EVERY = 10  # physics steps between samples (50 Hz at 2 ms)
 CHUNK = 16  # robots per vmapped rollout
@@ -71,15 +72,13 @@ def simulate(
     """Run all cases in one vmapped rollout; returns time series sampled every 10 steps."""
     steps = round(seconds / robot.dt)
     samples = steps // RECORD_EVERY
-    params = physics.stack_params([robot.nominal_params(**dict(c.params)) for c in cases])
+    params = stack_params([robot.nominal_params(**dict(c.params)) for c in cases])
     rates = jnp.asarray([c.rates for c in cases], jnp.float32)
 
-    def one(
-        cmd: jax.Array, p: physics.RobotParams
-    ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    def one(cmd: jax.Array, p: RobotParams) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
         state = robot.reset(p)
 
-        def body(s: physics.SimState, _: None) -> tuple[physics.SimState, tuple[jax.Array, ...]]:
+        def body(s: SimState, _: None) -> tuple[SimState, tuple[jax.Array, ...]]:
             s = robot.step(s, cmd, p, substeps=RECORD_EVERY)
             sen = robot.sensors(s)
             return s, (sen.twist, sen.pose, sen.wheel_angle)

@@ -18,7 +18,7 @@ from mecanum_jax.kinematics import limits
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.kinematics.geometry import WheelGeometry
 from mecanum_jax.sim.description import RobotDescription
-from mecanum_jax.sim.physics import RobotParams
+from mecanum_jax.sim.state import RobotParams
 
 
 @jax.tree_util.register_dataclass

@@ -37,7 +37,9 @@ from brax.envs.base import Env, State, Wrapper
 
 from mecanum_jax.host import host_side
 from mecanum_jax.kinematics import model as kinematics
-from mecanum_jax.sim.physics import Robot, RobotParams, Sensors, chunked_vmap, cpu_chunk, select
+from mecanum_jax.sim.batching import chunked_vmap, cpu_chunk
+from mecanum_jax.sim.physics import Robot
+from mecanum_jax.sim.state import RobotParams, Sensors, select
 from mecanum_jax.task import commands as cmds
 from mecanum_jax.task import fidelity as fid
 from mecanum_jax.task import observations as obs_

@@ -8,7 +8,7 @@ tuned for training; the reference model runs the robot description's ``[sim]`` s
 (``reference_timestep``, contact time constant, Newton iterations), as validated in
 docs/physics_validation.md, so the judge does not change with a training run's tuning.
 Only the MJX implementation (``physics_impl``) is taken from the task for both: it computes
-the same physics. Every :class:`~mecanum_jax.sim.physics.RobotParams` field (friction,
+the same physics. Every :class:`~mecanum_jax.sim.state.RobotParams` field (friction,
 payload, wheel radius, torque limit, servo gains, setpoint slew) applies to both models
 (:meth:`~mecanum_jax.sim.physics.Robot.model_for`), so every scenario runs in either.
 """
@@ -21,9 +21,9 @@ from typing import Any
 import jax
 
 from mecanum_jax.config import ConfigError, invalid
+from mecanum_jax.sim.batching import CPU_CHUNK
 from mecanum_jax.sim.description import RobotDescription, resolve_description
 from mecanum_jax.sim.mjcf import FIDELITIES, Fidelity
-from mecanum_jax.sim.physics import CPU_CHUNK
 from mecanum_jax.task.config import EnvConfig
 
 
@@ -74,7 +74,7 @@ def substeps(config: EnvConfig, desc: RobotDescription, fidelity: Fidelity) -> i
 
 CPU_EVAL_BATCH = {"fast": CPU_CHUNK["fast"], "reference": 4}
 """Robots per compiled evaluation rollout on the CPU, per fidelity. Larger vmapped MJX
-batches deadlock jaxlib 0.10's CPU backend (:data:`~mecanum_jax.sim.physics.CPU_CHUNK`);
+batches deadlock jaxlib 0.10's CPU backend (:data:`~mecanum_jax.sim.batching.CPU_CHUNK`);
 the evaluation's closed-loop rollout of the reference model hangs from 6 robots on
 (measured on 2 cores: 1 to 5 finish, 6, 8 and 16 hang with every thread waiting), while the
 validation's open-loop one runs 16."""

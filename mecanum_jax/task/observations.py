@@ -20,7 +20,7 @@ import numpy as np
 
 from mecanum_jax.config import require
 from mecanum_jax.precision import HIGHEST
-from mecanum_jax.sim.physics import GRAVITY, RobotParams, Sensors
+from mecanum_jax.sim.state import GRAVITY, RobotParams, Sensors
 from mecanum_jax.task.constants import RobotConstants
 
 Layout = tuple[tuple[str, int], ...]

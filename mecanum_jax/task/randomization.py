@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from mecanum_jax.config import invalid, require
-from mecanum_jax.sim.physics import RobotParams
+from mecanum_jax.sim.state import RobotParams
 from mecanum_jax.task.constants import RobotConstants
 
 

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 
 from mecanum_jax.config import require
-from mecanum_jax.sim.physics import RobotParams, Sensors
+from mecanum_jax.sim.state import RobotParams, Sensors
 
 
 @dataclasses.dataclass(frozen=True)

@@ -34,7 +34,7 @@ from mecanum_jax.config import ConfigError
 from mecanum_jax.deploy import policy as deploy
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.sim.description import fingerprint
-from mecanum_jax.sim.physics import GRAVITY
+from mecanum_jax.sim.state import GRAVITY
 from mecanum_jax.task import MecanumEnv
 from train.cli.paths import check_output, resolve_model
 from train.learner.policy import RestoredPolicy, package_model, restore_policy, split_target

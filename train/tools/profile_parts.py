@@ -43,7 +43,7 @@ import jax.numpy as jnp
 from brax.training.acme import running_statistics
 from brax.training.agents.ppo import losses as ppo_losses
 
-from mecanum_jax.sim.physics import chunked_vmap
+from mecanum_jax.sim.batching import chunked_vmap
 from train.learner.parallel import AXIS
 from train.learner.ppo import Learner, TrainingState, allow_rank_promotion
 

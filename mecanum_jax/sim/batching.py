@@ -1,0 +1,42 @@
+"""Vmapped physics on the CPU in chunks: jaxlib's batched LAPACK deadlocks above a batch
+size, so a large batch runs as a ``lax.map`` over vmapped chunks (:func:`chunked_vmap`)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax
+
+CPU_CHUNK = {"fast": 64, "reference": 16}
+"""Robots per vmapped physics call on CPU, per fidelity: jaxlib 0.10's batched LAPACK (the
+Cholesky of MJX's Newton solver) deadlocks the 2-core CPU's thread pool from a batch of
+256 fast robots on (34 reference ones): its batch tasks wait for pool threads that the
+batch itself holds. 64 fast robots run, and are the fastest chunk measured
+(docs/benchmarks.md)."""
+
+
+def cpu_chunk(fidelity: str = "fast", impl: str = "jax") -> int:
+    """:data:`CPU_CHUNK` for the ``jax`` implementation on the CPU backend; 0 (no chunking)
+    on accelerators and for ``warp`` (whose batch shares one contact buffer, and which does
+    not use LAPACK)."""
+    return CPU_CHUNK[fidelity] if jax.default_backend() == "cpu" and impl == "jax" else 0
+
+
+def chunked_vmap(fn: Callable[..., Any], chunk: int) -> Callable[..., Any]:
+    """``jax.vmap(fn)``, but over at most ``chunk`` items at a time (a ``lax.map`` over
+    chunks; 0: one vmap). The chunk is the largest divisor of the batch up to ``chunk``."""
+
+    def mapped(*xs: Any) -> Any:
+        n = jax.tree.leaves(xs)[0].shape[0]
+        c = max(d for d in range(1, min(chunk, n) + 1) if n % d == 0) if chunk else n
+        if c == n:
+            return jax.vmap(fn)(*xs)
+        split = jax.tree.map(lambda x: x.reshape((n // c, c, *x.shape[1:])), xs)
+        out = jax.lax.map(lambda ys: jax.vmap(fn)(*ys), split)
+        return jax.tree.map(lambda x: x.reshape((n, *x.shape[2:])), out)
+
+    return mapped
+
+
+__all__ = ["CPU_CHUNK", "chunked_vmap", "cpu_chunk"]

@@ -1,0 +1,139 @@
+"""One simulated robot's parameters, state and sensor readings, and operations on batches
+of them.
+
+:class:`RobotParams` holds the per-robot physical parameters that domain randomisation
+varies (:meth:`mecanum_jax.sim.physics.Robot.model_for` writes them into that robot's copy
+of the ``mjx.Model``), :class:`SimState` what a step carries from one call to the next, and
+:class:`Sensors` what a real base measures plus the ground truth. These types need no MJX
+import of their own, so the task's observations, rewards and randomisation can name them
+without loading the simulator.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+if TYPE_CHECKING:
+    from mujoco import mjx
+
+GRAVITY = 9.81
+
+
+class RobotParams(NamedTuple):
+    """Per-robot physical parameters (leaves may carry a leading batch axis under vmap).
+
+    Attributes:
+      friction: (n,) sliding friction coefficient at each wheel.
+      payload_mass: () kg added to the chassis.
+      payload_com: (3,) m, where the payload sits in the body frame.
+      radius_scale: (n,) actual wheel radius / nominal radius (wheel-radius error).
+      torque_limit: (n,) N·m.
+      kp: (n,) servo proportional gain, N·m per rad/s.
+      ki: (n,) servo integral gain, N·m per rad.
+      max_accel: () setpoint slew limit, rad/s² (0: none).
+    """
+
+    friction: jax.Array
+    payload_mass: jax.Array
+    payload_com: jax.Array
+    radius_scale: jax.Array
+    torque_limit: jax.Array
+    kp: jax.Array
+    ki: jax.Array
+    max_accel: jax.Array
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class SimState:
+    """One robot's simulation state.
+
+    Attributes:
+      data: the MJX data.
+      setpoint: (n,) the servos' current (slewed) rate setpoints, rad/s.
+      integral: (n,) the servos' integrated rate error, rad.
+      accel: (3,) specific force in the body frame over the last control step, m/s².
+      initial_qpos: (nq,) the reset configuration, restored if the state goes non-finite.
+      unstable: () how many times this robot went non-finite and was reset.
+    """
+
+    data: mjx.Data
+    setpoint: jax.Array
+    integral: jax.Array
+    accel: jax.Array
+    initial_qpos: jax.Array
+    unstable: jax.Array
+
+    def replace(self, **changes: Any) -> SimState:
+        return dataclasses.replace(self, **changes)
+
+
+class Sensors(NamedTuple):
+    """What a real base measures (first five) and the ground truth (last two).
+
+    Attributes:
+      wheel_angle: (n,) rad, encoder angles (positive rolls forward).
+      wheel_rate: (n,) rad/s, encoder rates.
+      gyro_z: () rad/s, yaw rate in the body frame.
+      accel: (3,) m/s², accelerometer (specific force, body frame; +9.81 z at rest).
+      wheel_torque: (n,) N·m, the servos' applied torques.
+      pose: (3,) true world pose (x, y, yaw), for evaluation only.
+      twist: (3,) true body twist (vx, vy, wz), for evaluation only.
+    """
+
+    wheel_angle: jax.Array
+    wheel_rate: jax.Array
+    gyro_z: jax.Array
+    accel: jax.Array
+    wheel_torque: jax.Array
+    pose: jax.Array
+    twist: jax.Array
+
+
+def select(done: jax.Array, fresh: SimState, state: SimState) -> SimState:
+    """``fresh`` where ``done``, else ``state`` (one robot, or a batch with ``done`` per
+    robot). MuJoCo Warp's contact and constraint buffers are shared by the whole batch, so
+    they are kept as they are (``mjx.Data.where``), never selected leaf by leaf."""
+
+    def where(a: jax.Array, b: jax.Array) -> jax.Array:
+        return jnp.where(done, a, b)
+
+    return SimState(
+        data=state.data.where(done, fresh.data),
+        setpoint=where(fresh.setpoint, state.setpoint),
+        integral=where(fresh.integral, state.integral),
+        accel=where(fresh.accel, state.accel),
+        initial_qpos=where(fresh.initial_qpos, state.initial_qpos),
+        unstable=where(fresh.unstable, state.unstable),
+    )
+
+
+def stack_params(params: list[RobotParams]) -> RobotParams:
+    """Stack single-robot parameters into a batch."""
+    return RobotParams(*(jnp.stack(xs) for xs in zip(*params, strict=True)))
+
+
+def unstable_robots(states: SimState, params: RobotParams) -> list[dict[str, Any]]:
+    """Robots (of a batch) that went non-finite and were reset: index, count and parameters."""
+    counts = np.asarray(states.unstable)
+    out = []
+    for i in np.flatnonzero(counts):
+        fields = {k: np.asarray(v[i]).round(6).tolist() for k, v in params._asdict().items()}
+        out.append({"robot": int(i), "resets": int(counts[i]), "params": fields})
+    return out
+
+
+__all__ = [
+    "GRAVITY",
+    "RobotParams",
+    "Sensors",
+    "SimState",
+    "select",
+    "stack_params",
+    "unstable_robots",
+]
