@@ -10,7 +10,7 @@ import pytest
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.evaluation import velocity_space
-from mecanum_jax.kinematics import drives
+from mecanum_jax.kinematics import drive_description, drive_geometry, drives
 from mecanum_jax.kinematics.model import icr as twist_icr
 
 R, L, D = 0.05, 0.25, 0.20  # wheel radius, track, wheelbase (m)
@@ -18,10 +18,10 @@ R, L, D = 0.05, 0.25, 0.20  # wheel radius, track, wheelbase (m)
 
 def make(name, dtype=jnp.float32):
     return {
-        "differential": lambda: drives.differential(R, L, dtype),
-        "tricycle": lambda: drives.tricycle(R, D, math.radians(80), dtype),
-        "synchronous": lambda: drives.synchronous(R, dtype),
-        "ackermann": lambda: drives.ackermann(R, D, L, math.radians(35), dtype),
+        "differential": lambda: drive_geometry.differential(R, L, dtype),
+        "tricycle": lambda: drive_geometry.tricycle(R, D, math.radians(80), dtype),
+        "synchronous": lambda: drive_geometry.synchronous(R, dtype),
+        "ackermann": lambda: drive_geometry.ackermann(R, D, L, math.radians(35), dtype),
     }[name]()
 
 
@@ -102,7 +102,7 @@ def test_ackermann_condition_and_rear_wheels():
 # --- round trips, ICR special cases ------------------------------------------------------------
 
 
-@pytest.mark.parametrize("name", drives.DRIVES)
+@pytest.mark.parametrize("name", drive_geometry.DRIVES)
 def test_forward_inverts_inverse_for_feasible_twists(name, x64):
     g = make(name, jnp.float64)
     t = feasible_twists(name)
@@ -121,7 +121,7 @@ def test_icr_special_cases(name):
         spin = drives.icr(g, [-5.0, 5.0])  # V_R = −V_L: R = 0
         np.testing.assert_allclose(spin.point, [0.0, 0.0], atol=1e-7)
     if name == "tricycle":
-        full = drives.tricycle(R, D, math.pi / 2)
+        full = drive_geometry.tricycle(R, D, math.pi / 2)
         for sign in (1.0, -1.0):  # α = ±90°: a spin about the rear-axle midpoint
             twist = np.asarray(drives.forward(full, [sign * math.pi / 2, 10.0]))
             np.testing.assert_allclose(twist, [0.0, 0.0, sign * R * 10.0 / D], atol=1e-6)
@@ -173,9 +173,9 @@ def test_limits_and_desaturation():
 @pytest.mark.parametrize(
     ("call", "message"),
     [
-        (lambda: drives.differential(R, -0.3), r"track = -0\.3: must be > 0 m"),
-        (lambda: drives.tricycle(0.0, D), r"wheel_radius = 0: must be > 0 m"),
-        (lambda: drives.ackermann(R, D, L, math.radians(90)), r"max_steer = 1\.570796 rad"),
+        (lambda: drive_geometry.differential(R, -0.3), r"track = -0\.3: must be > 0 m"),
+        (lambda: drive_geometry.tricycle(0.0, D), r"wheel_radius = 0: must be > 0 m"),
+        (lambda: drive_geometry.ackermann(R, D, L, math.radians(90)), r"max_steer = 1\.570796 rad"),
         (
             lambda: drives.inverse(make("differential"), [[0.1, 0, 0], [0.3, 0.2, 0.1]]),
             r"twist\[1\] = \(0\.3, 0\.2, 0\.1\): a differential drive cannot move sideways",
@@ -197,14 +197,16 @@ def test_limits_and_desaturation():
     ],
 )
 def test_bad_input_names_field_and_value(call, message):
-    with pytest.raises(drives.DriveError if "last axis" not in message else ValueError) as err:
+    with pytest.raises(
+        drive_geometry.DriveError if "last axis" not in message else ValueError
+    ) as err:
         call()
     assert err.match(message)
 
 
 def test_descriptions_load_and_bad_ones_name_the_field(tmp_path):
-    for name in drives.DRIVES:
-        desc = drives.load_drive(name)
+    for name in drive_geometry.DRIVES:
+        desc = drive_description.load_drive(name)
         assert desc.robot.drive == name
         assert desc.build().name == name
     bad = tmp_path / "bad.toml"
@@ -212,13 +214,15 @@ def test_descriptions_load_and_bad_ones_name_the_field(tmp_path):
         '[robot]\nname = "x"\ndrive = "tricycle"\n[geometry]\nwheel_radius = 0.05\n'
         "[motors]\nmax_motor_rpm = 100.0\n"
     )
-    with pytest.raises(drives.DriveError, match=r"geometry\.wheelbase: missing"):
-        drives.load_drive(str(bad))
+    with pytest.raises(drive_geometry.DriveError, match=r"geometry\.wheelbase: missing"):
+        drive_description.load_drive(str(bad))
     bad.write_text(bad.read_text().replace("0.05\n", "0.05\nwheelbase = 0.2\ntrack = 0.3\n"))
-    with pytest.raises(drives.DriveError, match=r"geometry\.track = 0\.3: a tricycle drive"):
-        drives.load_drive(str(bad))
+    with pytest.raises(
+        drive_geometry.DriveError, match=r"geometry\.track = 0\.3: a tricycle drive"
+    ):
+        drive_description.load_drive(str(bad))
     with pytest.raises(ConfigError, match=r"robot = 'hovercraft': no such built-in drive"):
-        drives.load_drive("hovercraft")
+        drive_description.load_drive("hovercraft")
     # the steering limit is named in the unit it was given, and 0 is not "the default"
     steer = '[robot]\nname = "x"\ndrive = "ackermann"\n[geometry]\nwheel_radius = 0.05\n'
     for value in ("0.0", "90.0", "-10.0"):
@@ -226,14 +230,16 @@ def test_descriptions_load_and_bad_ones_name_the_field(tmp_path):
             steer + f"wheelbase = 0.2\ntrack = 0.3\nmax_steer_deg = {value}\n"
             "[motors]\nmax_motor_rpm = 100.0\n"
         )
-        with pytest.raises(drives.DriveError, match=rf"geometry\.max_steer_deg = {value}: "):
-            drives.load_drive(str(bad))
+        with pytest.raises(
+            drive_geometry.DriveError, match=rf"geometry\.max_steer_deg = {value}: "
+        ):
+            drive_description.load_drive(str(bad))
 
 
 # --- batching, jit, vmap, grad ----------------------------------------------------------------
 
 
-@pytest.mark.parametrize("name", drives.DRIVES)
+@pytest.mark.parametrize("name", drive_geometry.DRIVES)
 def test_batched_and_jitted_match_eager(name):
     g = make(name)
     t = feasible_twists(name, 12).reshape(3, 4, 3).astype(np.float32)
@@ -248,13 +254,13 @@ def test_batched_and_jitted_match_eager(name):
 
 def test_vmap_over_geometries_and_grad_through_forward():
     radii = jnp.array([0.04, 0.05, 0.06])
-    geoms = jax.vmap(lambda r: drives.Differential(r, jnp.asarray(L)))(radii)
+    geoms = jax.vmap(lambda r: drive_geometry.Differential(r, jnp.asarray(L)))(radii)
     twists = jax.vmap(drives.forward, in_axes=(0, None))(geoms, jnp.array([10.0, 10.0]))
     np.testing.assert_allclose(twists[:, 0], radii * 10.0, rtol=1e-6)
 
     def speed(r):
         return drives.forward(
-            drives.Ackermann(r, jnp.asarray(D), jnp.asarray(L), 0.6),
+            drive_geometry.Ackermann(r, jnp.asarray(D), jnp.asarray(L), 0.6),
             jnp.array([0.1, 0.09, 10.0, 12.0]),
         )[0]
 
@@ -299,10 +305,10 @@ def test_comparison_command_writes_table_json_and_plot(tmp_path, capsys, monkeyp
     monkeypatch.setenv("COLUMNS", "200")
     bench.main(["drives", "--out", str(tmp_path)])
     out = capsys.readouterr().out
-    for name in ("o_rectangle", *drives.DRIVES):
+    for name in ("o_rectangle", *drive_geometry.DRIVES):
         assert name in out
     data = json.loads((tmp_path / "velocity_spaces.json").read_text())
-    assert [s["drive"] for s in data["spaces"]] == ["mecanum", *drives.DRIVES]
+    assert [s["drive"] for s in data["spaces"]] == ["mecanum", *drive_geometry.DRIVES]
     png = (tmp_path / "velocity_spaces.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
     assert len(png) > 20_000

@@ -29,7 +29,7 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from mecanum_jax.kinematics import drives, efficiency, limits
+from mecanum_jax.kinematics import drive_description, drive_geometry, drives, efficiency, limits
 from mecanum_jax.sim.description import RobotDescription, resolve_description
 
 N_DIRECTIONS = 3600
@@ -86,17 +86,17 @@ def _force_efficiency(directions: np.ndarray, positions: np.ndarray, heading: fl
     return float(np.linalg.norm(G[:2] @ f) / np.sum(np.abs(f)))
 
 
-def _drive_wheels(g: drives.Drive, heading: float) -> tuple[np.ndarray, np.ndarray]:
+def _drive_wheels(g: drive_geometry.Drive, heading: float) -> tuple[np.ndarray, np.ndarray]:
     """Driven wheels' rolling directions and positions for a translation along ``heading``
     (steered wheels turned to it where the drive can)."""
     straight = np.array([[1.0, 0.0]])
-    if isinstance(g, drives.Differential):
+    if isinstance(g, drive_geometry.Differential):
         half = float(g.track) / 2
         return np.repeat(straight, 2, 0), np.array([[0.0, half], [0.0, -half]])
-    if isinstance(g, drives.Ackermann):
+    if isinstance(g, drive_geometry.Ackermann):
         half = float(g.track) / 2
         return np.repeat(straight, 2, 0), np.array([[0.0, half], [0.0, -half]])
-    if isinstance(g, drives.Tricycle):
+    if isinstance(g, drive_geometry.Tricycle):
         return straight, np.array([[float(g.wheelbase), 0.0]])
     # synchronous: three wheels at a triangle's corners, all turned to the heading
     corners = np.array([[math.cos(a), math.sin(a)] for a in (0.0, 2.1, 4.2)]) * 0.1
@@ -130,7 +130,7 @@ def _mecanum_speed(desc: RobotDescription) -> tuple[Any, Any, Any]:
     return g, rates, functools.partial(limits.max_speed, g, max_rates=rates)
 
 
-def _drive_speed(desc: drives.DriveDescription, max_rate: float) -> tuple[Any, Any]:
+def _drive_speed(desc: drive_description.DriveDescription, max_rate: float) -> tuple[Any, Any]:
     """A drive's float64 geometry, and its feasible set's radius at ``max_rate`` (rad/s)."""
     g = desc.build(jnp.float64)
     return g, functools.partial(drives.max_speed, g, max_rate=max_rate)
@@ -138,15 +138,15 @@ def _drive_speed(desc: drives.DriveDescription, max_rate: float) -> tuple[Any, A
 
 def _load(
     mecanum: str, others: tuple[str, ...]
-) -> tuple[RobotDescription, list[drives.DriveDescription], float]:
+) -> tuple[RobotDescription, list[drive_description.DriveDescription], float]:
     """The robots compared, and the wheel-rate limit they all share: the mecanum's."""
     desc = resolve_description(mecanum)
     g = desc.build_geometry(jnp.float64)
     max_rate = float(np.min(np.asarray(desc.max_wheel_rates(g))))
-    return desc, [drives.load_drive(name) for name in others], max_rate
+    return desc, [drive_description.load_drive(name) for name in others], max_rate
 
 
-def drive_space(desc: drives.DriveDescription, max_rate: float) -> Space:
+def drive_space(desc: drive_description.DriveDescription, max_rate: float) -> Space:
     """A drive's space at the wheel-rate limit ``max_rate`` (rad/s)."""
     g, speed = _drive_speed(desc, max_rate)
     eff = [_force_efficiency(*_drive_wheels(g, h), h) for h in (0.0, math.pi / 2)]
@@ -165,7 +165,7 @@ def mecanum_space(desc: RobotDescription) -> Space:
 
 
 def compare(
-    mecanum: str = "o_rectangle", others: tuple[str, ...] = drives.DRIVES
+    mecanum: str = "o_rectangle", others: tuple[str, ...] = drive_geometry.DRIVES
 ) -> tuple[list[Space], float]:
     """The mecanum robot's space and each other drive's at its wheel-rate limit:
     ``(spaces, max_rate)``; the drives' own motor limits are replaced by the mecanum's."""

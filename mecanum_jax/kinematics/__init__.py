@@ -6,11 +6,14 @@ build on them: the wheel layout (:mod:`.geometry`), dead reckoning (:mod:`.odome
 wheel-rate limits and desaturation (:mod:`.limits`), singular layouts
 (:mod:`.singularity`), efficiency and slip (:mod:`.efficiency`), calibration
 (:mod:`.calibration`), motor curves (:mod:`.motors`), the six named motions
-(:mod:`.modes`) and the other drives of the lecture (:mod:`.drives`).
+(:mod:`.modes`) and the other drives of the lecture (:mod:`.drives`, with their geometries
+in :mod:`.drive_geometry` and descriptions in :mod:`.drive_description`).
 """
 
 from mecanum_jax.kinematics import (
     calibration,
+    drive_description,
+    drive_geometry,
     drives,
     efficiency,
     geometry,
@@ -57,6 +60,8 @@ __all__ = [
     "condition_number",
     "consistency_residual",
     "contact_velocities",
+    "drive_description",
+    "drive_geometry",
     "drives",
     "efficiency",
     "forward",

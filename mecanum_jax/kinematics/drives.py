@@ -9,7 +9,7 @@ desaturation). Everything is batched over leading axes and passes ``jit``, ``vma
 
 Body frame: x forward, y left (REP-103). The reference point, as seed 001 puts it: the
 midpoint between the wheels (differential), the rear-axle midpoint (tricycle, Ackermann),
-the chassis centre (synchronous). Actuators, per drive (``ACTUATORS``):
+the chassis centre (synchronous). Actuators, per drive (``drive_geometry.ACTUATORS``):
 
 - **differential** ``(ω_L, ω_R)`` wheel rates, rad/s: ``v = r(ω_R + ω_L)/2``,
   ``ω = r(ω_R − ω_L)/L``;
@@ -25,20 +25,22 @@ A twist a drive cannot produce (a sideways velocity for the non-holonomic drives
 rate for the synchronous drive, a curvature beyond the steering limit) is never silently
 dropped: :func:`inverse` raises :class:`DriveError` naming it (``strict=True``, concrete
 input), and :func:`reachable` / :func:`residual` flag it under ``jit``.
+
+The drives' geometries and their checked constructors are in
+:mod:`mecanum_jax.kinematics.drive_geometry`, their descriptions in
+:mod:`mecanum_jax.kinematics.drive_description`.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from typing import Any, Literal, cast
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from mecanum_jax._checks import (
-    InputError,
     as_float_array,
     check_finite,
     check_last_axis,
@@ -46,231 +48,21 @@ from mecanum_jax._checks import (
     fmt,
     is_concrete,
 )
-from mecanum_jax.config import CONFIG_DIR, find_config, from_mapping, load_toml
-from mecanum_jax.kinematics import motors, odometry
+from mecanum_jax.kinematics import odometry
+from mecanum_jax.kinematics.drive_geometry import (
+    ACTUATORS,
+    Ackermann,
+    Differential,
+    Drive,
+    DriveError,
+    Synchronous,
+    Tricycle,
+)
 from mecanum_jax.kinematics.model import ICR
 from mecanum_jax.kinematics.model import icr as twist_icr
 
-DriveName = Literal["differential", "tricycle", "synchronous", "ackermann"]
-DRIVES: tuple[DriveName, ...] = ("differential", "tricycle", "synchronous", "ackermann")
-ACTUATORS: dict[str, tuple[str, ...]] = {
-    "differential": ("left_rate", "right_rate"),
-    "tricycle": ("steer", "wheel_rate"),
-    "synchronous": ("steer", "wheel_rate"),
-    "ackermann": ("steer_left", "steer_right", "rear_left_rate", "rear_right_rate"),
-}
 TOLERANCE = 1e-6
 """Relative size of a twist component a drive is allowed to miss before it is flagged."""
-
-
-class DriveError(InputError):
-    """A drive's geometry or command is invalid. The message names the field and value."""
-
-
-@dataclasses.dataclass(frozen=True)
-class Differential:
-    """Two driven wheels of radius ``wheel_radius`` on one axle, ``track`` (L) apart, m."""
-
-    wheel_radius: jax.Array
-    track: jax.Array
-    name = "differential"
-
-
-@dataclasses.dataclass(frozen=True)
-class Tricycle:
-    """A steered and driven front wheel ``wheelbase`` (d) ahead of a fixed rear axle, m;
-    steering within ±``max_steer`` rad (static)."""
-
-    wheel_radius: jax.Array
-    wheelbase: jax.Array
-    max_steer: float = math.pi / 2
-    name = "tricycle"
-
-
-@dataclasses.dataclass(frozen=True)
-class Synchronous:
-    """Wheels of radius ``wheel_radius``, all steered together and driven together, m."""
-
-    wheel_radius: jax.Array
-    name = "synchronous"
-
-
-@dataclasses.dataclass(frozen=True)
-class Ackermann:
-    """Steered front wheels and driven rear wheels ``wheelbase`` (l) apart, each axle
-    ``track`` (d) wide, m; steering within ±``max_steer`` rad (< π/2, static)."""
-
-    wheel_radius: jax.Array
-    wheelbase: jax.Array
-    track: jax.Array
-    max_steer: float = math.radians(35.0)
-    name = "ackermann"
-
-
-Drive = Differential | Tricycle | Synchronous | Ackermann
-
-for _cls in (Differential, Tricycle, Synchronous, Ackermann):
-    _static = {"max_steer"}
-    _fields = [f.name for f in dataclasses.fields(_cls)]
-    jax.tree_util.register_dataclass(
-        _cls,
-        data_fields=[f for f in _fields if f not in _static],
-        meta_fields=[f for f in _fields if f in _static],
-    )
-
-
-# --- constructors ---------------------------------------------------------------------------
-
-
-def _length(value: Any, field: str, dtype: Any) -> jax.Array:
-    x = as_float_array(value, field).astype(dtype)
-    if x.ndim != 0:
-        raise DriveError(f"{field}: shape {tuple(x.shape)} is invalid; expected a scalar")
-    if is_concrete(x):
-        check_finite(x, field, DriveError)
-        if float(x) <= 0:
-            raise DriveError(f"{field} = {fmt(x)}: must be > 0 m")
-    return x
-
-
-def _steer_limit(value: float, field: str, below_quarter: bool) -> float:
-    top = "< 90°" if below_quarter else "<= 90°"
-    ok = 0 < value < math.pi / 2 if below_quarter else 0 < value <= math.pi / 2 + 1e-12
-    if not (math.isfinite(value) and ok):
-        raise DriveError(
-            f"{field} = {fmt(value)} rad ({fmt(math.degrees(value))}°): must be in (0, {top}]"
-        )
-    return float(value)
-
-
-def differential(wheel_radius: float, track: float, dtype: Any = jnp.float32) -> Differential:
-    return Differential(
-        _length(wheel_radius, "wheel_radius", dtype), _length(track, "track", dtype)
-    )
-
-
-def tricycle(
-    wheel_radius: float, wheelbase: float, max_steer: float = math.pi / 2, dtype: Any = jnp.float32
-) -> Tricycle:
-    return Tricycle(
-        _length(wheel_radius, "wheel_radius", dtype),
-        _length(wheelbase, "wheelbase", dtype),
-        _steer_limit(max_steer, "max_steer", below_quarter=False),
-    )
-
-
-def synchronous(wheel_radius: float, dtype: Any = jnp.float32) -> Synchronous:
-    return Synchronous(_length(wheel_radius, "wheel_radius", dtype))
-
-
-def ackermann(
-    wheel_radius: float,
-    wheelbase: float,
-    track: float,
-    max_steer: float = math.radians(35.0),
-    dtype: Any = jnp.float32,
-) -> Ackermann:
-    return Ackermann(
-        _length(wheel_radius, "wheel_radius", dtype),
-        _length(wheelbase, "wheelbase", dtype),
-        _length(track, "track", dtype),
-        _steer_limit(max_steer, "max_steer", below_quarter=True),
-    )
-
-
-# --- descriptions -------------------------------------------------------------------------
-
-
-@dataclasses.dataclass(frozen=True)
-class DriveRobotSpec:
-    name: str
-    """The robot's name."""
-    drive: DriveName
-    """The drive: differential, tricycle, synchronous or ackermann."""
-    description: str = ""
-    """One line about the robot."""
-
-
-@dataclasses.dataclass(frozen=True)
-class DriveGeometrySpec:
-    wheel_radius: float
-    """Radius of the driven wheels, m."""
-    track: float | None = None
-    """Distance between the left and right wheels, m (differential, Ackermann)."""
-    wheelbase: float | None = None
-    """Distance from the rear axle to the front (steered) wheels, m (tricycle, Ackermann)."""
-    max_steer_deg: float | None = None
-    """Steering limit, degrees (tricycle: <= 90, default 90; Ackermann: < 90, default 35)."""
-
-
-@dataclasses.dataclass(frozen=True)
-class DriveMotorSpec:
-    max_motor_rpm: float
-    """Motor shaft speed limit, rpm."""
-    gear_ratio: float = 1.0
-    """Motor turns per wheel turn."""
-
-
-@dataclasses.dataclass(frozen=True)
-class DriveDescription:
-    """A non-mecanum robot: ``configs/robots/drives/<name>.toml``."""
-
-    robot: DriveRobotSpec
-    geometry: DriveGeometrySpec
-    motors: DriveMotorSpec
-
-    def build(self, dtype: Any = jnp.float32) -> Drive:
-        """The geometry pytree; errors name the missing or invalid field."""
-        g, kind = self.geometry, self.robot.drive
-        needs = {
-            "differential": ("track",),
-            "tricycle": ("wheelbase",),
-            "synchronous": (),
-            "ackermann": ("wheelbase", "track"),
-        }[kind]
-        for key in ("track", "wheelbase", "max_steer_deg"):
-            value = getattr(g, key)
-            allowed = needs + (("max_steer_deg",) if kind in ("tricycle", "ackermann") else ())
-            if key in needs and value is None:
-                raise DriveError(f"geometry.{key}: missing, a {kind} drive needs it")
-            if key not in allowed and value is not None:
-                raise DriveError(f"geometry.{key} = {value!r}: a {kind} drive has no {key}")
-        deg = g.max_steer_deg
-        track, base = cast(float, g.track), cast(float, g.wheelbase)  # present where needed
-        try:
-            if kind == "differential":
-                return differential(g.wheel_radius, track, dtype)
-            if kind == "synchronous":
-                return synchronous(g.wheel_radius, dtype)
-            if kind == "tricycle":
-                steer = math.pi / 2 if deg is None else math.radians(deg)
-                return tricycle(g.wheel_radius, base, steer, dtype)
-            steer = math.radians(35.0 if deg is None else deg)
-            return ackermann(g.wheel_radius, base, track, steer, dtype)
-        except DriveError as err:
-            message = str(err)
-            if message.startswith("max_steer ="):  # the file's field, in the unit it was given
-                message = f"max_steer_deg = {deg!r}: {message.split(': ', 1)[1]}"
-            raise DriveError(f"geometry.{message}") from None
-
-    def max_wheel_rate(self) -> float:
-        """The driven wheels' rate limit, rad/s, from the motor limit and the gear ratio."""
-        return float(motors.max_wheel_rate(self.motors.max_motor_rpm, self.motors.gear_ratio))
-
-
-def load_drive(robot: str) -> DriveDescription:
-    """A drive description by path, or by name from ``configs/robots/drives/``."""
-    path = find_config(robot, CONFIG_DIR / "robots" / "drives", "robot", "built-in drive")
-    desc = from_mapping(DriveDescription, load_toml(path))
-    m = desc.motors
-    for key in ("max_motor_rpm", "gear_ratio"):
-        if not getattr(m, key) > 0:
-            raise DriveError(f"{path}: motors.{key} = {getattr(m, key)!r}: must be > 0")
-    try:
-        desc.build()
-    except DriveError as err:
-        raise DriveError(f"{path}: {err}") from None
-    return desc
 
 
 # --- inverse and forward --------------------------------------------------------------------
@@ -478,29 +270,15 @@ def max_speed(
 
 
 __all__ = [
-    "ACTUATORS",
-    "DRIVES",
-    "Ackermann",
-    "Differential",
-    "Drive",
-    "DriveDescription",
-    "DriveError",
-    "Synchronous",
-    "Tricycle",
-    "ackermann",
     "desaturate",
-    "differential",
     "forward",
     "icr",
     "inverse",
     "is_feasible",
-    "load_drive",
     "max_speed",
     "reachable",
     "residual",
     "saturation",
-    "synchronous",
-    "tricycle",
     "wheel_odometry",
     "wheel_rates",
 ]
