@@ -19,7 +19,7 @@ from loops import network_free
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.deploy import policy as deploy
-from mecanum_jax.evaluation import paired, scenarios
+from mecanum_jax.evaluation import episodes, paired, scenarios
 from mecanum_jax.evaluation import rollout as evaluation
 from mecanum_jax.kinematics import singularity
 from mecanum_jax.kinematics.modes import SIX_MODES
@@ -37,7 +37,7 @@ def shipped():
 
 @pytest.fixture(scope="module")
 def env(shipped):
-    return MecanumEnv(scenarios.eval_env_config(EnvConfig(), shipped))
+    return MecanumEnv(episodes.eval_env_config(EnvConfig(), shipped))
 
 
 @pytest.fixture(scope="module")
@@ -79,7 +79,7 @@ def test_default_scenarios_are_the_issue_list(shipped):
 
 def test_six_modes_sequence_follows_seed_000(env, shipped):
     sc = shipped.select(["six_modes"]).scenarios[0]
-    cmds = scenarios.scripted_commands(env, sc)
+    cmds = episodes.scripted_commands(env, sc)
     per = round(sc.commands.segment_s / env.config.control_dt)
     gap = round(sc.commands.pause_s / env.config.control_dt)
     for i, (_, unit, _) in enumerate(SIX_MODES.values()):
@@ -93,7 +93,7 @@ def test_six_modes_sequence_follows_seed_000(env, shipped):
 
 def test_singular_pass_drags_two_wheels_and_is_closed(env, shipped):
     sc = shipped.select(["singular_pass"]).scenarios[0]
-    cmds = scenarios.scripted_commands(env, sc)
+    cmds = episodes.scripted_commands(env, sc)
     moving = cmds[np.linalg.norm(cmds, axis=-1) > 0]
     assert len(moving) > 0
     still = np.asarray(singularity.singular_wheels(env.geometry, jnp.asarray(moving), tol=1e-5))
@@ -115,7 +115,7 @@ def test_episodes_do_not_follow_the_targets_command_mix(env, shipped):
         )
     )
     sc = shipped.select(["nominal"], 4, 3.0).scenarios[0]
-    a, b = scenarios.prepare(env, sc), scenarios.prepare(other, sc)
+    a, b = episodes.prepare(env, sc), episodes.prepare(other, sc)
     assert np.any(np.asarray(a.commands)[..., 2] != 0)  # spins: not the other's mix
     for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
@@ -123,8 +123,8 @@ def test_episodes_do_not_follow_the_targets_command_mix(env, shipped):
 
 def test_prepare_is_seeded_and_applies_the_physics(env, shipped):
     sets = shipped.select(["slippery", "payload", "radius_error", "weak_motors", "sensor_noise"])
-    by = {s.name: scenarios.prepare(env, s) for s in sets.scenarios}
-    again = scenarios.prepare(env, sets.scenarios[0])
+    by = {s.name: episodes.prepare(env, s) for s in sets.scenarios}
+    again = episodes.prepare(env, sets.scenarios[0])
     for a, b in zip(jax.tree.leaves(again), jax.tree.leaves(by["slippery"]), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     f = np.asarray(by["slippery"].params.friction)
@@ -151,11 +151,11 @@ def test_evaluation_streams_never_meet_training_streams(learner, shipped):
     # the periodic evaluation's episodes: their own stream, even with a scenario file's seed
     for s in periodic:
         for seed in (s.seed, *(x.seed for x in shipped.scenarios)):
-            root = scenarios.scenario_key(dataclasses.replace(s, seed=seed))
+            root = episodes.scenario_key(dataclasses.replace(s, seed=seed))
             train |= {tuple(np.asarray(k)) for k in [root, *jax.random.split(root, 3)]}
     for s in shipped.scenarios:
         s0 = shipped.select([s.name], episodes=64).scenarios[0]
-        root = scenarios.scenario_key(s0)
+        root = episodes.scenario_key(s0)
         ks = [root, *jax.random.split(root, 3)]
         episode = jax.random.split(ks[3], 64)
         drawn = {tuple(np.asarray(k)) for k in [*ks, *episode]}
@@ -210,7 +210,7 @@ def test_singular_pass_needs_a_layout_with_singular_directions(shipped):
     env3 = MecanumEnv(EnvConfig(robot="centripetal3"))
     sc = shipped.select(["singular_pass"]).scenarios[0]
     with pytest.raises(ConfigError, match="has no singular directions"):
-        scenarios.scripted_commands(env3, sc)
+        episodes.scripted_commands(env3, sc)
 
 
 def test_summarize_on_a_known_trace():
@@ -265,7 +265,7 @@ def test_summarize_on_a_known_trace():
 @pytest.mark.full  # tens of seconds of XLA compilation on 2 cores
 def test_baseline_rollout_tracks_and_is_deterministic(env, small, baseline_evaluator):
     sc = small.scenarios[2]  # nominal, random commands
-    batch = scenarios.prepare(env, sc)
+    batch = episodes.prepare(env, sc)
     a = baseline_evaluator.run(batch)
     b = baseline_evaluator.run(batch)
     np.testing.assert_array_equal(a.twist, b.twist)
@@ -287,7 +287,7 @@ def test_references_apply_no_action_beside_a_policy(env, small):
         return jnp.tanh(10.0 * obs["state"][..., 3 : 3 + env.action_size])
 
     ev = evaluation.Evaluator(env, jittery)
-    batch = scenarios.prepare(env, small.scenarios[2])
+    batch = episodes.prepare(env, small.scenarios[2])
     pol, ana = ev.run_many([(batch, "policy"), (batch, "analytic")])
     assert np.max(np.abs(pol.action)) > 0.01
     np.testing.assert_array_equal(ana.action, 0.0)
@@ -304,9 +304,9 @@ def _tiny_restored(full_run):
 @pytest.mark.full  # tens of seconds of XLA compilation on 2 cores
 def test_policy_and_baseline_face_the_same_episodes(full_run, small):
     restored = _tiny_restored(full_run)
-    env = MecanumEnv(scenarios.eval_env_config(restored.cfg.env, small))
+    env = MecanumEnv(episodes.eval_env_config(restored.cfg.env, small))
     evaluator = evaluation.Evaluator(env, restored.apply)
-    batch = scenarios.prepare(env, small.scenarios[0])
+    batch = episodes.prepare(env, small.scenarios[0])
     params = (restored.normalizer, restored.params)
     pol = evaluator.run(batch, params, "policy")
     base = evaluator.run(batch, params, "analytic")
@@ -531,7 +531,7 @@ def test_run_many_chunks_and_pads_like_single_runs(env, shipped, baseline_evalua
     """Jobs merged, cut into chunks of 4 robots (the last padded) and split back give the
     same traces as one batch per job."""
     chosen = shipped.select(["payload", "singular_pass"], episodes=3, seconds=1.0)
-    batches = [scenarios.prepare(env, s) for s in chosen.scenarios]
+    batches = [episodes.prepare(env, s) for s in chosen.scenarios]
     chunked = evaluation.Evaluator(env, max_batch=4)
     calls = []
     jobs = [(b, "analytic") for b in batches]

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mecanum_jax.evaluation import metrics, scenarios
+from mecanum_jax.evaluation import episodes, metrics, scenarios
 from mecanum_jax.evaluation import rollout as evaluation
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.task import REFERENCES, EnvConfig, MecanumEnv, references
@@ -58,8 +58,8 @@ def test_feedback_removes_the_steady_yaw_error_of_a_slipping_spin(tmp_path):
     loop cannot (the target is the true robot's feasible twist, still 2 rad/s)."""
     (tmp_path / "slip.toml").write_text(SLIP)
     sset = scenarios.load_scenarios(tmp_path / "slip.toml")
-    env = MecanumEnv(scenarios.eval_env_config(EnvConfig(), sset))
-    batch = scenarios.prepare(env, sset.scenarios[0])
+    env = MecanumEnv(episodes.eval_env_config(EnvConfig(), sset))
+    batch = episodes.prepare(env, sset.scenarios[0])
     ev = evaluation.Evaluator(env)
     jac = kinematics.jacobian(env.geometry)
     dt = env.config.control_dt

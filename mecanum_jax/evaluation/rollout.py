@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mecanum_jax.evaluation import metrics
-from mecanum_jax.evaluation.scenarios import EpisodeBatch
+from mecanum_jax.evaluation.episodes import EpisodeBatch
 from mecanum_jax.kinematics import odometry
 from mecanum_jax.task import REFERENCES, MecanumEnv
 

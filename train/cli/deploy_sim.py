@@ -180,6 +180,7 @@ def _scenario_episodes(args: DeploySimArgs, cfg: Any) -> Episodes:
     import jax.numpy as jnp
 
     from mecanum_jax.evaluation import scenarios
+    from mecanum_jax.evaluation.episodes import eval_env_config, prepare
     from mecanum_jax.task import MecanumEnv
 
     chosen = scenarios.load_scenarios(args.scenarios).select(
@@ -187,8 +188,8 @@ def _scenario_episodes(args: DeploySimArgs, cfg: Any) -> Episodes:
     )
     sc = chosen.scenarios[0]
     task = dataclasses.replace(cfg.env, physics_impl="jax")
-    env = MecanumEnv(scenarios.eval_env_config(task, chosen))
-    batch = scenarios.prepare(env, sc)
+    env = MecanumEnv(eval_env_config(task, chosen))
+    batch = prepare(env, sc)
     commands = np.asarray(batch.commands, np.float32)
     targets = jax.vmap(env.feasible_target)(jnp.asarray(commands), batch.params.radius_scale)
     return Episodes(

@@ -14,8 +14,8 @@ import jax
 from rich.console import Console
 
 from mecanum_jax.config import ConfigError
+from mecanum_jax.evaluation import episodes, scenarios
 from mecanum_jax.evaluation import rollout as ev
-from mecanum_jax.evaluation import scenarios
 from mecanum_jax.precision import set_matmul_precision
 from mecanum_jax.task import MecanumEnv
 from mecanum_jax.task import fidelity as fid
@@ -81,7 +81,7 @@ class Target:
             )
         if impl:
             base = dataclasses.replace(base, physics_impl=impl)
-        eval_cfg = scenarios.eval_env_config(base.validate("env"), scenario_set)
+        eval_cfg = episodes.eval_env_config(base.validate("env"), scenario_set)
         fid.check_task(eval_cfg, fidelity, "--fidelity")
         self.env = MecanumEnv(eval_cfg, robots=max_batch, fidelity=fidelity)
         self.label += "" if fidelity == "fast" else f" in the {fidelity} model"

@@ -44,7 +44,7 @@ import tyro  # noqa: E402
 from rich.console import Console  # noqa: E402
 
 from mecanum_jax.config import ConfigError  # noqa: E402
-from mecanum_jax.evaluation import metrics, paired, plots, scenarios  # noqa: E402
+from mecanum_jax.evaluation import episodes, metrics, paired, plots, scenarios  # noqa: E402
 from mecanum_jax.evaluation import rollout as ev  # noqa: E402
 from mecanum_jax.kinematics import model as kinematics  # noqa: E402
 from train.cli.eval_args import EvalArgs, check_args  # noqa: E402
@@ -110,7 +110,7 @@ def evaluate(
     dt = env.config.control_dt
     mcfg = metrics.MetricConfig(settle_s=args.settle_s)
     t0 = time.time()
-    batches = [scenarios.prepare(env, sc) for sc in scenario_set.scenarios]
+    batches = [episodes.prepare(env, sc) for sc in scenario_set.scenarios]
     t_prepare = time.time() - t0
     players = whos(target, args)
     jobs = [(b, who) for b in batches for who in players]
@@ -276,7 +276,7 @@ def _prepare(args: EvalArgs) -> tuple[Target, scenarios.ScenarioSet, Path]:
     out = check_output(args.out or default_out(args, target), "--out")
     for sc in scenario_set.scenarios:  # fail on bad scenarios before any rollout
         if sc.scripted:
-            scenarios.scripted_commands(target.env, sc)
+            episodes.scripted_commands(target.env, sc)
     return target, scenario_set, out
 
 

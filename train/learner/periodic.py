@@ -17,7 +17,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from mecanum_jax.evaluation import metrics, scenarios
+from mecanum_jax.evaluation import episodes, metrics, scenarios
 from mecanum_jax.evaluation import rollout as evaluation
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.task import fidelity as fid
@@ -57,7 +57,7 @@ class PeriodicEvaluation:
         seconds = r.eval_episode_length * cfg.env.control_dt
         self.scenarios = scenarios.task_scenarios(cfg.env, r.num_eval_envs, seconds, r.eval_seed)
         # the training environment serves unless the scenarios need more latency history
-        eval_cfg = scenarios.eval_env_config(cfg.env, self.scenarios)
+        eval_cfg = episodes.eval_env_config(cfg.env, self.scenarios)
         # one chunk on a GPU; on CPU 64 fast or 4 reference robots (larger MJX batches
         # deadlock its backend: fidelity.CPU_EVAL_BATCH)
         fidelity = fid.check_fidelity(r.eval_fidelity, "run.eval_fidelity")
@@ -69,13 +69,13 @@ class PeriodicEvaluation:
         self.env = env
         self.evaluator = evaluation.Evaluator(self.env, deterministic_apply(networks), max_batch)
         self._jacobian = np.asarray(kinematics.jacobian(self.env.geometry))
-        self._batches: dict[str, scenarios.EpisodeBatch] | None = None
+        self._batches: dict[str, episodes.EpisodeBatch] | None = None
 
-    def batches(self) -> dict[str, scenarios.EpisodeBatch]:
+    def batches(self) -> dict[str, episodes.EpisodeBatch]:
         """The episodes, drawn once (the same for every evaluation of the run)."""
         if self._batches is None:
             self._batches = {
-                s.name: scenarios.prepare(self.env, s) for s in self.scenarios.scenarios
+                s.name: episodes.prepare(self.env, s) for s in self.scenarios.scenarios
             }
         return self._batches
 
