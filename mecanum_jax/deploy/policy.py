@@ -9,19 +9,16 @@ This file depends only on NumPy and the standard library. Copy it next to the ex
     action = policy.action(obs)                # the trained policy, deterministic
     setpoints = policy.wheel_setpoints(command, action, obs)   # rad/s per wheel, to the servos
 
-A policy whose residual corrects the ``feedback`` controller (``meta["residual_base"]``)
-observes that controller's integrator: keep it with ``integral =
-policy.feedback_integral_step(obs)`` after each step (0 at start, and 0 again at each
-command change where ``policy.feedback_reset``) and pass it to the next
-``observation(..., feedback_integral=integral)``. A policy that observes earlier sensor
-frames (``meta["obs_history"]`` > 0, a student) takes the last ones, each
-``policy.sensor_frame(wheel_rate, gyro_z, accel)``, newest first, as
-``observation(..., sensor_history=frames)``; ``mecanum_loop.Controller`` keeps them all.
+Some policies observe state the caller keeps (``mecanum_loop.Controller`` keeps it all):
+the ``feedback`` controller's integrator (``meta["residual_base"]``: ``integral =
+feedback_integral_step(obs)`` after each step, 0 at start and, where ``feedback_reset``, at
+each command change) and earlier sensor frames (``meta["obs_history"]`` > 0, a student: the
+last ``sensor_frame(...)``s, newest first), passed to ``observation`` as
+``feedback_integral`` and ``sensor_history``.
 
-The export holds the policy network's weights, the observation normalizer (mean and
-standard deviation, as Brax's running statistics apply it) and what the control loop
-needs around the network: the observation layout and scales, the nominal inverse model
-(Jacobian) and wheel-rate limits for the baseline the residual actions are added to.
+The export holds the network's weights, the observation normalizer (mean and standard
+deviation, as Brax's running statistics apply it), the observation layout and scales, and
+the nominal Jacobian and wheel-rate limits of the baseline the residual corrects.
 
 Wheel order, units and signs are those of the robot description used for training
 (``meta["robot"]``); wheel rates are rad/s of the wheel, positive rolling forward.
@@ -72,11 +69,10 @@ class NumpyPolicy:
         self.jacobian = np.asarray(meta["jacobian"], np.float32)
         self.forward = np.asarray(meta["forward_matrix"], np.float32)
         self.feedback = meta.get("feedback") or {}
-        self._nearest = (
-            NearestFeasible(self.jacobian, self.max_rates, float(self.feedback["omega_weight"]))
-            if self.feedback_base
-            else None
-        )
+        self._nearest: NearestFeasible | None = None  # the feedback controller's reach
+        if self.feedback_base:
+            weight = float(self.feedback["omega_weight"])
+            self._nearest = NearestFeasible(self.jacobian, self.max_rates, weight)
 
     @property
     def observation_size(self) -> int:
@@ -170,8 +166,8 @@ class NumpyPolicy:
         """The ``feedback`` controller's integrator after this step (rad/s): ``I + ki·e·dt``
         clipped to ``± i_max``, held while the corrected twist is out of the wheels' reach
         and the error would drive it further, and while ``command_age`` (control periods
-        since the command of ``obs`` changed, 0 on its first) is below
-        :attr:`feedback_hold_steps` (the environment's rules)."""
+        since ``obs``'s command changed, 0 on its first) is below the environment's
+        :attr:`feedback_hold_steps`."""
         twist, err, integral = self.feedback_twist(obs)
         rates = twist @ self.jacobian.T
         saturated = np.max(np.abs(rates) / self.max_rates, axis=-1) > 1.0
@@ -223,8 +219,7 @@ class NumpyPolicy:
           wheel_rate: (n,) encoder rates, rad/s of the wheel.
           gyro_z: yaw rate, rad/s.
           accel: (3,) accelerometer, specific force in the body frame, m/s² (+9.81 z at rest).
-          last_action: (action_size,) the previous action returned by :meth:`action`
-            (zeros at start).
+          last_action: (action_size,) the previous :meth:`action` (zeros at start).
           yaw_integral: the state of :meth:`yaw_integral_step`, required when the policy
             observes it (``yaw_integral_tau > 0``), rad.
           feedback_integral: the state of :meth:`feedback_integral_step`, required when the
@@ -273,9 +268,8 @@ class NumpyPolicy:
 
     def sensor_frame(self, wheel_rate: Any, gyro_z: Any, accel: Any) -> np.ndarray:
         """One scaled sensor frame as the policy observes it: encoder rates, gyro z,
-        accelerometer and the wheel-odometry twist. A policy with :attr:`obs_history` > 0
-        observes the frames of the control periods before this one, newest first
-        (:meth:`observation`'s ``sensor_history``)."""
+        accelerometer and the wheel-odometry twist (the earlier ones, where
+        :attr:`obs_history` > 0: :meth:`observation`'s ``sensor_history``)."""
         rate = np.asarray(wheel_rate, np.float32)
         return np.concatenate(
             [
@@ -308,15 +302,14 @@ class NumpyPolicy:
         """Wheel-rate setpoints (rad/s) for the servos (``obs``: the observation the action
         answered; needed when the residual corrects the ``feedback`` controller)."""
         a = np.clip(np.asarray(action, np.float32), -1.0, 1.0)
-        if self.meta["residual"] and self.meta.get("residual_space", "wheel") == "twist":
-            correction = a * (np.float32(self.meta["residual_scale"]) * self.command_scale)
-            rates = self.base_rates(command, obs) + correction @ self.jacobian.T
-        elif self.meta["residual"]:
-            rates = self.base_rates(command, obs) + a * (
-                np.float32(self.meta["residual_scale"]) * self.max_rates
-            )
+        if not self.meta["residual"]:
+            return np.clip(a * self.max_rates, -self.max_rates, self.max_rates)
+        scale = np.float32(self.meta["residual_scale"])
+        if self.meta.get("residual_space", "wheel") == "twist":
+            correction = (a * (scale * self.command_scale)) @ self.jacobian.T
         else:
-            rates = a * self.max_rates
+            correction = a * (scale * self.max_rates)
+        rates = self.base_rates(command, obs) + correction
         return np.clip(rates, -self.max_rates, self.max_rates)
 
 
@@ -365,20 +358,19 @@ class NearestFeasible:
 def load(path: str | Path) -> NumpyPolicy:
     """Load a policy written by ``mecanum-export``."""
     path = Path(path)
+    where = f"policy file {str(path)!r}"
     try:
         with np.load(path, allow_pickle=False) as f:
             data = {k: f[k] for k in f.files}
     except FileNotFoundError:
-        raise ExportError(f"policy file {str(path)!r}: no such file") from None
+        raise ExportError(f"{where}: no such file") from None
     except Exception as err:  # zipfile/np errors for corrupt files
-        raise ExportError(f"policy file {str(path)!r}: unreadable: {err}") from None
+        raise ExportError(f"{where}: unreadable: {err}") from None
     if "meta" not in data:
-        raise ExportError(f"policy file {str(path)!r}: no 'meta' entry; not an export")
+        raise ExportError(f"{where}: no 'meta' entry; not an export")
     meta = json.loads(str(data["meta"]))
     if meta.get("format") != FORMAT:
-        raise ExportError(
-            f"policy file {str(path)!r}: format {meta.get('format')!r}, expected {FORMAT!r}"
-        )
+        raise ExportError(f"{where}: format {meta.get('format')!r}, expected {FORMAT!r}")
     layers = []
     for i in range(int(meta["layers"])):
         layers.append((data[f"w{i}"].astype(np.float32), data[f"b{i}"].astype(np.float32)))
@@ -396,10 +388,8 @@ def save(
     path = Path(path)
     arrays = {f"w{i}": np.asarray(w, np.float32) for i, (w, _) in enumerate(layers)}
     arrays |= {f"b{i}": np.asarray(b, np.float32) for i, (_, b) in enumerate(layers)}
-    meta = dict(meta, format=FORMAT, layers=len(layers))
-    arrays["obs_mean"] = np.asarray(mean, np.float32)
-    arrays["obs_std"] = np.asarray(std, np.float32)
-    arrays["meta"] = np.asarray(json.dumps(meta))
+    arrays |= {"obs_mean": np.asarray(mean, np.float32), "obs_std": np.asarray(std, np.float32)}
+    arrays["meta"] = np.asarray(json.dumps(dict(meta, format=FORMAT, layers=len(layers))))
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".partial")
     with tmp.open("wb") as f:
