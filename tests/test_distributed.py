@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -127,7 +128,8 @@ def test_two_process_run_trains_as_one_and_resumes_exactly(tmp_path: Path) -> No
     """``mecanum-train --distributed`` as two processes: both finish, only process 0 writes
     the run, both hold the same policy (they can only if the gradients were averaged across
     the processes), and a run interrupted after 2 epochs and resumed ends exactly as the
-    uninterrupted one (process 1's robots and keys come back from its own saved state)."""
+    uninterrupted one (process 1's robots and keys come back from its own saved state):
+    two runs of two processes, the second resuming the first's epoch 2."""
     full = tmp_path / "full"
     outs = _two_processes("--config", "tiny", "--run-dir", str(full), "--run.eval-every", "3")
     summary = json.loads((full / "summary.json").read_text())
@@ -141,9 +143,13 @@ def test_two_process_run_trains_as_one_and_resumes_exactly(tmp_path: Path) -> No
     assert sorted(p.name for p in (full / "checkpoints").iterdir()) == ["1", "2", "3"]
     assert sorted(p.name for p in (full / "process_state").iterdir()) == ["p1"]
 
+    # interrupted after epoch 2: the run as it stood then (its newest checkpoint and
+    # process 1's state of epoch 2; the logs are cut back on resume)
     part = tmp_path / "part"
-    _two_processes("--config", "tiny", "--run-dir", str(part), "--ppo.num-timesteps", "640")
-    _two_processes("--resume", str(part), "--ppo.num-timesteps", "960", "--run.eval-every", "3")
+    shutil.copytree(full, part)
+    shutil.rmtree(part / "checkpoints" / "3")
+    (part / "process_state" / "p1" / "3.npz").unlink()
+    _two_processes("--resume", str(part), "--run.eval-every", "3")
     resumed = json.loads((part / "summary.json").read_text())
     assert resumed["seeds"][0]["eval"] == summary["seeds"][0]["eval"]
     timing = {"steps_per_s"}
