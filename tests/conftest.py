@@ -196,11 +196,14 @@ TINY_RUN_FILES = frozenset(
         "test_compat.py",
         "test_distributed.py",
         "test_eval.py",
+        "test_export.py",
         "test_first_hour.py",
+        "test_learner.py",
         "test_nan_guard.py",
         "test_preemption.py",
         "test_progress.py",
         "test_train.py",
+        "test_train_parallel.py",
     }
 )
 
@@ -295,3 +298,21 @@ def fresh_imports(tmp_path_factory):
     cmd = [sys.executable, "-c", FRESH_IMPORTS, str(out)]
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
     return proc, json.loads(out.read_text()) if out.exists() else None
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    """The default evaluation scenarios (configs/eval/default.toml)."""
+    from mecanum_jax.evaluation.scenarios import load_scenarios
+
+    return load_scenarios("default")
+
+
+@pytest.fixture(scope="module")
+def env(shipped):
+    """The evaluation's environment of the default scenarios (a test file's own ``env``
+    fixture overrides it)."""
+    from mecanum_jax.evaluation.episodes import eval_env_config
+    from mecanum_jax.task import EnvConfig, MecanumEnv
+
+    return MecanumEnv(eval_env_config(EnvConfig(), shipped))

@@ -1,4 +1,5 @@
-"""Evaluation: scenario files, paired batched rollouts, metrics, the CLI, and the export.
+"""Evaluation: paired batched rollouts, metrics and the CLI (the scenarios: test_scenarios.py;
+the export: test_export.py).
 
 The CLI tests run ``mecanum-eval`` on a reduced scenario set (what CI checks); the
 checkpoint tests use the session's tiny trained run (``full_run`` in conftest.py).
@@ -6,38 +7,18 @@ checkpoint tests use the session's tiny trained run (``full_run`` in conftest.py
 
 import dataclasses
 import json
-import os
-import subprocess
-import sys
-import textwrap
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from loops import network_free
 
-from mecanum_jax.config import ConfigError
-from mecanum_jax.deploy import policy as deploy
-from mecanum_jax.evaluation import episodes, paired, scenarios
+from mecanum_jax.evaluation import episodes, paired
 from mecanum_jax.evaluation import rollout as evaluation
-from mecanum_jax.kinematics import singularity
-from mecanum_jax.kinematics.modes import SIX_MODES
-from mecanum_jax.task import EnvConfig, MecanumEnv
+from mecanum_jax.task import MecanumEnv
 from train.cli import evaluate as cli
-from train.cli import export
 from train.learner.policy import check_compatible, load_policy, restore_policy
 from train.store import checkpoint
-
-
-@pytest.fixture(scope="module")
-def shipped():
-    return scenarios.load_scenarios("default")
-
-
-@pytest.fixture(scope="module")
-def env(shipped):
-    return MecanumEnv(episodes.eval_env_config(EnvConfig(), shipped))
 
 
 @pytest.fixture(scope="module")
@@ -51,97 +32,6 @@ def small(shipped):
 @pytest.fixture(scope="module")
 def baseline_evaluator(env):
     return evaluation.Evaluator(env)
-
-
-def test_default_scenarios_are_the_issue_list(shipped):
-    assert shipped.names == [
-        "nominal",
-        "six_modes",
-        "slippery",
-        "payload",
-        "radius_error",
-        "weak_motors",
-        "sensor_noise",
-        "singular_pass",
-    ]
-    for s in shipped.scenarios:
-        assert s.description, s.name
-    by = {s.name: s for s in shipped.scenarios}
-    assert by["nominal"].randomization == {}
-    assert by["nominal"].noise.scale == 0
-    assert by["slippery"].randomization_config(1.0).friction[1] < 0.5
-    assert by["weak_motors"].command_config(EnvConfig().commands).p_beyond >= 0.5
-    assert by["sensor_noise"].randomization["latency_steps"] == [2, 2]
-    assert by["six_modes"].scripted
-    assert by["singular_pass"].scripted
-    assert not by["payload"].scripted
-
-
-def test_six_modes_sequence_follows_seed_000(env, shipped):
-    sc = shipped.select(["six_modes"]).scenarios[0]
-    cmds = episodes.scripted_commands(env, sc)
-    per = round(sc.commands.segment_s / env.config.control_dt)
-    gap = round(sc.commands.pause_s / env.config.control_dt)
-    for i, (_, unit, _) in enumerate(SIX_MODES.values()):
-        seg = cmds[i * (per + gap) : i * (per + gap) + per]
-        assert np.all(seg == seg[0])
-        direction = seg[0] / np.linalg.norm(seg[0])
-        np.testing.assert_allclose(direction, np.asarray(unit) / np.linalg.norm(unit), atol=1e-6)
-        assert np.all(cmds[i * (per + gap) + per : (i + 1) * (per + gap)] == 0)
-    assert np.all(cmds[6 * (per + gap) :] == 0)  # then stop
-
-
-def test_singular_pass_drags_two_wheels_and_is_closed(env, shipped):
-    sc = shipped.select(["singular_pass"]).scenarios[0]
-    cmds = episodes.scripted_commands(env, sc)
-    moving = cmds[np.linalg.norm(cmds, axis=-1) > 0]
-    assert len(moving) > 0
-    still = np.asarray(singularity.singular_wheels(env.geometry, jnp.asarray(moving), tol=1e-5))
-    assert np.all(still.sum(axis=-1) == 2)  # two wheels only dragged at every moving step
-    path = evaluation.intended_poses(cmds[None], env.config.control_dt)[0]
-    np.testing.assert_allclose(path[-1], 0.0, atol=1e-5)  # out and back: a closed sequence
-    assert np.max(np.linalg.norm(path[:, :2], axis=-1)) > 0.5
-
-
-def test_episodes_do_not_follow_the_targets_command_mix(env, shipped):
-    """A policy trained on another episode mix is judged on the same episodes."""
-    from mecanum_jax.task import CommandConfig, RandomizationConfig
-
-    other = MecanumEnv(
-        dataclasses.replace(
-            env.config,
-            commands=CommandConfig(p_zero=0.0, p_translation=1.0, resample_max_s=9.0),
-            randomization=RandomizationConfig(nominal_share=0.5),
-        )
-    )
-    sc = shipped.select(["nominal"], 4, 3.0).scenarios[0]
-    a, b = episodes.prepare(env, sc), episodes.prepare(other, sc)
-    assert np.any(np.asarray(a.commands)[..., 2] != 0)  # spins: not the other's mix
-    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
-        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
-
-
-def test_prepare_is_seeded_and_applies_the_physics(env, shipped):
-    sets = shipped.select(["slippery", "payload", "radius_error", "weak_motors", "sensor_noise"])
-    by = {s.name: episodes.prepare(env, s) for s in sets.scenarios}
-    again = episodes.prepare(env, sets.scenarios[0])
-    for a, b in zip(jax.tree.leaves(again), jax.tree.leaves(by["slippery"]), strict=True):
-        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    f = np.asarray(by["slippery"].params.friction)
-    assert f.min() >= 0.12 * 0.9 - 1e-6
-    assert f.max() <= 0.2 * 1.1 + 1e-6
-    p = by["payload"].params
-    assert np.all(np.asarray(p.payload_mass) >= 2.5)
-    np.testing.assert_allclose(np.asarray(p.payload_com)[:, :2], [[0.06, 0.04]] * 32, atol=1e-6)
-    r = np.asarray(by["radius_error"].params.radius_scale)
-    assert r.max() < 1.0
-    assert r.min() > 0.93
-    nominal_torque = env.robot.nominal_params().torque_limit
-    np.testing.assert_allclose(by["weak_motors"].params.torque_limit[0], 0.5 * nominal_torque)
-    assert np.all(np.asarray(by["sensor_noise"].latency) == 2)
-    np.testing.assert_allclose(by["sensor_noise"].noise_std[0], 2 * env.noise_std())
-    # different scenarios draw different episodes from the same seed
-    assert not np.array_equal(by["payload"].commands, by["radius_error"].commands)
 
 
 def test_evaluation_streams_never_meet_training_streams(learner, shipped):
@@ -160,57 +50,6 @@ def test_evaluation_streams_never_meet_training_streams(learner, shipped):
         episode = jax.random.split(ks[3], 64)
         drawn = {tuple(np.asarray(k)) for k in [*ks, *episode]}
         assert not drawn & train, s.name
-
-
-@pytest.mark.parametrize(
-    ("text", "message"),
-    [
-        ("[scenarios.a]\nbogus = 1", "scenarios.a.bogus = 1: unknown key"),
-        (
-            "[scenarios.a.randomization]\nfriction = [0.5, 0.2]",
-            "scenarios.a.randomization.friction = [0.5, 0.2]: lower bound above upper",
-        ),
-        ('[scenarios.a.commands]\nkind = "zigzag"', "scenarios.a.commands.kind = 'zigzag'"),
-        (
-            '[scenarios.a]\nseconds = 2.0\n[scenarios.a.commands]\nkind = "sequence"\n'
-            "sequence = [[0.5, 0, 0, 3.0]]",
-            "scenarios.a.commands.sequence = '3.0 s': longer than the episode",
-        ),
-        (
-            '[scenarios.a.commands]\nkind = "sequence"\nsequence = [[3.0, 0, 0, 1.0]]',
-            'scenarios.a.commands.sequence[0] = [3.0, 0.0, 0.0, 1.0]: units = "reach"',
-        ),
-        ('[scenarios.a.commands]\nkind = "six_modes"\np_zero = 0.5', "scenarios.a.commands.p_zero"),
-        ("[scenarios.Bad]\n", "scenarios.Bad = 'Bad': scenario names are lower_snake_case"),
-        ("[scenarios.a]\nepisodes = 0", "scenarios.a.episodes = 0: must be in [1, 4096]"),
-        ("[scenarios.a.noise]\nscale = -1.0", "scenarios.a.noise.scale = -1.0: must be >= 0"),
-        ("[defaults]\nseed = 'x'\n[scenarios.a]", "defaults.seed = 'x': expected an integer"),
-        ("[defaults]\n", "expected at least one [scenarios.<name>] table"),
-        ("[scenarios.a.randomization]\nenabled = false", "scenarios.a.randomization.enabled"),
-    ],
-)
-def test_bad_scenario_files_name_the_field(tmp_path, text, message):
-    path = tmp_path / "s.toml"
-    path.write_text(text)
-    with pytest.raises(ConfigError) as err:
-        scenarios.load_scenarios(path)
-    assert message in str(err.value)
-
-
-def test_scenario_selection_errors(shipped):
-    with pytest.raises(ConfigError, match=r"scenario 'icy': not in .* available: \['nominal'"):
-        shipped.select(["icy"])
-    with pytest.raises(ConfigError, match="episodes = 0"):
-        shipped.select(episodes=0)
-    with pytest.raises(ConfigError, match="no such scenario file"):
-        scenarios.load_scenarios("nonexistent")
-
-
-def test_singular_pass_needs_a_layout_with_singular_directions(shipped):
-    env3 = MecanumEnv(EnvConfig(robot="centripetal3"))
-    sc = shipped.select(["singular_pass"]).scenarios[0]
-    with pytest.raises(ConfigError, match="has no singular directions"):
-        episodes.scripted_commands(env3, sc)
 
 
 def test_summarize_on_a_known_trace():
@@ -380,78 +219,6 @@ def test_eval_checkpoint_cli_with_video_and_export(full_run, tmp_path):
     assert (out / "mecanum_policy.py").exists()
 
 
-def test_export_round_trip_in_numpy_alone(full_run, tmp_path, learner):
-    """The exported policy, run by NumPy in a process without JAX, MuJoCo or Brax,
-    computes the JAX policy's actions."""
-    run, _ = full_run
-    path = tmp_path / "export" / "policy.npz"
-    assert export.main([str(run.dir), str(path)]) == 0
-    act, _ = load_policy(run.dir)
-    rng = np.random.default_rng(3)
-    obs = {
-        k: (3 * rng.normal(size=(256, *shape))).astype(np.float32)
-        for k, shape in learner.env.observation_size.items()
-    }
-    expected = np.asarray(act(obs))
-    np.save(tmp_path / "obs.npy", obs["state"])
-    script = textwrap.dedent(
-        f"""
-        import importlib.abc, importlib.util, sys
-        import numpy as np
-
-        class Block(importlib.abc.MetaPathFinder):
-            def find_spec(self, name, path, target=None):
-                if name.split(".")[0] in ("jax", "jaxlib", "mujoco", "brax", "flax", "mecanum_jax"):
-                    raise ImportError("blocked: " + name)
-
-        sys.meta_path.insert(0, Block())
-        module = {str(path.parent / "mecanum_policy.py")!r}
-        spec = importlib.util.spec_from_file_location("mp", module)
-        mp = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mp)
-        policy = mp.load({str(path)!r})
-        actions = policy.action(np.load({str(tmp_path / "obs.npy")!r}))
-        np.save({str(tmp_path / "numpy_actions.npy")!r}, actions)
-        assert not any(m.split(".")[0] in ("jax", "mujoco", "brax") for m in sys.modules)
-        """
-    )
-    env = dict(os.environ, PYTHONPATH="")
-    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env)
-    assert proc.returncode == 0, proc.stderr
-    got = np.load(tmp_path / "numpy_actions.npy")
-    assert np.abs(expected).max() > 1e-3  # a non-trivial policy
-    np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-6)
-
-
-@pytest.mark.full
-def test_exported_control_loop_matches_the_environment(full_run, tmp_path, learner):
-    run, _ = full_run
-    path = tmp_path / "policy.npz"
-    assert export.main([str(run.dir), str(path)]) == 0
-    policy = deploy.load(path)
-    env = learner.env
-    rng = np.random.default_rng(5)
-    for _ in range(20):
-        command = rng.normal(size=3).astype(np.float32) * np.asarray(env.command_scale)
-        action = rng.uniform(-1, 1, env.action_size).astype(np.float32)
-        np.testing.assert_allclose(
-            policy.wheel_setpoints(command, action),
-            np.asarray(env.wheel_setpoints(jnp.asarray(command), jnp.asarray(action))),
-            rtol=1e-5,
-            atol=1e-4,
-        )
-    # the observation built from raw measurements is the environment's (noise-free, no lag)
-    cfg = env.config.nominal()
-    nominal = MecanumEnv(cfg)
-    state = nominal.reset(jax.random.PRNGKey(1))
-    state = nominal.step(state, jnp.full(nominal.n_wheels, 0.3))
-    sens = nominal.robot.sensors(state.pipeline_state)
-    obs = policy.observation(
-        state.info["command"], sens.wheel_rate, sens.gyro_z, sens.accel, state.info["last_action"]
-    )
-    np.testing.assert_allclose(obs, np.asarray(state.obs["state"]), rtol=1e-5, atol=1e-5)
-
-
 def test_bad_checkpoints_and_targets(full_run, tmp_path, capsys):
     assert _run_cli([tmp_path / "nope", "--out", tmp_path / "o1"]) == 2
     assert "no such directory" in capsys.readouterr().err
@@ -514,18 +281,6 @@ def test_interrupted_evaluation_leaves_no_complete_looking_report(tmp_path, monk
     assert not (tmp_path / "ev.partial" / "report.json").exists()
 
 
-def test_exported_file_errors(tmp_path):
-    with pytest.raises(deploy.ExportError, match="no such file"):
-        deploy.load(tmp_path / "missing.npz")
-    (tmp_path / "junk.npz").write_bytes(b"not a zip")
-    with pytest.raises(deploy.ExportError, match="unreadable"):
-        deploy.load(tmp_path / "junk.npz")
-    np.savez(tmp_path / "other.npz", x=np.zeros(3))
-    with pytest.raises(deploy.ExportError, match="not an export"):
-        deploy.load(tmp_path / "other.npz")
-    assert export.main(["baseline", str(tmp_path / "p.txt")]) == 2
-
-
 @pytest.mark.full
 def test_run_many_chunks_and_pads_like_single_runs(env, shipped, baseline_evaluator):
     """Jobs merged, cut into chunks of 4 robots (the last padded) and split back give the
@@ -561,117 +316,6 @@ def test_eval_cli_rejects_bad_arguments(extra, message, tmp_path, capsys):
     assert _run_cli(["baseline", "--episodes", 2, "--out", out, *extra]) == 2
     assert message in capsys.readouterr().err
     assert not out.exists()
-
-
-def test_exported_twist_residual_setpoints_match_the_environment():
-    """The NumPy control loop applies a twist-space residual as the environment does."""
-    env = MecanumEnv(EnvConfig(residual_space="twist"))
-    policy = network_free(env)
-    rng = np.random.default_rng(3)
-    for _ in range(20):
-        command = rng.normal(size=3).astype(np.float32) * np.asarray(env.command_scale)
-        action = rng.uniform(-1, 1, 3).astype(np.float32)
-        np.testing.assert_allclose(
-            policy.wheel_setpoints(command, action),
-            np.asarray(env.wheel_setpoints(jnp.asarray(command), jnp.asarray(action))),
-            rtol=1e-5,
-            atol=1e-4,
-        )
-
-
-@pytest.mark.full  # compiles an environment of its own
-def test_exported_action_filter_matches_the_environment_in_numpy_and_onnx():
-    """action_filter = f: the NumPy policy and its ONNX graph return f·last_action (read
-    from the observation) + (1 − f)·network, the action the environment applies."""
-    f = 0.8
-    env = MecanumEnv(EnvConfig(action_filter=f).nominal())
-    policy = network_free(env)  # no hidden layer: network = tanh(first entries)
-    rng = np.random.default_rng(6)
-    obs = rng.normal(size=(64, env.observation_size["state"][0])).astype(np.float32)
-    names = [name for name, _ in env.layout]
-    start = sum(size for _, size in env.layout[: names.index("last_action")])
-    last = obs[:, start : start + env.action_size]
-    network = np.tanh(obs[:, : env.action_size])
-    expected = f * last + (1 - f) * network
-    np.testing.assert_allclose(policy.action(obs), expected, rtol=1e-5, atol=1e-6)
-    # the environment applies the same blend of its last action and a new one
-    state = env.reset(jax.random.PRNGKey(0))
-    state = state.replace(info={**state.info, "last_action": jnp.asarray(last[0])})
-    stepped = env.step(state, jnp.asarray(network[0]))
-    np.testing.assert_allclose(stepped.info["last_action"], expected[0], rtol=1e-5, atol=1e-6)
-    ort = pytest.importorskip("onnxruntime")
-    from mecanum_jax.deploy.onnx import to_onnx
-
-    session = ort.InferenceSession(
-        to_onnx(policy).SerializeToString(), providers=["CPUExecutionProvider"]
-    )
-    (action,) = session.run(["action"], {"observation": obs})
-    np.testing.assert_allclose(action, expected, rtol=1e-5, atol=1e-6)
-
-
-@pytest.mark.full
-def test_yaw_error_integral_observation_matches_the_control_loop():
-    """yaw_integral_tau > 0: the environment integrates the measured yaw-rate error as a
-    robot-side loop would (deploy.yaw_integral_step), and observes it last."""
-    env = MecanumEnv(EnvConfig(yaw_integral_tau=0.5).nominal())
-    assert env.layout[-1] == ("yaw_error_integral", 1)
-    policy = network_free(env)
-    state = env.reset(jax.random.PRNGKey(2))
-    state = env.set_command(state, jnp.array([0.2, 0.0, 1.5]))
-    integral = 0.0
-    step = jax.jit(env.step)
-    for k in range(6):
-        tracked = np.asarray(state.info["command"])
-        action = jnp.full(env.action_size, 0.01 * (-1) ** k)
-        state = step(state, action)
-        sens = env.robot.sensors(state.pipeline_state)
-        integral = policy.yaw_integral_step(integral, tracked, float(sens.gyro_z))
-        assert float(state.info["yaw_integral"]) == pytest.approx(integral, rel=1e-4, abs=1e-6)
-        obs = policy.observation(
-            tracked, sens.wheel_rate, sens.gyro_z, sens.accel, np.asarray(action), integral
-        )
-        np.testing.assert_allclose(obs, np.asarray(state.obs["state"]), rtol=1e-5, atol=1e-5)
-    assert abs(integral) > 1e-4  # the spin-up from rest left a measurable yaw error
-    with pytest.raises(ValueError, match="yaw_integral = None"):
-        policy.observation(tracked, sens.wheel_rate, sens.gyro_z, sens.accel, np.asarray(action))
-
-
-def test_onnx_export_matches_the_jax_policy_and_the_control_loop(full_run, tmp_path, learner):
-    """``mecanum-export --format onnx``: onnxruntime maps raw observations to the JAX
-    policy's actions, and to the NumPy control loop's wheel-rate setpoints."""
-    ort = pytest.importorskip("onnxruntime")
-    run, _ = full_run
-    path = tmp_path / "policy.onnx"
-    assert export.main([str(run.dir), str(path), "--format", "onnx"]) == 0
-    assert export.main([str(run.dir), str(tmp_path / "p.npz")]) == 0
-    act, _ = load_policy(run.dir)
-    rng = np.random.default_rng(5)
-    obs = {
-        k: (3 * rng.normal(size=(128, *shape))).astype(np.float32)
-        for k, shape in learner.env.observation_size.items()
-    }
-    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    action, setpoints = session.run(["action", "wheel_setpoints"], {"observation": obs["state"]})
-    expected = np.asarray(act(obs))
-    assert np.abs(expected).max() > 1e-3  # a non-trivial policy
-    np.testing.assert_allclose(action, expected, rtol=1e-5, atol=1e-5)
-    numpy_policy = deploy.load(tmp_path / "p.npz")
-    commands = obs["state"][:, :3] * numpy_policy.command_scale
-    loop = numpy_policy.wheel_setpoints(commands, action)  # batched over rows
-    assert np.abs(loop).max() >= numpy_policy.max_rates.max() * 0.999  # saturation exercised
-    np.testing.assert_allclose(setpoints, loop, rtol=1e-5, atol=1e-4)
-    # the file carries its own description of the observation layout
-    meta = json.loads({p.key: p.value for p in _onnx_props(path)}["mecanum_policy_meta"])
-    assert meta["observation_layout"] == [list(x) for x in learner.env.layout]
-    # wrong suffix: refused naming the field and the value, nothing written
-    assert export.main([str(run.dir), str(tmp_path / "x.npz"), "--format", "onnx"]) == 2
-    assert not (tmp_path / "x.npz").exists()
-
-
-def _onnx_props(path):
-    import onnx
-
-    return onnx.load(str(path)).metadata_props
 
 
 def test_a_warp_task_is_evaluated_under_jax_on_the_cpu(monkeypatch):

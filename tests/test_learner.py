@@ -1,0 +1,156 @@
+"""The PPO learner on the suite's tiny config: devices, its untrained policy, gradient
+clipping, the policy warm-up, its paired evaluation."""
+
+import dataclasses
+
+import jax
+import numpy as np
+import optax
+import pytest
+from brax.training.agents.ppo.losses import PPONetworkParams
+from learners import deterministic_policy, random_obs
+
+from mecanum_jax.config import ConfigError
+from mecanum_jax.evaluation.metrics import Part
+from train.config import (
+    PPOConfig,
+    TrainConfig,
+)
+from train.learner.periodic import COMPARED, Result, beats, compare
+from train.learner.ppo import to_host
+from train.learner.state import gradient_clip, make_optimizer
+from train.store import leaves
+
+
+def test_learner_uses_both_devices(learner):
+    assert learner.n_devices == 2
+    assert learner.envs_per_device == 4
+    assert learner.parallel == "pmap"  # "auto" on CPUs; "sharded" only for several GPUs
+
+
+def test_evaluation_is_paired_and_held_out(learner):
+    ts, _ = learner.init_training()
+    one = jax.tree.map(lambda x: x[0], ts)
+    a = learner.evaluate_baseline(one)
+    b = learner.evaluate_baseline(one)
+    assert a.values == b.values  # same fixed episodes every time
+    assert set(a.values) == {"randomized", "nominal"}
+    assert learner.cfg.run.eval_seed not in learner.cfg.run.seeds
+    batches = learner.evaluation.batches()
+    assert len(batches["randomized"].keys) == learner.cfg.run.num_eval_envs
+    # the nominal scenario: nominal physics, no noise or latency
+    assert np.all(np.asarray(batches["nominal"].noise_std) == 0)
+    assert np.all(np.asarray(batches["nominal"].latency) == 0)
+    assert np.ptp(np.asarray(batches["randomized"].params.friction)) > 0
+
+
+def _result(ss_lin, ss_wz):
+    """A periodic-evaluation result with per-episode steady-state errors."""
+    parts = {}
+    for key, err in (("ss_lin", ss_lin), ("ss_wz", ss_wz)):
+        parts[key] = Part(np.asarray(err, float) ** 2, np.ones(len(err)), "rms")
+    for key in set(COMPARED) - set(parts):
+        parts[key] = Part(np.ones(len(ss_lin)), np.ones(len(ss_lin)), "mean")
+    return Result({"randomized": {}}, {"randomized": parts})
+
+
+def test_beating_the_baseline_takes_a_paired_interval_below_one():
+    rng = np.random.default_rng(0)
+    base = rng.uniform(0.5, 1.5, 200)
+    baseline = _result(base, base)
+    assert beats(compare(_result(0.8 * base, 0.9 * base), baseline))  # both clearly lower
+    assert not beats(compare(_result(0.8 * base, 1.1 * base), baseline))  # one worse
+    noisy = base * rng.choice([0.7, 1.3], 200)  # lower or higher by episode: a tie
+    assert not beats(compare(_result(noisy, 0.8 * base), baseline))
+
+
+def test_untrained_policy_is_the_baseline(learner):
+    """zero_init_mean + residual actions: the deterministic untrained policy outputs 0."""
+    ts, _ = learner.init_training()
+    policy = deterministic_policy(learner, ts)
+    obs = random_obs(learner, 7, seed=1)
+    with jax.numpy_rank_promotion("allow"):
+        action = np.asarray(policy(obs, jax.random.PRNGKey(0))[0])
+    np.testing.assert_array_equal(action, np.zeros((7, learner.env.action_size)))
+    assert learner.cfg.env.residual
+
+
+def test_untrained_policy_explores_with_the_configured_noise(learner):
+    """network.init_noise_std sets the initial exploration std, the same in every state
+    (Brax's tanh-normal policy alone ignores it and starts at softplus of random outputs)."""
+    ts, _ = learner.init_training()
+    one = jax.tree.map(lambda x: x[0, 0], ts)
+    obs = random_obs(learner, 16, seed=2)
+    with jax.numpy_rank_promotion("allow"):
+        logits = learner.networks.policy_network.apply(
+            one.normalizer_params, one.params.policy, obs
+        )
+        dist = learner.networks.parametric_action_distribution.create_dist(logits)
+    std = np.asarray(dist.scale)
+    assert std.shape == (16, learner.env.action_size)
+    np.testing.assert_allclose(std, learner.cfg.network.init_noise_std, rtol=1e-5)
+
+
+@pytest.mark.parametrize("per_network", [True, False])
+def test_gradient_clipping_per_network(per_network):
+    """With ppo.clip_per_network a huge value gradient no longer shrinks the policy's step."""
+    cfg = TrainConfig(ppo=PPOConfig(max_grad_norm=1.0, clip_per_network=per_network))
+    clip = gradient_clip(cfg)
+    zeros = {"w": np.zeros(2, np.float32)}
+    grads = PPONetworkParams(
+        policy={"w": np.array([0.3, 0.4], np.float32)},  # norm 0.5: under the limit
+        value={"w": np.array([60.0, 80.0], np.float32)},  # norm 100
+    )
+    params = PPONetworkParams(policy=zeros, value=zeros)
+    out, _ = clip.update(grads, clip.init(params), params)
+    policy, value = np.asarray(out.policy["w"]), np.asarray(out.value["w"])
+    if per_network:
+        np.testing.assert_allclose(policy, [0.3, 0.4], rtol=1e-6)
+        np.testing.assert_allclose(np.linalg.norm(value), 1.0, rtol=1e-5)
+    else:  # one global norm, about 100: both scaled by the same factor
+        scale = 1.0 / np.linalg.norm([0.3, 0.4, 60.0, 80.0])
+        np.testing.assert_allclose(policy, np.array([0.3, 0.4]) * scale, rtol=1e-5)
+        np.testing.assert_allclose(value, np.array([60.0, 80.0]) * scale, rtol=1e-5)
+
+
+def test_policy_warmup_ramps_only_the_policy():
+    """ppo.policy_warmup_steps: the policy's steps grow linearly from zero over the warm-up
+    (in environment steps, converted to gradient updates); the value function's do not."""
+    base = TrainConfig(ppo=PPOConfig(num_envs=8, batch_size=8, num_minibatches=2))
+    updates_per_iteration = base.ppo.num_minibatches * base.ppo.num_updates_per_batch  # 8
+    cfg = dataclasses.replace(
+        base, ppo=dataclasses.replace(base.ppo, policy_warmup_steps=base.steps_per_iteration)
+    )  # one iteration of warm-up: 8 updates
+    plain, warm = make_optimizer(base), make_optimizer(cfg)
+    params = PPONetworkParams(
+        policy={"w": np.zeros(2, np.float32)}, value={"w": np.zeros(2, np.float32)}
+    )
+    grads = PPONetworkParams(
+        policy={"w": np.array([0.3, -0.4], np.float32)},
+        value={"w": np.array([0.1, 0.2], np.float32)},
+    )
+    s_plain, s_warm = plain.init(params), warm.init(params)
+    for k in range(updates_per_iteration + 2):
+        ref, s_plain = plain.update(grads, s_plain, params)
+        got, s_warm = warm.update(grads, s_warm, params)
+        ramp = min(k / updates_per_iteration, 1.0)
+        np.testing.assert_allclose(got.policy["w"], ramp * ref.policy["w"], rtol=1e-5, atol=1e-9)
+        np.testing.assert_allclose(got.value["w"], ref.value["w"], rtol=1e-6)
+    assert np.any(np.asarray(ref.policy["w"]) != 0)
+    # no warm-up: the optimizer state's tree (in checkpoints) is the one it always was
+    former = optax.chain(gradient_clip(base), optax.adam(base.ppo.learning_rate))
+    assert jax.tree.structure(s_plain) == jax.tree.structure(former.init(params))
+    with pytest.raises(ConfigError, match=r"ppo\.policy_warmup_steps"):
+        dataclasses.replace(
+            base, ppo=dataclasses.replace(base.ppo, policy_warmup_steps=-1)
+        ).validate()
+
+
+def test_checkpoints_hold_only_numpy_arrays(learner):
+    """Orbax refuses process-local jax.Arrays in multi-process runs; some optimizer states
+    rebuild their leaves as jax arrays, so the packing converts leaf by leaf."""
+    state, env_state = learner.init()
+    for tree in (to_host(state), to_host(env_state)):
+        packed = leaves.pack(tree)
+        assert packed
+        assert all(isinstance(v, np.ndarray) for v in packed.values())

@@ -1,0 +1,158 @@
+"""The evaluation's scenarios: the default set, the scripted sequences, episode preparation
+and bad scenario files."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mecanum_jax.config import ConfigError
+from mecanum_jax.evaluation import episodes, scenarios
+from mecanum_jax.evaluation import rollout as evaluation
+from mecanum_jax.kinematics import singularity
+from mecanum_jax.kinematics.modes import SIX_MODES
+from mecanum_jax.task import EnvConfig, MecanumEnv
+
+
+def test_default_scenarios_are_the_issue_list(shipped):
+    assert shipped.names == [
+        "nominal",
+        "six_modes",
+        "slippery",
+        "payload",
+        "radius_error",
+        "weak_motors",
+        "sensor_noise",
+        "singular_pass",
+    ]
+    for s in shipped.scenarios:
+        assert s.description, s.name
+    by = {s.name: s for s in shipped.scenarios}
+    assert by["nominal"].randomization == {}
+    assert by["nominal"].noise.scale == 0
+    assert by["slippery"].randomization_config(1.0).friction[1] < 0.5
+    assert by["weak_motors"].command_config(EnvConfig().commands).p_beyond >= 0.5
+    assert by["sensor_noise"].randomization["latency_steps"] == [2, 2]
+    assert by["six_modes"].scripted
+    assert by["singular_pass"].scripted
+    assert not by["payload"].scripted
+
+
+def test_six_modes_sequence_follows_seed_000(env, shipped):
+    sc = shipped.select(["six_modes"]).scenarios[0]
+    cmds = episodes.scripted_commands(env, sc)
+    per = round(sc.commands.segment_s / env.config.control_dt)
+    gap = round(sc.commands.pause_s / env.config.control_dt)
+    for i, (_, unit, _) in enumerate(SIX_MODES.values()):
+        seg = cmds[i * (per + gap) : i * (per + gap) + per]
+        assert np.all(seg == seg[0])
+        direction = seg[0] / np.linalg.norm(seg[0])
+        np.testing.assert_allclose(direction, np.asarray(unit) / np.linalg.norm(unit), atol=1e-6)
+        assert np.all(cmds[i * (per + gap) + per : (i + 1) * (per + gap)] == 0)
+    assert np.all(cmds[6 * (per + gap) :] == 0)  # then stop
+
+
+def test_singular_pass_drags_two_wheels_and_is_closed(env, shipped):
+    sc = shipped.select(["singular_pass"]).scenarios[0]
+    cmds = episodes.scripted_commands(env, sc)
+    moving = cmds[np.linalg.norm(cmds, axis=-1) > 0]
+    assert len(moving) > 0
+    still = np.asarray(singularity.singular_wheels(env.geometry, jnp.asarray(moving), tol=1e-5))
+    assert np.all(still.sum(axis=-1) == 2)  # two wheels only dragged at every moving step
+    path = evaluation.intended_poses(cmds[None], env.config.control_dt)[0]
+    np.testing.assert_allclose(path[-1], 0.0, atol=1e-5)  # out and back: a closed sequence
+    assert np.max(np.linalg.norm(path[:, :2], axis=-1)) > 0.5
+
+
+def test_episodes_do_not_follow_the_targets_command_mix(env, shipped):
+    """A policy trained on another episode mix is judged on the same episodes."""
+    from mecanum_jax.task import CommandConfig, RandomizationConfig
+
+    other = MecanumEnv(
+        dataclasses.replace(
+            env.config,
+            commands=CommandConfig(p_zero=0.0, p_translation=1.0, resample_max_s=9.0),
+            randomization=RandomizationConfig(nominal_share=0.5),
+        )
+    )
+    sc = shipped.select(["nominal"], 4, 3.0).scenarios[0]
+    a, b = episodes.prepare(env, sc), episodes.prepare(other, sc)
+    assert np.any(np.asarray(a.commands)[..., 2] != 0)  # spins: not the other's mix
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+def test_prepare_is_seeded_and_applies_the_physics(env, shipped):
+    sets = shipped.select(["slippery", "payload", "radius_error", "weak_motors", "sensor_noise"])
+    by = {s.name: episodes.prepare(env, s) for s in sets.scenarios}
+    again = episodes.prepare(env, sets.scenarios[0])
+    for a, b in zip(jax.tree.leaves(again), jax.tree.leaves(by["slippery"]), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    f = np.asarray(by["slippery"].params.friction)
+    assert f.min() >= 0.12 * 0.9 - 1e-6
+    assert f.max() <= 0.2 * 1.1 + 1e-6
+    p = by["payload"].params
+    assert np.all(np.asarray(p.payload_mass) >= 2.5)
+    np.testing.assert_allclose(np.asarray(p.payload_com)[:, :2], [[0.06, 0.04]] * 32, atol=1e-6)
+    r = np.asarray(by["radius_error"].params.radius_scale)
+    assert r.max() < 1.0
+    assert r.min() > 0.93
+    nominal_torque = env.robot.nominal_params().torque_limit
+    np.testing.assert_allclose(by["weak_motors"].params.torque_limit[0], 0.5 * nominal_torque)
+    assert np.all(np.asarray(by["sensor_noise"].latency) == 2)
+    np.testing.assert_allclose(by["sensor_noise"].noise_std[0], 2 * env.noise_std())
+    # different scenarios draw different episodes from the same seed
+    assert not np.array_equal(by["payload"].commands, by["radius_error"].commands)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("[scenarios.a]\nbogus = 1", "scenarios.a.bogus = 1: unknown key"),
+        (
+            "[scenarios.a.randomization]\nfriction = [0.5, 0.2]",
+            "scenarios.a.randomization.friction = [0.5, 0.2]: lower bound above upper",
+        ),
+        ('[scenarios.a.commands]\nkind = "zigzag"', "scenarios.a.commands.kind = 'zigzag'"),
+        (
+            '[scenarios.a]\nseconds = 2.0\n[scenarios.a.commands]\nkind = "sequence"\n'
+            "sequence = [[0.5, 0, 0, 3.0]]",
+            "scenarios.a.commands.sequence = '3.0 s': longer than the episode",
+        ),
+        (
+            '[scenarios.a.commands]\nkind = "sequence"\nsequence = [[3.0, 0, 0, 1.0]]',
+            'scenarios.a.commands.sequence[0] = [3.0, 0.0, 0.0, 1.0]: units = "reach"',
+        ),
+        ('[scenarios.a.commands]\nkind = "six_modes"\np_zero = 0.5', "scenarios.a.commands.p_zero"),
+        ("[scenarios.Bad]\n", "scenarios.Bad = 'Bad': scenario names are lower_snake_case"),
+        ("[scenarios.a]\nepisodes = 0", "scenarios.a.episodes = 0: must be in [1, 4096]"),
+        ("[scenarios.a.noise]\nscale = -1.0", "scenarios.a.noise.scale = -1.0: must be >= 0"),
+        ("[defaults]\nseed = 'x'\n[scenarios.a]", "defaults.seed = 'x': expected an integer"),
+        ("[defaults]\n", "expected at least one [scenarios.<name>] table"),
+        ("[scenarios.a.randomization]\nenabled = false", "scenarios.a.randomization.enabled"),
+    ],
+)
+def test_bad_scenario_files_name_the_field(tmp_path, text, message):
+    path = tmp_path / "s.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as err:
+        scenarios.load_scenarios(path)
+    assert message in str(err.value)
+
+
+def test_scenario_selection_errors(shipped):
+    with pytest.raises(ConfigError, match=r"scenario 'icy': not in .* available: \['nominal'"):
+        shipped.select(["icy"])
+    with pytest.raises(ConfigError, match="episodes = 0"):
+        shipped.select(episodes=0)
+    with pytest.raises(ConfigError, match="no such scenario file"):
+        scenarios.load_scenarios("nonexistent")
+
+
+def test_singular_pass_needs_a_layout_with_singular_directions(shipped):
+    env3 = MecanumEnv(EnvConfig(robot="centripetal3"))
+    sc = shipped.select(["singular_pass"]).scenarios[0]
+    with pytest.raises(ConfigError, match="has no singular directions"):
+        episodes.scripted_commands(env3, sc)

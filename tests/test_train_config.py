@@ -1,0 +1,117 @@
+"""The training configs: validation, help texts and the saved form."""
+
+import ast
+import dataclasses
+import inspect
+import itertools
+import textwrap
+import tomllib
+
+import pytest
+
+from mecanum_jax.config import ConfigError
+from mecanum_jax.task import EnvConfig
+from train.cli import train as cli
+from train.config import (
+    TRAIN_CONFIG_DIR,
+    TrainConfig,
+    load_train_config,
+    parse_train_config,
+)
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--ppo.num-envs", "7"], "ppo.num_envs = 7"),
+        (["--ppo.learning-rate", "-1"], "ppo.learning_rate = -1.0"),
+        (["--run.seeds", "1", "1"], "run.seeds"),
+        (["--run.seeds", "4294967296"], "seeds must be < 2**32"),
+        (["--env.randomization.friction", "0.5", "0.1"], "env.randomization.friction"),
+        (["--run.progress-every-s", "0"], "run.progress_every_s = 0.0: must be > 0 seconds"),
+        (["--run.progress-every-s", "inf"], "run.progress_every_s = inf: must be > 0 seconds"),
+    ],
+)
+def test_cli_rejects_bad_overrides_before_compiling(args, message, tmp_path, capsys):
+    code = cli.main(["--config", "tiny", "--run-dir", str(tmp_path / "r"), *args])
+    assert code == 2
+    assert message in capsys.readouterr().err.replace("\n", "")
+    assert not (tmp_path / "r").exists()
+
+
+def test_bad_config_files(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "x"\n[ppo]\nnum_envz = 3\n')
+    with pytest.raises(ConfigError, match=r"ppo\.num_envz = 3: unknown key"):
+        load_train_config(bad)
+    with pytest.raises(ConfigError, match="no such file"):
+        load_train_config(tmp_path / "missing.toml")
+    with pytest.raises(ConfigError, match="no such built-in config; known"):
+        load_train_config("no_such_config")
+    assert TrainConfig().validate().num_iterations >= 1
+
+
+def _nested_keys(cls, where=""):
+    """Dotted paths of every leaf field of a config dataclass."""
+    out = []
+    for f in dataclasses.fields(cls):
+        default = getattr(cls(), f.name)
+        path = f"{where}.{f.name}" if where else f.name
+        out += _nested_keys(type(default), path) if dataclasses.is_dataclass(default) else [path]
+    return out
+
+
+def test_shipped_configs_validate_and_spell_out_the_task():
+    """Each shipped config states every task setting: the file a user reads is what runs."""
+    task_keys = _nested_keys(EnvConfig)
+    names = sorted(p.stem for p in TRAIN_CONFIG_DIR.glob("*.toml"))
+    assert {"quick", "tiny", "gpu", "scratch"} <= set(names)
+    for name in names:
+        cfg = load_train_config(name)
+        assert cfg.name == name
+        raw = tomllib.loads((TRAIN_CONFIG_DIR / f"{name}.toml").read_text())
+        for key in task_keys:
+            table = raw["env"]
+            for part in key.split("."):
+                assert part in table, f"{name}.toml: env.{key} is not spelled out"
+                table = table[part]
+
+
+def _field_docs(cls):
+    """Attribute docstrings of a dataclass's fields (what tyro shows in --help)."""
+    tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+    body = tree.body[0].body
+    docs = {}
+    for node, nxt in itertools.pairwise(body):
+        is_doc = isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant)
+        if isinstance(node, ast.AnnAssign) and is_doc and isinstance(nxt.value.value, str):
+            docs[node.target.id] = nxt.value.value
+    return docs
+
+
+def test_every_config_field_has_help_text(capsys):
+    classes, todo = [], [TrainConfig]
+    while todo:
+        cls = todo.pop()
+        classes.append(cls)
+        for f in dataclasses.fields(cls):
+            value = getattr(cls(), f.name)
+            if dataclasses.is_dataclass(value):
+                todo.append(type(value))
+    # train, env (and its 5 sections), network, ppo (its smoothness, distill, anchor), run
+    assert len(classes) == 13
+    for cls in classes:
+        missing = {f.name for f in dataclasses.fields(cls)} - set(_field_docs(cls))
+        assert not missing, f"{cls.__name__}: fields without a docstring: {sorted(missing)}"
+    with pytest.raises(SystemExit):
+        cli.main(["--help"])
+    assert "Width of the linear tracking kernel" in capsys.readouterr().out
+
+
+def test_saved_configs_with_the_retired_error_cap_still_load():
+    data = TrainConfig().to_dict()
+    data["env"]["reward"]["error_cap"] = 0.0
+    assert parse_train_config(data, "old run") == TrainConfig()
+    data["env"]["reward"]["error_cap"] = 2.0
+    with pytest.raises(ConfigError, match=r"env\.reward\.error_cap = 2\.0: unknown key"):
+        parse_train_config(data, "old run")
