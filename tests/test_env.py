@@ -308,12 +308,13 @@ def test_action_filter_applies_and_observes_the_low_passed_action():
         twin = plain_step(twin, jnp.asarray(applied))  # the same action, unfiltered
         np.testing.assert_allclose(state.info["last_action"], applied, rtol=1e-6)
         np.testing.assert_allclose(state.obs["state"][last], applied, rtol=1e-6)
+        # two programs, rounded apart by the contact solve (3e-5); a wrong action: ~0.1
         np.testing.assert_allclose(
             np.asarray(state.pipeline_state.data.qvel),
             np.asarray(twin.pipeline_state.data.qvel),
             rtol=1e-4,
             atol=1e-4,
-        )  # fmt: skip (two programs, rounded apart by the contact solve; a wrong action: ~0.1)
+        )
     assert abs(applied[0]) < 1.0  # the filter held the first step back
 
 
