@@ -100,9 +100,12 @@ def robot_copy(run_dir: Path, given: str) -> Path | None:
         named = None
     if named is not None and sha256(named) == entry["sha256"]:
         return None
+    # an original still there differs from the copy: the one named, else the recorded one
     recorded = Path(str(entry.get("source", "")))
-    original = named or (recorded if recorded.is_file() else None)
-    if original is not None and sha256(original) != entry["sha256"]:
+    original = named
+    if original is None and recorded.is_file() and sha256(recorded) != entry["sha256"]:
+        original = recorded
+    if original is not None:
         warnings.warn(
             f"robot description {str(original)!r} has been edited since training; "
             f"using the run's copy {str(copy)!r}",
