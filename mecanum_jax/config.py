@@ -190,20 +190,30 @@ def find_config(value: str | Path, folder: Path, field: str, what: str) -> Path:
 
 def load_toml(path: str | Path) -> dict[str, Any]:
     """Read a TOML file, turning I/O and syntax errors into :class:`ConfigError`."""
+    return parse_toml(read_config_bytes(path), path)
+
+
+def read_config_bytes(path: str | Path) -> bytes:
+    """A config file's bytes, turning I/O errors into :class:`ConfigError`."""
     path = Path(path)
     try:
-        with path.open("rb") as f:
-            return tomllib.load(f)
+        return path.read_bytes()
     except FileNotFoundError:
         raise ConfigError(f"config file {str(path)!r}: no such file") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"config file {str(path)!r}: invalid TOML: {err}") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"config file {str(path)!r}: not a text file (UTF-8)") from None
     except IsADirectoryError:
         raise ConfigError(f"config file {str(path)!r}: is a directory, not a file") from None
     except OSError as err:
         raise ConfigError(f"config file {str(path)!r}: cannot read it ({err.strerror})") from None
+
+
+def parse_toml(data: bytes, path: str | Path) -> dict[str, Any]:
+    """Parse a config file's bytes (``path`` names it in errors)."""
+    try:
+        return tomllib.loads(data.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise ConfigError(f"config file {str(path)!r}: not a text file (UTF-8)") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"config file {str(path)!r}: invalid TOML: {err}") from None
 
 
 def package_data(packaged: str, in_clone: str) -> Path:

@@ -19,7 +19,14 @@ from typing import Literal
 import jax
 import jax.numpy as jnp
 
-from mecanum_jax.config import CONFIG_DIR, ConfigError, find_config, from_mapping, load_toml
+from mecanum_jax.config import (
+    CONFIG_DIR,
+    ConfigError,
+    find_config,
+    from_mapping,
+    parse_toml,
+    read_config_bytes,
+)
 from mecanum_jax.kinematics import geometry as geo
 from mecanum_jax.kinematics import motors
 from mecanum_jax.sim.specs import (  # the tables, re-exported: callers import them from here
@@ -267,14 +274,11 @@ def load_description(path: str | Path) -> RobotDescription:
     """Load and validate a robot description TOML file: parsed once per process while its
     bytes stay the same (the same frozen description comes back); an edited file is
     parsed again."""
-    file = Path(path).resolve()
-    try:
-        digest = hashlib.sha256(file.read_bytes()).digest()
-    except OSError:  # unreadable: load_toml below says why
-        digest = b""
+    data = read_config_bytes(path)  # read once: what is hashed is what is parsed
+    file, digest = Path(path).resolve(), hashlib.sha256(data).digest()
     known = _LOADED.get(file)
-    if not digest or known is None or known[0] != digest:
-        known = (digest, parse_description(load_toml(path), source=str(path)))
+    if known is None or known[0] != digest:
+        known = (digest, parse_description(parse_toml(data, path), source=str(path)))
         _LOADED[file] = known
     return known[1]
 
