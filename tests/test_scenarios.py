@@ -156,3 +156,18 @@ def test_singular_pass_needs_a_layout_with_singular_directions(shipped):
     sc = shipped.select(["singular_pass"]).scenarios[0]
     with pytest.raises(ConfigError, match="has no singular directions"):
         episodes.scripted_commands(env3, sc)
+
+
+def test_reach_split_keeps_commands_on_their_side_of_the_reach(env):
+    """configs/eval/reach.toml: its *within* episodes never command beyond the wheels'
+    reach and its *beyond* episodes always do, away from stops (a stop is within reach)."""
+
+    split = scenarios.load_scenarios("reach").select(["nominal_within", "nominal_beyond"], 8, 4.0)
+    c = env.constants
+    for sc in split.scenarios:
+        cmd = np.asarray(episodes.prepare(env, sc).commands).reshape(-1, 3)
+        cmd = cmd[np.any(cmd != 0.0, axis=-1)]
+        assert len(cmd), sc.name
+        rates = np.abs(cmd @ np.asarray(c.jacobian).T)
+        beyond = np.max(rates / np.asarray(c.max_rates), axis=-1) > 1.0 + 1e-6
+        assert np.all(beyond) if sc.name.endswith("beyond") else not np.any(beyond), sc.name
