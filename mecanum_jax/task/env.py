@@ -72,7 +72,7 @@ class MecanumEnv(Env):
         )
         self.geometry, self.n_wheels, self.max_rates = c.geometry, c.n_wheels, c.max_rates
         self.command_scale, self.nominal_params = c.command_scale, c.nominal_params
-        self.jacobian, self.forward_matrix = c.jacobian, c.forward_matrix
+        self.jacobian = c.jacobian
         n = self.n_wheels
         self.max_rate = float(np.max(np.asarray(self.max_rates)))
         self.max_latency = config.randomization.latency_steps[1]
