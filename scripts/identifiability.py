@@ -29,6 +29,8 @@ import optax
 from rich.console import Console
 from rich.table import Table
 
+from mecanum_jax.evaluation import metrics
+from mecanum_jax.kinematics import limits
 from mecanum_jax.task import MecanumEnv
 from mecanum_jax.task import observations as obs_
 from mecanum_jax.task.references import REFERENCES
@@ -61,11 +63,8 @@ def rollout(env: MecanumEnv, key: jax.Array, robots: int, steps: int) -> dict[st
     scale = np.asarray(c.command_scale)
     at = obs_.entry_start(env.privileged_layout, "true_twist")
     error = priv[..., at : at + 3] * scale - cmd  # the twist after the step, SI
-    since = np.zeros(cmd.shape[:2], int)
-    for t in range(1, steps):
-        same = np.all(cmd[:, t] == cmd[:, t - 1], axis=-1)
-        since[:, t] = np.where(same, since[:, t - 1] + 1, 0)
-    load = np.max(np.abs(cmd @ np.asarray(c.jacobian).T) / np.asarray(c.max_rates), axis=-1)
+    load = np.asarray(limits.saturation(c.geometry, cmd, c.max_rates))
+    since = metrics.steps_since_change(cmd)
     steady = (since >= STEADY_STEPS) & (load <= 1.0) & np.any(cmd != 0, axis=-1)
     params = priv[..., at + 3 :]  # the randomized parameters after the true twist
     return {"state": state, "params": params, "error": error, "steady": steady}

@@ -22,6 +22,7 @@ def test_ridge_recovers_a_linear_map_and_rms_splits_the_axes():
 def test_rollout_labels_feedbacks_next_error_on_steady_commands_within_reach():
     import jax
 
+    from mecanum_jax.kinematics import limits
     from mecanum_jax.task import EnvConfig, MecanumEnv
 
     cfg = EnvConfig(obs_history=2, physics_impl="jax")
@@ -31,7 +32,7 @@ def test_rollout_labels_feedbacks_next_error_on_steady_commands_within_reach():
     assert d["error"].shape == (64, 40, 3)
     assert d["steady"].shape == (64, 40)
     cmd = d["state"][..., :3] * np.asarray(c.command_scale)  # the command comes first
-    load = np.max(np.abs(cmd @ np.asarray(c.jacobian).T) / np.asarray(c.max_rates), axis=-1)
+    load = np.asarray(limits.saturation(c.geometry, cmd, c.max_rates))
     assert not np.any(d["steady"][:, :25])  # 0.5 s into the episode at the earliest
     assert np.all(load[d["steady"]] <= 1.0 + 1e-5)
     assert np.any(d["steady"])
