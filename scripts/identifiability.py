@@ -29,6 +29,7 @@ import optax
 from rich.console import Console
 from rich.table import Table
 
+from mecanum_jax.config import ConfigError
 from mecanum_jax.evaluation import metrics
 from mecanum_jax.kinematics import limits
 from mecanum_jax.task import MecanumEnv
@@ -131,11 +132,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, nargs="+", default=[0, 10, 25])
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
-    if args.robots < CHUNK or args.robots % CHUNK or args.steps <= STEADY_STEPS:
-        ap.error(f"--robots must be a multiple of {CHUNK}, --steps > {STEADY_STEPS}")
+    if args.robots < CHUNK or args.robots % CHUNK:
+        ap.error(f"--robots = {args.robots}: must be a positive multiple of {CHUNK}")
+    if args.steps <= STEADY_STEPS:
+        ap.error(f"--steps = {args.steps}: must be > {STEADY_STEPS} (the steady steps start there)")
+    if args.fit_steps < 1 or min(args.frames) < 0:
+        ap.error(f"--fit-steps = {args.fit_steps}, --frames = {args.frames}: need >= 1 and >= 0")
+    try:  # a bad config or frame count: one line naming the field and value
+        cfg = load_train_config(args.config).env
+        cfg = dataclasses.replace(cfg, obs_history=max(args.frames), physics_impl="jax")
+        cfg.validate()
+    except ConfigError as err:
+        ap.error(str(err))
     jax.config.update("jax_platforms", "cpu")
-    cfg = load_train_config(args.config).env
-    cfg = dataclasses.replace(cfg, obs_history=max(args.frames), physics_impl="jax")
     share = cfg.randomization.nominal_share
     pops = {
         "randomized": dataclasses.replace(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scripts.identifiability import features, fit_ridge, rms, rollout
+from scripts.identifiability import features, fit_ridge, main, rms, rollout
 
 
 def test_ridge_recovers_a_linear_map_and_rms_splits_the_axes():
@@ -41,3 +41,19 @@ def test_rollout_labels_feedbacks_next_error_on_steady_commands_within_reach():
     assert features(d, env, 0).shape[-1] == base
     assert features(d, env, 2).shape[-1] == base + 2 * (n + 1 + 3 + 3)
     assert features(d, env, None).shape[-1] == base + d["params"].shape[-1]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--robots", "10"], "--robots = 10"),
+        (["--steps", "5"], "--steps = 5"),
+        (["--frames", "60"], "env.obs_history = 60"),
+        (["--config", "nosuch"], "config = 'nosuch'"),
+    ],
+)
+def test_bad_arguments_name_the_field_and_value(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    assert message in capsys.readouterr().err
