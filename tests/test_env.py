@@ -181,6 +181,24 @@ def test_rewards_and_metrics_are_consistent(env, rollout):
     assert np.all(np.isfinite(np.asarray(states.obs["state"])))
 
 
+def test_reward_target_feasible_scores_the_nearest_feasible_twist():
+    """Beyond reach the feasible target's error is measured against the nearest feasible
+    twist of the robot as it is, not the command (a command within reach: the same)."""
+    cfg = EnvConfig(reward=RewardConfig(target="feasible"), randomization=EnvConfig().randomization)
+    env = MecanumEnv(cfg)
+    s = env.reset(jax.random.PRNGKey(3))
+    far = 3.0 * env.command_scale * jnp.array([1.0, 0.0, 0.5])  # beyond any wheel's reach
+    s = env.set_command(s, far)
+    nxt = jax.jit(env.step)(s, jnp.zeros(env.action_size))
+    truth = np.asarray(env.robot.sensors(nxt.pipeline_state).twist)
+    target = np.asarray(env.feasible_target(far, s.info["params"].radius_scale))
+    assert np.linalg.norm(target - np.asarray(far)) > 0.5  # the target is not the command
+    m = nxt.metrics
+    np.testing.assert_allclose(
+        [m["error/vx2"], m["error/vy2"], m["error/wz2"]], (truth - target) ** 2, rtol=1e-4
+    )
+
+
 @pytest.mark.full
 def test_observation_latency_delays_sensors():
     cfg = EnvConfig(
@@ -248,6 +266,7 @@ def test_a_share_of_nominal_robots_leaves_the_other_draws_alone(env):
         ({"commands": {"p_zero": -1}}, "env.commands.p_zero = -1"),
         ({"reward": {"sigma_lin": 0}}, "env.reward.sigma_lin = 0"),
         ({"reward": {"energy": -1}}, "env.reward.energy = -1"),
+        ({"reward": {"target": "goal"}}, "env.reward.target = 'goal'"),
         ({"robot": "no_such_robot"}, "env.robot = 'no_such_robot'"),
         ({"noise": {"gyro": "big"}}, "env.noise.gyro = 'big'"),
         ({"action_filter": 1.0}, "env.action_filter = 1.0"),

@@ -176,8 +176,11 @@ class MecanumEnv(Env):
             )
         sim = self.robot.step(state.pipeline_state, rates, params, self.substeps)
         sens = self.robot.sensors(sim)
+        target = command
+        if cfg.reward.target == "feasible":  # what the evaluation scores (RewardConfig)
+            target = self.feasible_target(command, params.radius_scale)
         reward, metrics = step_reward(
-            cfg.reward, sens, command, action, info["last_action"], params,
+            cfg.reward, sens, target, action, info["last_action"], params,
             cfg.control_dt,
         )  # fmt: skip
         metrics["unstable"] = sim.unstable.astype(jnp.float32)

@@ -12,7 +12,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from mecanum_jax.config import require
+from mecanum_jax.config import invalid, require
 from mecanum_jax.sim.state import RobotParams, Sensors
 
 
@@ -37,11 +37,22 @@ class RewardConfig:
     """Scale of −|a_t − a_(t−1)|², actions in [-1, 1] (>= 0)."""
     energy: float = 0.0005
     """Scale of −Σ|τ·ω|, the wheels' mechanical power in W (>= 0)."""
+    target: str = "command"
+    """What the twist error is measured against: "command", or "feasible", the nearest
+    feasible twist of the robot as it is (the evaluation's steady-state target,
+    MecanumEnv.feasible_target), so that beyond reach the reward asks for what the
+    metric scores and its weights act only within reach."""
 
     def validate(self, where: str = "env.reward") -> None:
         """Check values; raise :class:`ConfigError` naming the field."""
         require(self, where, ("sigma_lin", "sigma_ang"), lambda v: v > 0, "must be > 0")
         require(self, where, REWARD_TERMS, lambda v: v >= 0, "must be >= 0 (a weight)")
+        if self.target not in REWARD_TARGETS:
+            raise invalid(f"{where}.target", self.target, f"expected one of {REWARD_TARGETS}")
+
+
+REWARD_TARGETS = ("command", "feasible")
+"""What :attr:`RewardConfig.target` may name."""
 
 
 REWARD_TERMS = (
@@ -99,15 +110,16 @@ METRIC_NAMES = (
 def step_reward(
     cfg: RewardConfig,
     sens: Sensors,
-    command: jax.Array,
+    target: jax.Array,
     action: jax.Array,
     last_action: jax.Array,
     params: RobotParams,
     control_dt: float,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """The reward of one control step and its metrics (:data:`METRIC_NAMES`, less
-    ``unstable``, which the physics reports)."""
-    err = sens.twist - command
+    ``unstable``, which the physics reports); ``target``: the twist tracked, the command or
+    its nearest feasible twist (:attr:`RewardConfig.target`)."""
+    err = sens.twist - target
     power = jnp.sum(jnp.abs(sens.wheel_torque * sens.wheel_rate))
     scaled = scaled_reward_terms(reward_terms(err, action, last_action, power, cfg), cfg)
     reward = sum(scaled.values(), jnp.asarray(0.0))
@@ -127,6 +139,7 @@ def step_reward(
 
 __all__ = [
     "METRIC_NAMES",
+    "REWARD_TARGETS",
     "REWARD_TERMS",
     "RewardConfig",
     "reward_terms",
