@@ -109,9 +109,10 @@ def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) ->
     if args.model:
         teacher = restored.cfg.network.teacher
         out = package_model(restored, Path(args.out), {"teacher": teacher, **extra})
-        if not teacher:
+        why = unexportable(restored)
+        if not why:
             export_policy(restored, out / "policy.npz")
-        console.log(f"wrote model directory {out}" + (" (a teacher: no export)" if teacher else ""))
+        console.log(f"wrote model directory {out}" + (f" (no export: {why})" if why else ""))
         return 0
     if args.format == "onnx":
         try:
@@ -130,13 +131,35 @@ def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) ->
     return 0
 
 
+def unexportable(restored: RestoredPolicy) -> str:
+    """Why no robot could run this policy ("" if one can): a teacher, or settings the
+    deployed control loop (mecanum_jax.deploy, NumPy and ONNX) does not reproduce yet."""
+    cfg = restored.cfg
+    if cfg.network.teacher:
+        return (
+            "network.teacher = true: a teacher policy observes the simulator's truth (true "
+            "twist, friction, payload, ...), which no robot can measure"
+        )
+    if cfg.env.authority.mode != "constant":
+        return (
+            f"env.authority.mode = {cfg.env.authority.mode!r}: the residual's bound is "
+            "scheduled on slip signals the deployed control loop does not compute yet"
+        )
+    if not cfg.env.residual_in_transient:
+        return (
+            "env.residual_in_transient = false: the deployed control loop does not hold the "
+            "correction off after command changes yet"
+        )
+    return ""
+
+
 def check_exportable(restored: RestoredPolicy) -> None:
-    """Raise :class:`CheckpointError` for a policy no robot could run: a teacher."""
-    if restored.cfg.network.teacher:
+    """Raise :class:`CheckpointError` for a policy no robot could run (:func:`unexportable`)."""
+    why = unexportable(restored)
+    if why:
         raise checkpoint.CheckpointError(
-            f"{str(restored.run_dir)!r}: network.teacher = true: a teacher policy observes "
-            "the simulator's truth (true twist, friction, payload, ...), which no robot can "
-            "measure, so it is not exported; evaluate it with mecanum-eval"
+            f"{str(restored.run_dir)!r}: {why}, so it is not exported; evaluate it with "
+            "mecanum-eval on its model directory (mecanum-export RUN OUT --model)"
         )
 
 
