@@ -22,7 +22,7 @@ from mecanum_jax.task import (
     reward_terms,
 )
 from mecanum_jax.task.commands import sample_command
-from mecanum_jax.task.references import FeedbackConfig, baseline_rates
+from mecanum_jax.task.references import baseline_rates
 
 
 @pytest.fixture(scope="session")
@@ -197,22 +197,6 @@ def test_reward_target_feasible_scores_the_nearest_feasible_twist():
     np.testing.assert_allclose(
         [m["error/vx2"], m["error/vy2"], m["error/wz2"]], (truth - target) ** 2, rtol=1e-4
     )
-
-
-def test_residual_in_transient_false_leaves_the_step_to_the_base():
-    """For feedback.hold_s after a command change the action is taken as 0 (the base's
-    setpoints), then it applies; hold_s = 0 has no transient to leave out."""
-    fb = FeedbackConfig(hold_s=0.06)  # 3 control periods
-    env = MecanumEnv(EnvConfig(residual_in_transient=False, feedback=fb, residual_scale=0.5))
-    s = env.set_command(env.reset(jax.random.PRNGKey(1)), jnp.array([0.3, 0.0, 0.0]))
-    step = jax.jit(env.step)
-    applied = []
-    for _ in range(5):
-        s = step(s, jnp.ones(env.action_size))
-        applied.append(float(s.info["last_action"][0]))
-    assert applied == [0.0, 0.0, 0.0, 1.0, 1.0]
-    with pytest.raises(ConfigError, match=r"env\.residual_in_transient = False"):
-        EnvConfig(residual_in_transient=False, feedback=FeedbackConfig(hold_s=0.0)).validate()
 
 
 @pytest.mark.full

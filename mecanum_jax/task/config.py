@@ -8,7 +8,6 @@ from pathlib import Path
 
 from mecanum_jax.config import from_mapping, invalid, load_toml, require, validated_once
 from mecanum_jax.sim.description import IMPLS, RobotDescription, resolve_description
-from mecanum_jax.task.authority import AuthorityConfig
 from mecanum_jax.task.commands import CommandConfig
 from mecanum_jax.task.observations import NoiseConfig
 from mecanum_jax.task.randomization import RandomizationConfig
@@ -63,19 +62,10 @@ class EnvConfig:
     down as on the way up); a correction that brakes harder leaves it short
     (docs/evaluation.md).
 
-    residual_in_transient = false turns it off, the same way, for feedback.hold_s after
-    each command change, while the feedback integrator holds: the base alone takes the
-    step, and the correction, learned for steady states, fades in after it.
-
     obs_history = H > 0 appends the H sensor frames before the observed one (encoders,
     gyro, accelerometer, odometry twist, as observed: noisy and as delayed as the current
     frame), newest first: the 0.5 to 1 s of history (25 to 50 frames at 20 ms) from which a
     student infers what a privileged teacher reads (friction, payload, motor gains).
-
-    authority.mode = "slip" (with residual = true) schedules the residual's bound between
-    authority.floor and residual_scale on the slip the robot measures (gyro against wheel
-    odometry, servo lag; AuthorityConfig): near the base controller alone on the nominal
-    robot, the full bound where it slips. The policy observes the gate (authority).
     """
 
     robot: str = "o_rectangle"
@@ -104,9 +94,6 @@ class EnvConfig:
     """Time constant of the observed leaky yaw-rate error integral, s (>= 0; 0: off)."""
     residual_at_stop: bool = True
     """Whether the residual acts while the command is a stop (false: the base alone stops)."""
-    residual_in_transient: bool = True
-    """Whether the residual acts while feedback's integrator holds after a command change
-    (false: the base alone takes the step for feedback.hold_s; needs it > 0)."""
     action_filter: float = 0.0
     """Low-pass factor of the actions, f in [0, 1): applied = f·previous + (1 − f)·new (0: off)."""
     obs_history: int = 0
@@ -122,8 +109,6 @@ class EnvConfig:
     """Reward scales."""
     feedback: FeedbackConfig = FeedbackConfig()
     """The feedback reference controller's gains."""
-    authority: AuthorityConfig = AuthorityConfig()
-    """The residual's bound: constant, or scheduled on measured slip (mode "slip")."""
 
     @validated_once  # each config once, however many layers ask
     def validate(self, where: str = "env") -> EnvConfig:
@@ -147,12 +132,6 @@ class EnvConfig:
             raise invalid(
                 f"{where}.residual_at_stop", self.residual_at_stop, "needs residual = true"
             )
-        if not self.residual_in_transient and not (self.residual and self.feedback.hold_s > 0):
-            raise invalid(
-                f"{where}.residual_in_transient",
-                self.residual_in_transient,
-                "needs residual = true and feedback.hold_s > 0 (the transient it leaves out)",
-            )
         if self.residual_base == "feedback" and not self.residual:
             raise invalid(f"{where}.residual_base", self.residual_base, "needs residual = true")
         self.commands.validate(f"{where}.commands")
@@ -160,7 +139,6 @@ class EnvConfig:
         self.noise.validate(f"{where}.noise")
         self.reward.validate(f"{where}.reward")
         self.feedback.validate(f"{where}.feedback")
-        self._validate_authority(where)
         self.description(where)  # the robot must load
         return self
 
@@ -197,18 +175,6 @@ class EnvConfig:
             f"must be in [0, {MAX_OBS_HISTORY}] (frames of {self.control_dt} s; 0: none)",
         )
 
-    def _validate_authority(self, where: str) -> None:
-        a = self.authority
-        a.validate(f"{where}.authority")
-        if a.slip and not self.residual:
-            raise invalid(f"{where}.authority.mode", a.mode, "needs residual = true")
-        if a.slip and a.floor > self.residual_scale:
-            raise invalid(
-                f"{where}.authority.floor",
-                a.floor,
-                f"must be <= residual_scale = {self.residual_scale}",
-            )
-
     def description(self, where: str = "env") -> RobotDescription:
         """The robot description, with this task's physics timestep and contact time constant."""
         desc = resolve_description(self.robot, where)
@@ -239,7 +205,6 @@ __all__ = [
     "MAX_OBS_HISTORY",
     "RESIDUAL_BASES",
     "RESIDUAL_SPACES",
-    "AuthorityConfig",
     "CommandConfig",
     "EnvConfig",
     "FeedbackConfig",

@@ -19,9 +19,7 @@ drive it unchanged. Its parts live beside it:
   iterations no robot tips over, under the baseline or random actions (docs/training.md).
 - **Actions** in [-1, 1] per wheel. ``residual = true``: wheel-rate setpoints are the
   analytic baseline's plus ``action · residual_scale · max_rate``, so the zero action *is*
-  the baseline. ``residual = false``: setpoints are ``action · max_rate``. With
-  ``authority.mode = "slip"`` the bound ``residual_scale`` is scheduled on measured slip
-  (:mod:`.authority`).
+  the baseline. ``residual = false``: setpoints are ``action · max_rate``.
 """
 
 from __future__ import annotations
@@ -42,7 +40,6 @@ from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.sim.batching import chunked_vmap, cpu_chunk
 from mecanum_jax.sim.physics import Robot
 from mecanum_jax.sim.state import RobotParams, Sensors, select
-from mecanum_jax.task import authority as auth
 from mecanum_jax.task import commands as cmds
 from mecanum_jax.task import fidelity as fid
 from mecanum_jax.task import observations as obs_
@@ -85,14 +82,12 @@ class MecanumEnv(Env):
         # the sensor frames kept: the latest latency_steps[1] + 1 and the observed history
         self.history_frames = self.max_latency + 1 + config.obs_history
         self.feedback_base = config.residual and config.residual_base == "feedback"
-        self.slip_authority = config.authority.slip  # the bound scheduled (.authority)
         self.layout = obs_.policy_layout(
             n,
             self._action_size,
             config.yaw_integral_tau > 0,
             self.feedback_base,
             config.obs_history,
-            self.slip_authority,
         )
         self.privileged_layout = obs_.privileged_layout(self.layout, n)
 
@@ -149,8 +144,6 @@ class MecanumEnv(Env):
             "feedback_gains": self.feedback_gains(),
             "truncation": jnp.asarray(0.0),
         }
-        if self.slip_authority:
-            info.update(auth.initial(self.n_wheels))
         info = refs.track_command(self.config.feedback, self.config.control_dt, info)
         obs = self._observe(sens, info)
         metrics = {k: jnp.asarray(0.0) for k in self.metric_names}
@@ -166,9 +159,6 @@ class MecanumEnv(Env):
         action = jnp.clip(action, -1.0, 1.0)
         if not cfg.residual_at_stop:  # the base alone stops (EnvConfig)
             action = jnp.where(jnp.all(info["command"] == 0.0), 0.0, action)
-        if not cfg.residual_in_transient:  # the base alone takes each step (EnvConfig)
-            young = info["command_age"] < cfg.feedback.hold_steps(cfg.control_dt)
-            action = jnp.where(young, 0.0, action)
         if cfg.action_filter > 0:  # the applied action, low-passed (EnvConfig)
             f = cfg.action_filter
             action = f * info["last_action"] + (1.0 - f) * action
@@ -209,10 +199,6 @@ class MecanumEnv(Env):
             info["yaw_integral"] = obs_.yaw_integral(
                 c, info, command, cfg.yaw_integral_tau, cfg.control_dt
             )
-        if self.slip_authority:  # the slip signals, as observed now, against the setpoints sent
-            info.update(
-                auth.update(c, cfg.authority, cfg.control_dt, info, obs_.delayed(info), rates)
-            )
         obs = self._observe(sens, info)
         return state.replace(pipeline_state=sim, obs=obs, reward=reward, metrics=metrics, info=info)
 
@@ -235,13 +221,7 @@ class MecanumEnv(Env):
         self, command: jax.Array, action: jax.Array, info: dict[str, Any] | None = None
     ) -> jax.Array:
         """Wheel-rate setpoints (rad/s) for an action in [-1, 1]^action_size under ``command``
-        (``info``: the state, for a residual on the ``feedback`` controller or a bound
-        scheduled on slip)."""
-        scale: float | jax.Array = self.config.residual_scale
-        if self.slip_authority:
-            if info is None:
-                raise ValueError("wheel_setpoints: authority.mode = 'slip' needs the state")
-            scale = self.residual_bound(info)
+        (``info``: the state, for a residual on the ``feedback`` controller)."""
         if self.feedback_base:
             if info is None:
                 raise ValueError("wheel_setpoints: residual_base = 'feedback' needs the state")
@@ -251,31 +231,18 @@ class MecanumEnv(Env):
         elif self.config.residual:
             base = refs.baseline_rates(self.constants, command)
         if self.twist_residual:
-            correction = action * (scale * self.command_scale)
+            correction = action * (self.config.residual_scale * self.command_scale)
             rates = base + kinematics.apply_rows(self.jacobian, correction)
         elif self.config.residual:
-            rates = base + action * (scale * self.max_rates)
+            rates = base + action * (self.config.residual_scale * self.max_rates)
         else:
             rates = action * self.max_rates
         return jnp.clip(rates, -self.max_rates, self.max_rates)
 
-    def residual_bound(self, info: dict[str, Any]) -> jax.Array:
-        """The residual's bound (a fraction, like ``residual_scale``) in the state ``info``
-        (``authority.mode = "slip"``)."""
-        cfg = self.config
-        return auth.bound(cfg.authority, cfg.residual_scale, auth.gate(cfg.authority, info))
-
     def _observe(self, sens: Sensors, info: dict[str, Any]) -> dict[str, jax.Array]:
         cfg = self.config
-        gate = auth.gate(cfg.authority, info) if self.slip_authority else None
         return obs_.observe(
-            self.constants,
-            sens,
-            info,
-            cfg.yaw_integral_tau,
-            self.feedback_base,
-            cfg.obs_history,
-            gate,
+            self.constants, sens, info, cfg.yaw_integral_tau, self.feedback_base, cfg.obs_history
         )
 
     def noise_std(self, noise: NoiseConfig | None = None) -> jax.Array:

@@ -58,11 +58,9 @@ def policy_layout(
     yaw_integral: bool,
     feedback_integral: bool = False,
     history: int = 0,
-    authority: bool = False,
 ) -> Layout:
     """The policy observation's entries and their sizes, in order; ``history`` earlier
-    sensor frames come last. ``authority``: the residual's scheduled gate
-    (:mod:`.authority`)."""
+    sensor frames come last."""
     layout: Layout = (
         ("command", 3),
         ("wheel_rate", n_wheels),
@@ -75,8 +73,6 @@ def policy_layout(
         layout = (*layout, ("yaw_error_integral", 1))
     if feedback_integral:
         layout = (*layout, ("feedback_integral", 1))
-    if authority:
-        layout = (*layout, ("authority", 1))
     if history > 0:
         layout = (*layout, ("sensor_history", history * sensor_size(n_wheels)))
     return layout
@@ -164,19 +160,15 @@ def observe(
     yaw_integral_tau: float,
     feedback_integral: bool,
     history: int,
-    authority: jax.Array | None = None,
 ) -> dict[str, jax.Array]:
     """The policy's and the critic's observations of the state ``info`` describes (the
-    entries as :func:`policy_layout` lists them; ``authority``: the gate, where the
-    residual's bound is scheduled)."""
+    entries as :func:`policy_layout` lists them)."""
     scale = robot.command_scale
     parts = [info["command"] / scale, delayed(info), info["last_action"]]
     if yaw_integral_tau > 0:
         parts.append((info["yaw_integral"] / (yaw_integral_tau * scale[2]))[None])
     if feedback_integral:  # the integrator of the controller the residual corrects, rad/s
         parts.append((info["feedback_integral"] / scale[2])[None])
-    if authority is not None:
-        parts.append(jnp.reshape(authority, (1,)))
     if history > 0:
         parts.append(past_sensors(info, history))
     state = jnp.concatenate(parts)

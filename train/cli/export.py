@@ -109,10 +109,9 @@ def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) ->
     if args.model:
         teacher = restored.cfg.network.teacher
         out = package_model(restored, Path(args.out), {"teacher": teacher, **extra})
-        why = unexportable(restored)
-        if not why:
+        if not teacher:
             export_policy(restored, out / "policy.npz")
-        console.log(f"wrote model directory {out}" + (f" (no export: {why})" if why else ""))
+        console.log(f"wrote model directory {out}" + (" (a teacher: no export)" if teacher else ""))
         return 0
     if args.format == "onnx":
         try:
@@ -131,35 +130,13 @@ def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) ->
     return 0
 
 
-def unexportable(restored: RestoredPolicy) -> str:
-    """Why no robot could run this policy ("" if one can): a teacher, or settings the
-    deployed control loop (mecanum_jax.deploy, NumPy and ONNX) does not reproduce yet."""
-    cfg = restored.cfg
-    if cfg.network.teacher:
-        return (
-            "network.teacher = true: a teacher policy observes the simulator's truth (true "
-            "twist, friction, payload, ...), which no robot can measure"
-        )
-    if cfg.env.authority.mode != "constant":
-        return (
-            f"env.authority.mode = {cfg.env.authority.mode!r}: the residual's bound is "
-            "scheduled on slip signals the deployed control loop does not compute yet"
-        )
-    if not cfg.env.residual_in_transient:
-        return (
-            "env.residual_in_transient = false: the deployed control loop does not hold the "
-            "correction off after command changes yet"
-        )
-    return ""
-
-
 def check_exportable(restored: RestoredPolicy) -> None:
-    """Raise :class:`CheckpointError` for a policy no robot could run (:func:`unexportable`)."""
-    why = unexportable(restored)
-    if why:
+    """Raise :class:`CheckpointError` for a policy no robot could run: a teacher."""
+    if restored.cfg.network.teacher:
         raise checkpoint.CheckpointError(
-            f"{str(restored.run_dir)!r}: {why}, so it is not exported; evaluate it with "
-            "mecanum-eval on its model directory (mecanum-export RUN OUT --model)"
+            f"{str(restored.run_dir)!r}: network.teacher = true: a teacher policy observes "
+            "the simulator's truth (true twist, friction, payload, ...), which no robot can "
+            "measure, so it is not exported; evaluate it with mecanum-eval"
         )
 
 
