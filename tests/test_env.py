@@ -184,8 +184,7 @@ def test_rewards_and_metrics_are_consistent(env, rollout):
 def test_reward_target_feasible_scores_the_nearest_feasible_twist():
     """Beyond reach the feasible target's error is measured against the nearest feasible
     twist of the robot as it is, not the command (a command within reach: the same)."""
-    cfg = EnvConfig(reward=RewardConfig(target="feasible"), randomization=EnvConfig().randomization)
-    env = MecanumEnv(cfg)
+    env = MecanumEnv(EnvConfig(reward=RewardConfig(target="feasible")))
     s = env.reset(jax.random.PRNGKey(3))
     far = 3.0 * env.command_scale * jnp.array([1.0, 0.0, 0.5])  # beyond any wheel's reach
     s = env.set_command(s, far)
@@ -193,6 +192,8 @@ def test_reward_target_feasible_scores_the_nearest_feasible_twist():
     truth = np.asarray(env.robot.sensors(nxt.pipeline_state).twist)
     target = np.asarray(env.feasible_target(far, s.info["params"].radius_scale))
     assert np.linalg.norm(target - np.asarray(far)) > 0.5  # the target is not the command
+    near = 0.3 * env.command_scale * jnp.array([1.0, 0.0, 0.0])
+    np.testing.assert_array_equal(env.feasible_target(near, s.info["params"].radius_scale), near)
     m = nxt.metrics
     np.testing.assert_allclose(
         [m["error/vx2"], m["error/vy2"], m["error/wz2"]], (truth - target) ** 2, rtol=1e-4

@@ -150,7 +150,8 @@ def _nearest(t: jax.Array, A: jax.Array, b: jax.Array, omega_weight: float) -> j
 
 
 def _dot(x: jax.Array, y: jax.Array) -> jax.Array:
-    """Row-wise dot products, elementwise (exact in float32 on every device, no matmul)."""
+    """Row-wise dot products as elementwise products and a sum: no matmul, so no matmul
+    precision setting can change them on any device."""
     return jnp.sum(x * y, axis=-1)
 
 
