@@ -11,7 +11,7 @@ plus the critic's randomized parameters (what a privileged teacher knows). Predi
 fitted on 3/4 of the robots, in the config's share of nominal ones, and judged on the rest:
 the RMS error left after subtracting the prediction, on randomized and on nominal robots,
 beside `feedback`'s own. A predictor that leaves the nominal robot worse than `feedback`
-would cost it precision as a correction (docs/training.md, "What limits it"). Open loop:
+would cost it precision as a correction (docs/controller.md, "What limits it"). Open loop:
 it bounds what one correction could do, not what a trained policy does. CPU, about
 8 minutes at the defaults.
 """
