@@ -11,7 +11,8 @@ them as ``/tmp/tune-reports/tune_NAME.json``) and ranks every candidate against
    product is judged on: the training mix's ss v, ss ωz, settling of v and ωz and energy;
    the nominal robot's ss ωz and settling of ωz; the translations' ss ωz and energy; the
    closed path's ss ωz and final drift; the spins' ss ωz and energy; the motion modes' ss ωz
-   and final drift.
+   and final drift; the slippery floors' ss ωz and settling of ωz; the settling of v and ωz
+   with noisy sensors.
 
 Prints one row per candidate and, last, the path of the chosen one's model (the report's
 ``target``), so that a device call can evaluate it on held-out scenarios next::
@@ -55,6 +56,8 @@ FIGURES = (
     ("tuning_modes", "drift_m"),
     ("tuning_slippery", "ss_wz"),
     ("tuning_slippery", "settle_wz_s"),
+    ("tuning_noisy", "settle_lin_s"),
+    ("tuning_noisy", "settle_wz_s"),
 )
 """(scenario, metric) pairs whose ratios to ``analytic`` the geometric mean takes."""
 

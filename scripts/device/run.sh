@@ -17,8 +17,8 @@
 #                           each packaged as /tmp/model_sK/o_rectangle and $OUT/model_sK.tgz
 #   tune [MODEL...]         each MODEL (default /tmp/model/o_rectangle) and models/o_rectangle
 #                           on the tuning episodes (configs/eval/tuning.toml, a seed of its own),
-#                           TUNE_JOBS at a time (default: one per GPU, round robin; 2 per GPU fit on an H100: with the six
-#                           tuning scenarios 3 ran out of memory; TUNE_SHIPPED=0 leaves
+#                           TUNE_JOBS at a time (default: one per GPU, round robin; on an H100 2 per GPU fit with six
+#                           tuning scenarios, 3 ran out of memory; there are seven now; TUNE_SHIPPED=0 leaves
 #                           models/o_rectangle out, e.g. for a screen whose recipe variant
 #                           stands in for it); then
 #                           scripts/pick_candidate.py ranks
