@@ -309,9 +309,8 @@ def shipped():
 
 
 @pytest.fixture(scope="module")
-def env(shipped):
-    """The evaluation's environment of the default scenarios (a test file's own ``env``
-    fixture overrides it)."""
+def eval_env(shipped):
+    """The evaluation's environment of the default scenarios."""
     from mecanum_jax.evaluation.episodes import eval_env_config
     from mecanum_jax.task import EnvConfig, MecanumEnv
 

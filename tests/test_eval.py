@@ -30,8 +30,8 @@ def small(shipped):
 
 
 @pytest.fixture(scope="module")
-def baseline_evaluator(env):
-    return evaluation.Evaluator(env)
+def baseline_evaluator(eval_env):
+    return evaluation.Evaluator(eval_env)
 
 
 def test_evaluation_streams_never_meet_training_streams(learner, shipped):
@@ -102,14 +102,14 @@ def test_summarize_on_a_known_trace():
 
 
 @pytest.mark.full  # tens of seconds of XLA compilation on 2 cores
-def test_baseline_rollout_tracks_and_is_deterministic(env, small, baseline_evaluator):
+def test_baseline_rollout_tracks_and_is_deterministic(eval_env, small, baseline_evaluator):
     sc = small.scenarios[2]  # nominal, random commands
-    batch = episodes.prepare(env, sc)
+    batch = episodes.prepare(eval_env, sc)
     a = baseline_evaluator.run(batch)
     b = baseline_evaluator.run(batch)
     np.testing.assert_array_equal(a.twist, b.twist)
     np.testing.assert_array_equal(a.command, np.asarray(batch.commands))
-    m = evaluation.summarize(a, env.config.control_dt, False, env.jacobian)
+    m = evaluation.summarize(a, eval_env.config.control_dt, False, eval_env.jacobian)
     assert m["unstable"] == 0
     # it tracks: far better than standing still
     still = np.sqrt(np.mean(np.sum(a.command[..., :2] ** 2, axis=-1)))
@@ -117,20 +117,20 @@ def test_baseline_rollout_tracks_and_is_deterministic(env, small, baseline_evalu
 
 
 @pytest.mark.full  # a policy's rollout program: about 35 s of compilation on 2 cores
-def test_references_apply_no_action_beside_a_policy(env, small):
+def test_references_apply_no_action_beside_a_policy(eval_env, small):
     """In a policy's evaluation the references' traces hold no action (flicker 0): the
     policy's output, computed on every rollout, is applied and recorded only for it."""
 
     def jittery(params, obs):  # a policy whose action follows its (noisy) sensors
         del params
-        return jnp.tanh(10.0 * obs["state"][..., 3 : 3 + env.action_size])
+        return jnp.tanh(10.0 * obs["state"][..., 3 : 3 + eval_env.action_size])
 
-    ev = evaluation.Evaluator(env, jittery)
-    batch = episodes.prepare(env, small.scenarios[2])
+    ev = evaluation.Evaluator(eval_env, jittery)
+    batch = episodes.prepare(eval_env, small.scenarios[2])
     pol, ana = ev.run_many([(batch, "policy"), (batch, "analytic")])
     assert np.max(np.abs(pol.action)) > 0.01
     np.testing.assert_array_equal(ana.action, 0.0)
-    jac, dt = env.jacobian, env.config.control_dt
+    jac, dt = eval_env.jacobian, eval_env.config.control_dt
     assert evaluation.trace_parts(ana, jac, dt)["flicker"].value() == 0.0
     assert evaluation.trace_parts(pol, jac, dt)["flicker"].value() > 0.0
 
@@ -282,12 +282,12 @@ def test_interrupted_evaluation_leaves_no_complete_looking_report(tmp_path, monk
 
 
 @pytest.mark.full
-def test_run_many_chunks_and_pads_like_single_runs(env, shipped, baseline_evaluator):
+def test_run_many_chunks_and_pads_like_single_runs(eval_env, shipped, baseline_evaluator):
     """Jobs merged, cut into chunks of 4 robots (the last padded) and split back give the
     same traces as one batch per job."""
     chosen = shipped.select(["payload", "singular_pass"], episodes=3, seconds=1.0)
-    batches = [episodes.prepare(env, s) for s in chosen.scenarios]
-    chunked = evaluation.Evaluator(env, max_batch=4)
+    batches = [episodes.prepare(eval_env, s) for s in chosen.scenarios]
+    chunked = evaluation.Evaluator(eval_env, max_batch=4)
     calls = []
     jobs = [(b, "analytic") for b in batches]
     many = chunked.run_many(jobs, progress=lambda d, t: calls.append(t))

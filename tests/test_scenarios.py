@@ -40,11 +40,11 @@ def test_default_scenarios_are_the_issue_list(shipped):
     assert not by["payload"].scripted
 
 
-def test_six_modes_sequence_follows_seed_000(env, shipped):
+def test_six_modes_sequence_follows_seed_000(eval_env, shipped):
     sc = shipped.select(["six_modes"]).scenarios[0]
-    cmds = episodes.scripted_commands(env, sc)
-    per = round(sc.commands.segment_s / env.config.control_dt)
-    gap = round(sc.commands.pause_s / env.config.control_dt)
+    cmds = episodes.scripted_commands(eval_env, sc)
+    per = round(sc.commands.segment_s / eval_env.config.control_dt)
+    gap = round(sc.commands.pause_s / eval_env.config.control_dt)
     for i, (_, unit, _) in enumerate(SIX_MODES.values()):
         seg = cmds[i * (per + gap) : i * (per + gap) + per]
         assert np.all(seg == seg[0])
@@ -54,40 +54,42 @@ def test_six_modes_sequence_follows_seed_000(env, shipped):
     assert np.all(cmds[6 * (per + gap) :] == 0)  # then stop
 
 
-def test_singular_pass_drags_two_wheels_and_is_closed(env, shipped):
+def test_singular_pass_drags_two_wheels_and_is_closed(eval_env, shipped):
     sc = shipped.select(["singular_pass"]).scenarios[0]
-    cmds = episodes.scripted_commands(env, sc)
+    cmds = episodes.scripted_commands(eval_env, sc)
     moving = cmds[np.linalg.norm(cmds, axis=-1) > 0]
     assert len(moving) > 0
-    still = np.asarray(singularity.singular_wheels(env.geometry, jnp.asarray(moving), tol=1e-5))
+    still = np.asarray(
+        singularity.singular_wheels(eval_env.geometry, jnp.asarray(moving), tol=1e-5)
+    )
     assert np.all(still.sum(axis=-1) == 2)  # two wheels only dragged at every moving step
-    path = evaluation.intended_poses(cmds[None], env.config.control_dt)[0]
+    path = evaluation.intended_poses(cmds[None], eval_env.config.control_dt)[0]
     np.testing.assert_allclose(path[-1], 0.0, atol=1e-5)  # out and back: a closed sequence
     assert np.max(np.linalg.norm(path[:, :2], axis=-1)) > 0.5
 
 
-def test_episodes_do_not_follow_the_targets_command_mix(env, shipped):
+def test_episodes_do_not_follow_the_targets_command_mix(eval_env, shipped):
     """A policy trained on another episode mix is judged on the same episodes."""
     from mecanum_jax.task import CommandConfig, RandomizationConfig
 
     other = MecanumEnv(
         dataclasses.replace(
-            env.config,
+            eval_env.config,
             commands=CommandConfig(p_zero=0.0, p_translation=1.0, resample_max_s=9.0),
             randomization=RandomizationConfig(nominal_share=0.5),
         )
     )
     sc = shipped.select(["nominal"], 4, 3.0).scenarios[0]
-    a, b = episodes.prepare(env, sc), episodes.prepare(other, sc)
+    a, b = episodes.prepare(eval_env, sc), episodes.prepare(other, sc)
     assert np.any(np.asarray(a.commands)[..., 2] != 0)  # spins: not the other's mix
     for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
-def test_prepare_is_seeded_and_applies_the_physics(env, shipped):
+def test_prepare_is_seeded_and_applies_the_physics(eval_env, shipped):
     sets = shipped.select(["slippery", "payload", "radius_error", "weak_motors", "sensor_noise"])
-    by = {s.name: episodes.prepare(env, s) for s in sets.scenarios}
-    again = episodes.prepare(env, sets.scenarios[0])
+    by = {s.name: episodes.prepare(eval_env, s) for s in sets.scenarios}
+    again = episodes.prepare(eval_env, sets.scenarios[0])
     for a, b in zip(jax.tree.leaves(again), jax.tree.leaves(by["slippery"]), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     f = np.asarray(by["slippery"].params.friction)
@@ -99,10 +101,10 @@ def test_prepare_is_seeded_and_applies_the_physics(env, shipped):
     r = np.asarray(by["radius_error"].params.radius_scale)
     assert r.max() < 1.0
     assert r.min() > 0.93
-    nominal_torque = env.robot.nominal_params().torque_limit
+    nominal_torque = eval_env.robot.nominal_params().torque_limit
     np.testing.assert_allclose(by["weak_motors"].params.torque_limit[0], 0.5 * nominal_torque)
     assert np.all(np.asarray(by["sensor_noise"].latency) == 2)
-    np.testing.assert_allclose(by["sensor_noise"].noise_std[0], 2 * env.noise_std())
+    np.testing.assert_allclose(by["sensor_noise"].noise_std[0], 2 * eval_env.noise_std())
     # different scenarios draw different episodes from the same seed
     assert not np.array_equal(by["payload"].commands, by["radius_error"].commands)
 
@@ -158,14 +160,14 @@ def test_singular_pass_needs_a_layout_with_singular_directions(shipped):
         episodes.scripted_commands(env3, sc)
 
 
-def test_reach_split_keeps_commands_on_their_side_of_the_reach(env):
+def test_reach_split_keeps_commands_on_their_side_of_the_reach(eval_env):
     """configs/eval/reach.toml: its *within* episodes never command beyond the wheels'
     reach and its *beyond* episodes always do, away from stops (a stop is within reach)."""
 
     split = scenarios.load_scenarios("reach").select(["nominal_within", "nominal_beyond"], 8, 4.0)
-    c = env.constants
+    c = eval_env.constants
     for sc in split.scenarios:
-        cmd = np.asarray(episodes.prepare(env, sc).commands).reshape(-1, 3)
+        cmd = np.asarray(episodes.prepare(eval_env, sc).commands).reshape(-1, 3)
         cmd = cmd[np.any(cmd != 0.0, axis=-1)]
         assert len(cmd), sc.name
         beyond = np.asarray(limits.saturation(c.geometry, cmd, c.max_rates)) > 1.0 + 1e-6
