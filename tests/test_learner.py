@@ -7,7 +7,6 @@ import jax
 import numpy as np
 import optax
 import pytest
-from brax.training.agents.ppo import networks as ppo_networks
 from brax.training.agents.ppo.losses import PPONetworkParams
 from learners import deterministic_policy, random_obs
 
@@ -19,7 +18,7 @@ from train.config import (
 )
 from train.learner.periodic import COMPARED, Result, beats, compare
 from train.learner.ppo import to_host
-from train.learner.state import gradient_clip, initial_policy, make_optimizer
+from train.learner.state import gradient_clip, make_optimizer
 from train.store import leaves
 
 
@@ -90,26 +89,6 @@ def test_untrained_policy_explores_with_the_configured_noise(learner):
     std = np.asarray(dist.scale)
     assert std.shape == (16, learner.env.action_size)
     np.testing.assert_allclose(std, learner.cfg.network.init_noise_std, rtol=1e-5)
-
-
-def test_twist_residual_explores_wz_with_its_own_noise(learner):
-    """network.init_noise_std_ang sets the ωz action's initial std of a twist residual,
-    the others keep init_noise_std; a wheel-space action refuses it, naming the field."""
-    cfg = dataclasses.replace(
-        learner.cfg,
-        env=dataclasses.replace(learner.cfg.env, residual_space="twist"),
-        network=dataclasses.replace(
-            learner.cfg.network, init_noise_std=0.3, init_noise_std_ang=0.075
-        ),
-    )
-    cfg.validate()
-    nets = ppo_networks.make_ppo_networks(learner.env.observation_size, 3)
-    layers = initial_policy(nets, jax.random.PRNGKey(0), 3, cfg)["params"]
-    bias = np.asarray(layers[max(layers, key=lambda n: int(n.rsplit("_", 1)[-1]))]["bias"])
-    np.testing.assert_allclose(np.log1p(np.exp(bias[3:6])) + 0.001, [0.3, 0.3, 0.075], 1e-5)
-    wheel = dataclasses.replace(cfg, env=learner.cfg.env)
-    with pytest.raises(ConfigError, match=r"network\.init_noise_std_ang.*0\.075"):
-        wheel.validate()
 
 
 @pytest.mark.parametrize("per_network", [True, False])

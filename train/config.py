@@ -43,10 +43,6 @@ class NetworkConfig:
     """Hidden-layer activation of both networks."""
     init_noise_std: float = 0.5
     """Initial exploration standard deviation of the policy's actions (> 0)."""
-    init_noise_std_ang: float = 0.0
-    """With a twist-space residual, the initial exploration std of the ωz action alone
-    (0: ``init_noise_std``). Actions are fractions of the reach, 11 rad/s against 2.5 m/s
-    on the shipped robot, so one std explores ωz 4.4 times as hard as v in absolute terms."""
     privileged_critic: bool = True
     """The value function also sees the true twist and the randomized parameters."""
     teacher: bool = False
@@ -193,14 +189,6 @@ class TrainConfig:
                     f"network.{field}", list(sizes), "need at least one layer, sizes >= 1"
                 )
         require(n, "network", ("init_noise_std",), lambda v: v > 0, "must be > 0")
-        require(n, "network", ("init_noise_std_ang",), lambda v: v >= 0, "must be >= 0")
-        twist = self.env.residual and self.env.residual_space == "twist"
-        if n.init_noise_std_ang > 0 and not twist:
-            raise invalid(
-                "network.init_noise_std_ang",
-                n.init_noise_std_ang,
-                "needs env.residual = true and env.residual_space = 'twist' (an ωz action)",
-            )
         p = self.ppo
         counts = (
             "num_timesteps",

@@ -130,10 +130,6 @@ def _labels(params: ppo_losses.PPONetworkParams) -> ppo_losses.PPONetworkParams:
     )
 
 
-def _softplus_inv(x: float) -> float:
-    return math.log(math.expm1(x))
-
-
 def initial_policy(
     networks: ppo_networks.PPONetworks, key: jax.Array, action_size: int, cfg: TrainConfig
 ) -> Any:
@@ -143,8 +139,7 @@ def initial_policy(
     ``[a, 2a)``, ``std = softplus(out) + 0.001``, and ignores ``init_noise_std``: its
     random output layer starts the std anywhere in 0.25–2 (mean ≈ 0.7) per state. Here
     the scale outputs start state-independent at ``init_noise_std`` (zero kernel, bias
-    ``softplus⁻¹(init_noise_std − 0.001)``; the ωz action of a twist residual at
-    ``init_noise_std_ang`` when set); they stay learnable and state-dependent.
+    ``softplus⁻¹(init_noise_std − 0.001)``); they stay learnable and state-dependent.
     ``zero_init_mean`` also zeroes the mean outputs (the untrained policy is then the
     baseline, with residual actions).
     """
@@ -154,11 +149,9 @@ def initial_policy(
     a = action_size
     out = dict(layers[last])
     kernel, bias = out["kernel"], out["bias"]
-    stds = [cfg.network.init_noise_std] * a
-    if cfg.network.init_noise_std_ang > 0:
-        stds[2] = cfg.network.init_noise_std_ang  # a twist residual's (vx, vy, ωz)
+    std = max(cfg.network.init_noise_std - 0.001, 1e-6)
     kernel = kernel.at[:, a:].set(0.0)
-    bias = bias.at[a:].set(jnp.asarray([_softplus_inv(max(s - 0.001, 1e-6)) for s in stds]))
+    bias = bias.at[a:].set(math.log(math.expm1(std)))  # softplus⁻¹
     if cfg.network.zero_init_mean:
         kernel = kernel.at[:, :a].set(0.0)
         bias = bias.at[:a].set(0.0)
