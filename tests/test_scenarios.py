@@ -172,3 +172,17 @@ def test_reach_split_keeps_commands_on_their_side_of_the_reach(eval_env):
         assert len(cmd), sc.name
         beyond = np.asarray(limits.saturation(c.geometry, cmd, c.max_rates)) > 1.0 + 1e-6
         assert np.all(beyond) if sc.name.endswith("beyond") else not np.any(beyond), sc.name
+
+
+def test_latency_split_varies_noise_and_latency_alone():
+    """configs/eval/latency.toml: each scenario is the nominal robot at the noise scale and
+    latency its name gives (noise<k>_lat<l>), so settling can be split between the two."""
+    split = scenarios.load_scenarios("latency")
+    assert len(split.scenarios) == 5
+    for sc in split.scenarios:
+        noise, lat = sc.name.removeprefix("noise").split("_lat")
+        assert sc.noise.scale == float(noise), sc.name
+        rand = sc.randomization_config(1.0)
+        assert tuple(rand.latency_steps) == (int(lat), int(lat)), sc.name
+        assert set(sc.randomization) <= {"latency_steps"}, sc.name
+        assert not sc.mix, sc.name
