@@ -19,7 +19,7 @@
 #                           on the tuning episodes (configs/eval/tuning.toml, a seed of its own),
 #                           TUNE_JOBS at a time (default: one per GPU, round robin; with the
 #                           seven tuning scenarios 4 at once ran on one H200; with six, 3 on
-#                           one H100 ran out of memory); TUNE_SHIPPED=0 leaves
+#                           one H100 ran out of memory, 2 fit); TUNE_SHIPPED=0 leaves
 #                           models/o_rectangle out, e.g. for a screen whose recipe variant
 #                           stands in for it; then
 #                           scripts/pick_candidate.py ranks
