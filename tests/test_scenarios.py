@@ -186,3 +186,23 @@ def test_latency_split_varies_noise_and_latency_alone():
         assert tuple(rand.latency_steps) == (int(lat), int(lat)), sc.name
         assert set(sc.randomization) <= {"latency_steps"}, sc.name
         assert not sc.mix, sc.name
+
+
+def test_starts_are_single_translations_from_rest_at_the_named_speed():
+    """configs/eval/starts.toml: each scenario is the nominal robot with the training's sensor
+    noise, one pure translation from rest at the fraction of the reach its name gives
+    (direction_<percent>), then at least 1.5 s of stop, on the tuning seed."""
+    starts = scenarios.load_scenarios("starts")
+    tuning_seed = scenarios.load_scenarios("tuning").scenarios[0].seed
+    directions = {"forward": (1, 0), "backward": (-1, 0), "right": (0, -1)}
+    assert {sc.name.split("_")[0] for sc in starts.scenarios} == set(directions)
+    for sc in starts.scenarios:
+        where, percent = sc.name.split("_")
+        assert sc.seed == tuning_seed, sc.name
+        assert not sc.randomization, sc.name
+        assert not sc.mix, sc.name
+        assert sc.noise.scale == 1.0, sc.name
+        ((vx, vy, wz, seconds),) = sc.commands.sequence
+        dx, dy = directions[where]
+        assert (vx, vy, wz) == pytest.approx((dx * int(percent) / 100, dy * int(percent) / 100, 0))
+        assert sc.seconds - seconds >= 1.5, sc.name
