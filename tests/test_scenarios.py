@@ -176,10 +176,13 @@ def test_reach_split_keeps_commands_on_their_side_of_the_reach(eval_env):
 
 def test_latency_split_varies_noise_and_latency_alone():
     """configs/eval/latency.toml: each scenario is the nominal robot at the noise scale and
-    latency its name gives (noise<k>_lat<l>), so settling can be split between the two."""
+    latency its name gives (noise<k>_lat<l>), on the tuning seed, so settling can be split
+    between the two."""
     split = scenarios.load_scenarios("latency")
+    tuning_seed = scenarios.load_scenarios("tuning").scenarios[0].seed
     assert len(split.scenarios) == 5
     for sc in split.scenarios:
+        assert sc.seed == tuning_seed, sc.name
         noise, lat = sc.name.removeprefix("noise").split("_lat")
         assert sc.noise.scale == float(noise), sc.name
         rand = sc.randomization_config(1.0)
