@@ -146,6 +146,39 @@ def test_policy_warmup_ramps_only_the_policy():
         ).validate()
 
 
+def test_learning_rate_decays_to_its_final_fraction():
+    """ppo.learning_rate_final: Adam's steps (constant gradients: ±rate each) follow a cosine
+    from learning_rate to that fraction of it over the run's updates, then stay there."""
+    base = TrainConfig(ppo=PPOConfig(num_envs=8, batch_size=8, num_minibatches=2))
+    cfg = dataclasses.replace(
+        base,
+        ppo=dataclasses.replace(
+            base.ppo, num_timesteps=2 * base.steps_per_iteration, learning_rate_final=0.1
+        ),
+    )
+    total = cfg.num_iterations * cfg.ppo.num_minibatches * cfg.ppo.num_updates_per_batch  # 16
+    opt = make_optimizer(cfg)
+    params = PPONetworkParams(
+        policy={"w": np.zeros(1, np.float32)}, value={"w": np.zeros(1, np.float32)}
+    )
+    grads = PPONetworkParams(
+        policy={"w": np.ones(1, np.float32)}, value={"w": np.ones(1, np.float32)}
+    )
+    state, steps = opt.init(params), []
+    for _ in range(total + 3):
+        out, state = opt.update(grads, state, params)
+        steps.append(-float(out.policy["w"][0]))
+    lr = cfg.ppo.learning_rate
+    np.testing.assert_allclose(steps[0], lr, rtol=1e-4)
+    half = lr * (0.1 + 0.9 * 0.5)  # cosine at half the updates: midway
+    np.testing.assert_allclose(steps[total // 2], half, rtol=1e-3)
+    np.testing.assert_allclose(steps[total:], 0.1 * lr, rtol=1e-3)
+    with pytest.raises(ConfigError, match=r"ppo\.learning_rate_final.*1\.5"):
+        dataclasses.replace(
+            cfg, ppo=dataclasses.replace(cfg.ppo, learning_rate_final=1.5)
+        ).validate()
+
+
 def test_checkpoints_hold_only_numpy_arrays(learner):
     """Orbax refuses process-local jax.Arrays in multi-process runs; some optimizer states
     rebuild their leaves as jax arrays, so the packing converts leaf by leaf."""

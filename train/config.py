@@ -76,6 +76,9 @@ class PPOConfig:
     """Passes over the collected data per iteration (>= 1)."""
     learning_rate: float = 3e-4
     """Adam learning rate (> 0)."""
+    learning_rate_final: float = 1.0
+    """The learning rate at ``num_timesteps``, as a fraction of ``learning_rate``, reached by
+    a cosine decay over the run's updates (in [0, 1]; 1: constant)."""
     entropy_cost: float = 1e-3
     """Weight of the policy entropy bonus (>= 0)."""
     discounting: float = 0.97
@@ -207,6 +210,7 @@ class TrainConfig:
             "must be > 0",
         )
         require(p, "ppo", ("entropy_cost",), lambda v: v >= 0, "must be >= 0")
+        require(p, "ppo", ("learning_rate_final",), lambda v: 0 <= v <= 1, "must be in [0, 1]")
         require(p, "ppo", ("clip_observations",), lambda v: v >= 0, "must be >= 0 (0: off)")
         require(p, "ppo", ("policy_warmup_steps",), lambda v: v >= 0, "must be >= 0 (0: off)")
         p.smoothness.validate("ppo.smoothness")

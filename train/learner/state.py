@@ -104,13 +104,18 @@ def gradient_clip(cfg: TrainConfig) -> optax.GradientTransformation:
 
 
 def make_optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
-    """Adam after :func:`gradient_clip`; with ``ppo.policy_warmup_steps``, the policy's
-    updates ramp up linearly from zero (the value function's do not)."""
+    """Adam after :func:`gradient_clip`, its rate decayed to ``ppo.learning_rate_final``
+    of itself over ``ppo.num_timesteps`` (cosine); with ``ppo.policy_warmup_steps``, the
+    policy's updates ramp up linearly from zero (the value function's do not)."""
     p = cfg.ppo
-    opt = optax.chain(gradient_clip(cfg), optax.adam(p.learning_rate))
+    updates_per_iteration = p.num_minibatches * p.num_updates_per_batch
+    rate: optax.ScalarOrSchedule = p.learning_rate
+    if p.learning_rate_final < 1:
+        updates = cfg.num_iterations * updates_per_iteration
+        rate = optax.cosine_decay_schedule(p.learning_rate, updates, p.learning_rate_final)
+    opt = optax.chain(gradient_clip(cfg), optax.adam(rate))
     if not p.policy_warmup_steps:
         return opt  # (the optimizer state's tree, and so older checkpoints, stay as they were)
-    updates_per_iteration = p.num_minibatches * p.num_updates_per_batch
     warmup_updates = max(
         1, p.policy_warmup_steps * updates_per_iteration // cfg.steps_per_iteration
     )
