@@ -77,8 +77,8 @@ class PPOConfig:
     learning_rate: float = 3e-4
     """Adam learning rate (> 0)."""
     learning_rate_final: float = 1.0
-    """The learning rate at ``num_timesteps``, as a fraction of ``learning_rate``, reached by
-    a cosine decay over the run's updates (in [0, 1]; 1: constant)."""
+    """The learning rate at num_timesteps, as a fraction of learning_rate, reached by a
+    cosine decay over the run's updates (in [0, 1]; 1: constant)."""
     entropy_cost: float = 1e-3
     """Weight of the policy entropy bonus (>= 0)."""
     discounting: float = 0.97
