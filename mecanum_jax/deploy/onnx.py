@@ -5,9 +5,10 @@ The graph holds everything between the observation vector and the servos:
 
 - the observation normalizer (``(obs − mean) / std``, as Brax's running statistics apply
   it) and the observation clip (``± clip_observations``);
-- the policy network, deterministic (``action = tanh(loc)``), 0 at a stop command where
-  the policy was trained with ``residual_at_stop = false``, and low-passed where it was
-  trained with an action filter;
+- the policy network, deterministic (``action = tanh(loc)``), soft-thresholded where the
+  policy was trained with ``residual_deadband``, 0 at a stop command where it was trained
+  with ``residual_at_stop = false``, and low-passed where it was trained with an action
+  filter;
 - the control loop around it: the command read back from the observation's first three
   entries, the analytic baseline (nominal inverse model, desaturated uniformly), the
   residual correction per wheel or of the twist, and the clip to the wheel-rate limits.
@@ -96,6 +97,10 @@ def to_onnx(policy: NumpyPolicy) -> Any:
     scaled = g.op("Slice", "observation", start, g.const("three", [3], np.int64), axis)
     g.const("one", 1.0)
     squashed = g.op("Tanh", loc)
+    d = float(meta.get("residual_deadband") or 0.0)
+    if d > 0:  # soft-thresholded (NumpyPolicy)
+        shrunk = g.op("Relu", g.op("Sub", g.op("Abs", squashed), g.const("deadband", d)))
+        squashed = g.op("Mul", g.op("Sign", squashed), shrunk)
     if not policy.residual_at_stop:  # 0 while the observed command is a stop (NumpyPolicy)
         zero = g.op("Cast", g.op("Equal", scaled, g.const("stop_zero", 0.0)), to=1)  # FLOAT
         stop = g.op("ReduceMin", zero, axes=[-1], keepdims=1)

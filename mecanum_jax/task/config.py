@@ -62,6 +62,13 @@ class EnvConfig:
     down as on the way up); a correction that brakes harder leaves it short
     (docs/evaluation.md).
 
+    residual_deadband = d > 0 soft-thresholds the network's action, before the stop rule
+    and the filter: each component within ±d becomes 0, each beyond it moves d towards 0.
+    On the nominal robot a learned correction is a few thousandths of the bound and
+    follows the sensor noise; in a fast start's wheel slip such a flicker turns into yaw
+    kicks the base never gets (docs/controller.md). The deadband keeps the base's own
+    setpoints there, as `feedback`'s deadband keeps its integrator from the gyro's noise.
+
     obs_history = H > 0 appends the H sensor frames before the observed one (encoders,
     gyro, accelerometer, odometry twist, as observed: noisy and as delayed as the current
     frame), newest first: the 0.5 to 1 s of history (25 to 50 frames at 20 ms) from which a
@@ -96,6 +103,8 @@ class EnvConfig:
     """Whether the residual acts while the command is a stop (false: the base alone stops)."""
     action_filter: float = 0.0
     """Low-pass factor of the actions, f in [0, 1): applied = f·previous + (1 − f)·new (0: off)."""
+    residual_deadband: float = 0.0
+    """Soft threshold of the network's action, in its units, in [0, 1) (0: off)."""
     obs_history: int = 0
     """Earlier sensor frames the policy observes, one control period apart (0 to
     MAX_OBS_HISTORY; 0: none)."""
@@ -132,6 +141,10 @@ class EnvConfig:
             raise invalid(
                 f"{where}.residual_at_stop", self.residual_at_stop, "needs residual = true"
             )
+        if self.residual_deadband > 0 and not self.residual:
+            raise invalid(
+                f"{where}.residual_deadband", self.residual_deadband, "needs residual = true"
+            )
         if self.residual_base == "feedback" and not self.residual:
             raise invalid(f"{where}.residual_base", self.residual_base, "needs residual = true")
         self.commands.validate(f"{where}.commands")
@@ -166,7 +179,8 @@ class EnvConfig:
             "must be >= 0 (0: the robot description's sim.iterations)",
         )
         require(self, where, ("yaw_integral_tau",), lambda v: v >= 0, "must be >= 0 (0: off)")
-        require(self, where, ("action_filter",), lambda v: 0 <= v < 1, "must be in [0, 1) (0: off)")
+        in_unit = ("action_filter", "residual_deadband")
+        require(self, where, in_unit, lambda v: 0 <= v < 1, "must be in [0, 1) (0: off)")
         require(
             self,
             where,

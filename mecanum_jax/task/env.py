@@ -157,6 +157,9 @@ class MecanumEnv(Env):
         info = dict(state.info)
         c, cfg = self.constants, self.config
         action = jnp.clip(action, -1.0, 1.0)
+        if cfg.residual_deadband > 0:  # small corrections dropped (EnvConfig)
+            d = cfg.residual_deadband
+            action = jnp.sign(action) * jnp.maximum(jnp.abs(action) - d, 0.0)
         if not cfg.residual_at_stop:  # the base alone stops (EnvConfig)
             action = jnp.where(jnp.all(info["command"] == 0.0), 0.0, action)
         if cfg.action_filter > 0:  # the applied action, low-passed (EnvConfig)

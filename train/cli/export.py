@@ -176,6 +176,7 @@ def task_meta(env: MecanumEnv) -> dict[str, Any]:
         "obs_history": cfg.obs_history,
         "action_filter": cfg.action_filter,
         "residual_at_stop": cfg.residual_at_stop,
+        "residual_deadband": cfg.residual_deadband,
         "max_rates": np.asarray(env.max_rates).tolist(),
         "command_scale": np.asarray(env.command_scale).tolist(),
         "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),

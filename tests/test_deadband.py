@@ -1,0 +1,92 @@
+"""``env.residual_deadband``: the network's action is soft-thresholded before the stop rule
+and the filter, in the environment, the NumPy policy and the ONNX graph alike."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mecanum_jax.config import ConfigError, from_mapping
+from mecanum_jax.deploy.policy import NumpyPolicy
+from mecanum_jax.task import EnvConfig, MecanumEnv, RandomizationConfig
+from train.cli.export import task_meta
+
+DEADBAND = 0.5
+FILTER = 0.5
+BIAS = np.asarray([0.8, -0.6, 0.4], np.float32)  # tanh: 0.664, -0.537, 0.380
+SHRUNK = np.asarray([np.tanh(0.8) - DEADBAND, -(np.tanh(0.6) - DEADBAND), 0.0], np.float32)
+
+
+@pytest.fixture(scope="module")
+def env():
+    rand = RandomizationConfig(enabled=True, latency_steps=(0, 0))
+    cfg = EnvConfig(
+        residual_space="twist",
+        residual_base="feedback",
+        residual_deadband=DEADBAND,
+        action_filter=FILTER,
+        randomization=rand,
+    )
+    return MecanumEnv(dataclasses.replace(cfg, noise=dataclasses.replace(cfg.noise, scale=0.0)))
+
+
+def constant_policy(env: MecanumEnv) -> NumpyPolicy:
+    """An export of ``env``'s task whose network answers ``tanh(BIAS)`` to any observation."""
+    size = env.observation_size["state"][0]
+    meta = {**task_meta(env), "activation": "tanh"}
+    layers = [(np.zeros((size, env.action_size), np.float32), BIAS)]
+    return NumpyPolicy(layers, np.zeros(size), np.ones(size), meta)
+
+
+def test_numpy_onnx_and_environment_shrink_alike(env):
+    """Within ±d a component becomes 0, beyond it moves d towards 0; then the filter. The
+    NumPy policy, the ONNX graph and the environment's applied action agree."""
+    assert task_meta(env)["residual_deadband"] == DEADBAND
+    policy = constant_policy(env)
+    last = np.asarray([0.4, 0.2, -0.3], np.float32)
+    obs = policy.observation(
+        np.asarray([0.3, 0.0, 0.2]), np.zeros(4), 0.0, np.zeros(3), last, feedback_integral=0.0
+    )
+    expected = FILTER * last + (1 - FILTER) * SHRUNK
+    np.testing.assert_allclose(policy.action(obs), expected, atol=1e-6)
+    ort = pytest.importorskip("onnxruntime")
+    from mecanum_jax.deploy.onnx import to_onnx
+
+    session = ort.InferenceSession(
+        to_onnx(policy).SerializeToString(), providers=["CPUExecutionProvider"]
+    )
+    onnx_action = session.run(["action"], {"observation": obs[None]})[0][0]
+    np.testing.assert_allclose(onnx_action, expected, atol=1e-6)
+    state = jax.jit(env.reset)(jax.random.PRNGKey(0))
+    state = env.set_command(state, jnp.asarray([0.3, 0.0, 0.2]) * env.command_scale)
+    applied = jax.jit(env.step)(state, jnp.asarray(np.tanh(BIAS))).info["last_action"]
+    np.testing.assert_allclose(np.asarray(applied), (1 - FILTER) * SHRUNK, atol=1e-6)
+
+
+def test_no_deadband_passes_the_action_unchanged(env):
+    """At 0 (and in exports from before the field) the network's action passes bit for bit."""
+    meta = {**task_meta(env), "activation": "tanh", "action_filter": 0}
+    del meta["residual_deadband"]
+    size = env.observation_size["state"][0]
+    one, zero = np.ones(size, np.float32), np.zeros(size, np.float32)
+    policy = NumpyPolicy([(np.zeros((size, 3), np.float32), BIAS)], zero, one, meta)
+    obs = np.zeros(size, np.float32)
+    obs[0] = 0.1
+    np.testing.assert_array_equal(policy.action(obs), np.tanh(BIAS))
+
+
+@pytest.mark.parametrize(
+    ("mapping", "message"),
+    [
+        ({"residual": False, "residual_deadband": 0.1}, r"env\.residual_deadband = 0\.1: needs"),
+        ({"residual_deadband": 1.0}, r"env\.residual_deadband = 1\.0: must be in \[0, 1\)"),
+        ({"residual_deadband": -0.01}, r"env\.residual_deadband = -0\.01"),
+    ],
+)
+def test_bad_values_name_the_field(mapping, message):
+    with pytest.raises(ConfigError, match=message):
+        from_mapping(EnvConfig, mapping, "env").validate()
