@@ -64,10 +64,11 @@ class EnvConfig:
 
     residual_deadband = d > 0 soft-thresholds the network's action, before the stop rule
     and the filter: each component within ±d becomes 0, each beyond it moves d towards 0.
-    On the nominal robot a learned correction is a few thousandths of the bound and
-    follows the sensor noise; in a fast start's wheel slip such a flicker turns into yaw
-    kicks the base never gets (docs/controller.md). The deadband keeps the base's own
-    setpoints there, as `feedback`'s deadband keeps its integrator from the gyro's noise.
+    On the nominal robot's straight lines, spins and starts a learned correction is a few
+    thousandths of the bound and follows the sensor noise; in a fast start's wheel slip
+    such a flicker turns into yaw kicks the base never gets (docs/controller.md). The
+    deadband keeps the base's own setpoints there, as `feedback`'s deadband keeps its
+    integrator from the gyro's noise.
 
     obs_history = H > 0 appends the H sensor frames before the observed one (encoders,
     gyro, accelerometer, odometry twist, as observed: noisy and as delayed as the current
