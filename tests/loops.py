@@ -1,4 +1,4 @@
-"""A shared test helper: an exported policy's control loop without its network."""
+"""Shared test helpers: exported policies of a task without a trained network."""
 
 import numpy as np
 
@@ -14,3 +14,12 @@ def network_free(env: MecanumEnv) -> NumpyPolicy:
     size = env.observation_size["state"][0]
     meta = {**task_meta(env), "activation": "tanh"}
     return NumpyPolicy([], np.zeros(size), np.ones(size), meta)
+
+
+def constant(env: MecanumEnv, bias: np.ndarray, **meta: object) -> NumpyPolicy:
+    """An export of ``env``'s task whose network answers ``tanh(bias)`` to any observation
+    (one layer of zero weights, an identity normalizer); ``meta`` overrides export fields."""
+    size = env.observation_size["state"][0]
+    layers = [(np.zeros((size, env.action_size), np.float32), np.asarray(bias, np.float32))]
+    meta = {**task_meta(env), "activation": "tanh", **meta}
+    return NumpyPolicy(layers, np.zeros(size, np.float32), np.ones(size, np.float32), meta)

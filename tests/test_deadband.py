@@ -9,9 +9,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from loops import constant
 
 from mecanum_jax.config import ConfigError, from_mapping
-from mecanum_jax.deploy.policy import NumpyPolicy
 from mecanum_jax.task import EnvConfig, MecanumEnv, RandomizationConfig
 from train.cli.export import task_meta
 
@@ -34,19 +34,11 @@ def env():
     return MecanumEnv(dataclasses.replace(cfg, noise=dataclasses.replace(cfg.noise, scale=0.0)))
 
 
-def constant_policy(env: MecanumEnv) -> NumpyPolicy:
-    """An export of ``env``'s task whose network answers ``tanh(BIAS)`` to any observation."""
-    size = env.observation_size["state"][0]
-    meta = {**task_meta(env), "activation": "tanh"}
-    layers = [(np.zeros((size, env.action_size), np.float32), BIAS)]
-    return NumpyPolicy(layers, np.zeros(size), np.ones(size), meta)
-
-
 def test_numpy_onnx_and_environment_shrink_alike(env):
     """Within ±d a component becomes 0, beyond it moves d towards 0; then the filter. The
     NumPy policy, the ONNX graph and the environment's applied action agree."""
     assert task_meta(env)["residual_deadband"] == DEADBAND
-    policy = constant_policy(env)
+    policy = constant(env, BIAS)
     last = np.asarray([0.4, 0.2, -0.3], np.float32)
     obs = policy.observation(
         np.asarray([0.3, 0.0, 0.2]), np.zeros(4), 0.0, np.zeros(3), last, feedback_integral=0.0
@@ -68,15 +60,13 @@ def test_numpy_onnx_and_environment_shrink_alike(env):
 
 
 def test_no_deadband_passes_the_action_unchanged(env):
-    """At 0 (and in exports from before the field) the network's action passes bit for bit."""
-    meta = {**task_meta(env), "activation": "tanh", "action_filter": 0}
-    del meta["residual_deadband"]
-    size = env.observation_size["state"][0]
-    one, zero = np.ones(size, np.float32), np.zeros(size, np.float32)
-    policy = NumpyPolicy([(np.zeros((size, 3), np.float32), BIAS)], zero, one, meta)
-    obs = np.zeros(size, np.float32)
-    obs[0] = 0.1
-    np.testing.assert_array_equal(policy.action(obs), np.tanh(BIAS))
+    """At 0, and in exports from before the field, the network's action passes bit for bit."""
+    older = constant(env, BIAS, action_filter=0)
+    del older.meta["residual_deadband"]
+    for policy in (constant(env, BIAS, action_filter=0, residual_deadband=0.0), older):
+        obs = np.zeros(policy.observation_size, np.float32)
+        obs[0] = 0.1
+        np.testing.assert_array_equal(policy.action(obs), np.tanh(BIAS))
 
 
 @pytest.mark.parametrize(

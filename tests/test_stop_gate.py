@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from loops import constant
 
 from mecanum_jax.config import ConfigError, from_mapping
 from mecanum_jax.deploy.policy import NumpyPolicy
@@ -34,10 +35,7 @@ def env():
 
 def constant_policy(env: MecanumEnv, at_stop: bool = False) -> NumpyPolicy:
     """An export of ``env``'s task whose network answers ``tanh(BIAS)`` to any observation."""
-    size = env.observation_size["state"][0]
-    meta = {**task_meta(env), "activation": "tanh", "residual_at_stop": at_stop}
-    layers = [(np.zeros((size, env.action_size), np.float32), BIAS)]
-    return NumpyPolicy(layers, np.zeros(size), np.ones(size), meta)
+    return constant(env, BIAS, residual_at_stop=at_stop)
 
 
 def _observation(policy: NumpyPolicy, command, last_action) -> np.ndarray:
