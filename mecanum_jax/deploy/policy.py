@@ -213,6 +213,7 @@ class NumpyPolicy:
         yaw_integral: float | None = None,
         feedback_integral: float | None = None,
         sensor_history: Any = None,
+        latency_steps: float | None = None,
     ) -> np.ndarray:
         """The policy observation from raw measurements (what the environment builds).
 
@@ -229,6 +230,8 @@ class NumpyPolicy:
           sensor_history: (obs_history, frame size) the :meth:`sensor_frame` outputs of the
             control periods before this one, newest first (after a reset: this one's,
             repeated); required when the policy observes them (:attr:`obs_history` > 0).
+          latency_steps: the robot's sensor-to-command delay, control periods; required
+            when the policy observes it (``meta["observe_latency"]``).
         """
         tau = self.yaw_integral_tau
         if tau > 0 and yaw_integral is None:
@@ -251,6 +254,13 @@ class NumpyPolicy:
             parts.append(np.asarray([yaw_integral], np.float32) / (tau * self.command_scale[2]))
         if self.feedback_base:
             parts.append(np.asarray([feedback_integral], np.float32) / self.command_scale[2])
+        if self.meta.get("observe_latency"):
+            if latency_steps is None or not 0 <= float(latency_steps) <= 10:
+                raise ValueError(
+                    f"latency_steps = {latency_steps}: this policy observes its latency; "
+                    "give the robot's delay in control periods, 0 to 10"
+                )
+            parts.append(np.asarray([latency_steps], np.float32))
         if self.obs_history > 0:
             past = None if sensor_history is None else np.asarray(sensor_history, np.float32)
             if past is None or past.shape != (self.obs_history, frame.size):
@@ -376,25 +386,3 @@ def load(path: str | Path) -> NumpyPolicy:
     f32 = {k: v.astype(np.float32) for k, v in data.items() if k[0] in "wb"}
     layers = [(f32[f"w{i}"], f32[f"b{i}"]) for i in range(int(meta["layers"]))]
     return NumpyPolicy(layers, data["obs_mean"], data["obs_std"], meta)
-
-
-def save(
-    path: str | Path,
-    layers: list[tuple[np.ndarray, np.ndarray]],
-    mean: np.ndarray,
-    std: np.ndarray,
-    meta: dict[str, Any],
-) -> Path:
-    """Write an export (atomically: a crash leaves no half-written file)."""
-    path = Path(path)
-    arrays = {f"w{i}": np.asarray(w, np.float32) for i, (w, _) in enumerate(layers)}
-    arrays |= {f"b{i}": np.asarray(b, np.float32) for i, (_, b) in enumerate(layers)}
-    arrays |= {"obs_mean": np.asarray(mean, np.float32), "obs_std": np.asarray(std, np.float32)}
-    arrays["meta"] = np.asarray(json.dumps(dict(meta, format=FORMAT, layers=len(layers))))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".partial")
-    with tmp.open("wb") as f:
-        savez: Any = np.savez
-        savez(f, **arrays)
-    tmp.replace(path)
-    return path

@@ -32,6 +32,7 @@ from rich.console import Console
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.deploy import policy as deploy
+from mecanum_jax.deploy.write import save
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.sim.description import fingerprint
 from mecanum_jax.sim.state import GRAVITY
@@ -143,7 +144,7 @@ def check_exportable(restored: RestoredPolicy) -> None:
 def export_policy(restored: RestoredPolicy, path: Path) -> Path:
     """Write ``policy.npz`` (weights, normalizer, control-loop constants) and copy the
     NumPy inference module beside it as ``mecanum_policy.py``."""
-    path = deploy.save(path, *_policy_arrays(restored))
+    path = save(path, *_policy_arrays(restored))
     shutil.copyfile(deploy.__file__, path.with_name("mecanum_policy.py"))
     shutil.copyfile(Path(deploy.__file__).with_name("loop.py"), path.with_name("mecanum_loop.py"))
     return path
@@ -174,6 +175,7 @@ def task_meta(env: MecanumEnv) -> dict[str, Any]:
         "feedback": dataclasses.asdict(cfg.feedback),
         "yaw_integral_tau": cfg.yaw_integral_tau,
         "obs_history": cfg.obs_history,
+        "observe_latency": cfg.observe_latency,
         "action_filter": cfg.action_filter,
         "residual_at_stop": cfg.residual_at_stop,
         "residual_deadband": cfg.residual_deadband,

@@ -1,0 +1,33 @@
+"""Writing a policy export (the trainer's side; the robot reads it with :mod:`.policy`)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mecanum_jax.deploy.policy import FORMAT
+
+
+def save(
+    path: str | Path,
+    layers: list[tuple[np.ndarray, np.ndarray]],
+    mean: np.ndarray,
+    std: np.ndarray,
+    meta: dict[str, Any],
+) -> Path:
+    """Write an export (atomically: a crash leaves no half-written file)."""
+    path = Path(path)
+    arrays = {f"w{i}": np.asarray(w, np.float32) for i, (w, _) in enumerate(layers)}
+    arrays |= {f"b{i}": np.asarray(b, np.float32) for i, (_, b) in enumerate(layers)}
+    arrays |= {"obs_mean": np.asarray(mean, np.float32), "obs_std": np.asarray(std, np.float32)}
+    arrays["meta"] = np.asarray(json.dumps(dict(meta, format=FORMAT, layers=len(layers))))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".partial")
+    with tmp.open("wb") as f:
+        savez: Any = np.savez
+        savez(f, **arrays)
+    tmp.replace(path)
+    return path
