@@ -30,13 +30,15 @@ def env():
         residual_deadband=DEADBAND,
         action_filter=FILTER,
         randomization=rand,
+        feedback=dataclasses.replace(EnvConfig().feedback, deadband=0.02),  # both deadbands
     )
     return MecanumEnv(dataclasses.replace(cfg, noise=dataclasses.replace(cfg.noise, scale=0.0)))
 
 
 def test_numpy_onnx_and_environment_shrink_alike(env):
     """Within ±d a component becomes 0, beyond it moves d towards 0; then the filter. The
-    NumPy policy, the ONNX graph and the environment's applied action agree."""
+    NumPy policy, the ONNX graph (which holds the feedback controller's deadband too) and
+    the environment's applied action agree, and so do the two exports' setpoints."""
     assert task_meta(env)["residual_deadband"] == DEADBAND
     policy = constant(env, BIAS)
     last = np.asarray([0.4, 0.2, -0.3], np.float32)
@@ -51,8 +53,10 @@ def test_numpy_onnx_and_environment_shrink_alike(env):
     session = ort.InferenceSession(
         to_onnx(policy).SerializeToString(), providers=["CPUExecutionProvider"]
     )
-    onnx_action = session.run(["action"], {"observation": obs[None]})[0][0]
-    np.testing.assert_allclose(onnx_action, expected, atol=1e-6)
+    onnx_action, onnx_rates = session.run(["action", "wheel_setpoints"], {"observation": obs[None]})
+    np.testing.assert_allclose(onnx_action[0], expected, atol=1e-6)
+    rates = policy.wheel_setpoints(np.asarray([0.3, 0.0, 0.2]), expected, obs)
+    np.testing.assert_allclose(onnx_rates[0], rates, rtol=1e-5, atol=1e-4)
     state = jax.jit(env.reset)(jax.random.PRNGKey(0))
     state = env.set_command(state, jnp.asarray([0.3, 0.0, 0.2]) * env.command_scale)
     applied = jax.jit(env.step)(state, jnp.asarray(np.tanh(BIAS))).info["last_action"]

@@ -99,7 +99,7 @@ def to_onnx(policy: NumpyPolicy) -> Any:
     squashed = g.op("Tanh", loc)
     d = float(meta.get("residual_deadband") or 0.0)
     if d > 0:  # soft-thresholded (NumpyPolicy)
-        shrunk = g.op("Relu", g.op("Sub", g.op("Abs", squashed), g.const("deadband", d)))
+        shrunk = g.op("Relu", g.op("Sub", g.op("Abs", squashed), g.const("residual_deadband", d)))
         squashed = g.op("Mul", g.op("Sign", squashed), shrunk)
     if not policy.residual_at_stop:  # 0 while the observed command is a stop (NumpyPolicy)
         zero = g.op("Cast", g.op("Equal", scaled, g.const("stop_zero", 0.0)), to=1)  # FLOAT
@@ -183,7 +183,7 @@ def _feedback_base(g: _Graph, policy: NumpyPolicy, command: str, jt: str, m: str
     u = g.op("Add", g.op("Mul", err, g.const("kp", fb["kp"])), integral)
     band = float(fb.get("deadband") or 0.0)
     if band > 0:  # the correction shrunk towards 0 by the deadband
-        shrunk = g.op("Relu", g.op("Sub", g.op("Abs", u), g.const("deadband", band)))
+        shrunk = g.op("Relu", g.op("Sub", g.op("Abs", u), g.const("feedback_deadband", band)))
         u = g.op("Mul", g.op("Sign", u), shrunk)
     twist = g.op("Add", command, g.op("Mul", u, g.const("z_axis", [0.0, 0.0, 1.0])))
     # anti-windup: hold while the corrected twist is out of reach and e would push further
