@@ -115,3 +115,14 @@ def test_saved_configs_with_the_retired_error_cap_still_load():
     data["env"]["reward"]["error_cap"] = 2.0
     with pytest.raises(ConfigError, match=r"env\.reward\.error_cap = 2\.0: unknown key"):
         parse_train_config(data, "old run")
+
+
+def test_saved_configs_with_the_retired_latency_observation_still_load():
+    """The shipped policy's config holds ``env.observe_latency = false``: dropped; true
+    (a policy that observed it) is refused, naming the key."""
+    data = TrainConfig().to_dict()
+    data["env"]["observe_latency"] = False
+    assert parse_train_config(data, "old run") == TrainConfig()
+    data["env"]["observe_latency"] = True
+    with pytest.raises(ConfigError, match=r"env\.observe_latency = True: unknown key"):
+        parse_train_config(data, "old run")

@@ -317,12 +317,17 @@ def check_wandb(project: str) -> None:
 
 def _drop_retired_keys(data: Any) -> Any:
     """Saved configs may hold ``env.reward.error_cap = 0`` (a retired option that was off);
-    drop it. Any other value is kept, and rejected as an unknown key. ``run.baseline_cache``
-    (a retired cache of the baseline's evaluation, either value) is dropped."""
+    drop it, and ``env.observe_latency = false`` (a retired observation that was off; the
+    shipped policy's config holds it). Any other value is kept, and rejected as an unknown
+    key. ``run.baseline_cache`` (a retired cache of the baseline's evaluation, either
+    value) is dropped."""
     reward = data.get("env", {}).get("reward") if isinstance(data, dict) else None
     if isinstance(reward, dict) and reward.get("error_cap", None) == 0:
         reward = {k: v for k, v in reward.items() if k != "error_cap"}
         data = {**data, "env": {**data["env"], "reward": reward}}
+    env = data.get("env") if isinstance(data, dict) else None
+    if isinstance(env, dict) and env.get("observe_latency", None) is False:
+        data = {**data, "env": {k: v for k, v in env.items() if k != "observe_latency"}}
     run = data.get("run") if isinstance(data, dict) else None
     if isinstance(run, dict) and "baseline_cache" in run:
         data = {**data, "run": {k: v for k, v in run.items() if k != "baseline_cache"}}

@@ -14,8 +14,7 @@ control period, ``meta["control_dt"]`` (0.02 s: 50 Hz)::
 
 At each tick :meth:`Controller.step` takes the command to track until the next tick and
 the newest sensor readings the robot has (the training environment, ``MecanumEnv``, saw
-them 0 to 2 ticks old, as a real robot's latency makes them; nothing is delayed here; a
-policy that observes that delay is told it, ``Controller.load(path, latency_steps=k)``):
+them 0 to 2 ticks old, as a real robot's latency makes them; nothing is delayed here):
 
 - ``wheel_rate``: encoder rates, rad/s of the wheel, positive rolling forward;
 - ``gyro_z``: the IMU's yaw rate, rad/s;
@@ -100,18 +99,12 @@ def policy_state(entry: str, keyword: str, initial: float | None = 0.0) -> Calla
 class Controller:
     """What a robot keeps between control ticks around a policy, and one tick of it."""
 
-    def __init__(
-        self, policy: NumpyPolicy, session: Any = None, latency_steps: float | None = None
-    ):
+    def __init__(self, policy: NumpyPolicy, session: Any = None):
         """``policy``: the NumPy export (its network runs unless ``session`` is given).
         ``session``: an ``onnxruntime.InferenceSession`` of the ONNX export, which then
-        computes the action and the setpoints from the observation. ``latency_steps``: how
-        many control periods old the readings given to :meth:`step` are (the robot's
-        sensor-to-command delay), for a policy that observes it (``latency_steps`` in its
-        layout); an attribute, to change between runs."""
+        computes the action and the setpoints from the observation."""
         self.policy = policy
         self.session = session
-        self.latency_steps = latency_steps
         self.n_wheels = len(policy.max_rates)
         self.wheels = list(policy.meta.get("wheels", range(self.n_wheels)))
         marked = [getattr(getattr(type(self), n), "policy_state", None) for n in dir(type(self))]
@@ -128,12 +121,12 @@ class Controller:
         self.reset()
 
     @classmethod
-    def load(cls, path: str | Path, latency_steps: float | None = None) -> Controller:
+    def load(cls, path: str | Path) -> Controller:
         """A controller for an export: ``.npz`` (NumPy network) or ``.onnx``
         (onnxruntime; the observation layout and scales come from the graph's metadata)."""
         path = Path(path)
         if path.suffix != ".onnx":
-            return cls(load(path), latency_steps=latency_steps)
+            return cls(load(path))
         if not path.is_file():
             raise ExportError(f"policy file {str(path)!r}: no such file")
         import onnxruntime
@@ -146,7 +139,7 @@ class Controller:
         size = sum(int(s) for _, s in meta["observation_layout"])
         # the network lives in the graph: this policy only builds observations
         shell = NumpyPolicy([], np.zeros(size, np.float32), np.ones(size, np.float32), meta)
-        return cls(shell, session, latency_steps)
+        return cls(shell, session)
 
     @property
     def backend(self) -> str:
@@ -215,11 +208,6 @@ class Controller:
         command's age, as the environment advances it from the state its action answered."""
         assert self.observation is not None  # updates run from the second tick on
         return float(self.policy.feedback_integral_step(self.observation, self.command_age))
-
-    @policy_state("latency_steps", "latency_steps", initial=None)
-    def _latency(self, value: float | None, tracked: Any, reading: Reading) -> float | None:
-        """The robot's delay as the loop was told it (:attr:`latency_steps`)."""
-        return self.latency_steps
 
     @policy_state("sensor_history", "sensor_history", initial=None)
     def _sensor_history(

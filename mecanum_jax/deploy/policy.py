@@ -213,7 +213,6 @@ class NumpyPolicy:
         yaw_integral: float | None = None,
         feedback_integral: float | None = None,
         sensor_history: Any = None,
-        latency_steps: float | None = None,
     ) -> np.ndarray:
         """The policy observation from raw measurements (what the environment builds).
 
@@ -230,8 +229,6 @@ class NumpyPolicy:
           sensor_history: (obs_history, frame size) the :meth:`sensor_frame` outputs of the
             control periods before this one, newest first (after a reset: this one's,
             repeated); required when the policy observes them (:attr:`obs_history` > 0).
-          latency_steps: the robot's sensor-to-command delay, control periods; required
-            when the policy observes it (``meta["observe_latency"]``).
         """
         tau = self.yaw_integral_tau
         if tau > 0 and yaw_integral is None:
@@ -254,13 +251,6 @@ class NumpyPolicy:
             parts.append(np.asarray([yaw_integral], np.float32) / (tau * self.command_scale[2]))
         if self.feedback_base:
             parts.append(np.asarray([feedback_integral], np.float32) / self.command_scale[2])
-        if self.meta.get("observe_latency"):
-            if latency_steps is None or not 0 <= float(latency_steps) <= 10:
-                raise ValueError(
-                    f"latency_steps = {latency_steps}: this policy observes its latency; "
-                    "give the robot's delay in control periods, 0 to 10"
-                )
-            parts.append(np.asarray([latency_steps], np.float32))
         if self.obs_history > 0:
             past = None if sensor_history is None else np.asarray(sensor_history, np.float32)
             if past is None or past.shape != (self.obs_history, frame.size):

@@ -70,12 +70,6 @@ class EnvConfig:
     deadband keeps the base's own setpoints there, as `feedback`'s deadband keeps its
     integrator from the gyro's noise.
 
-    observe_latency = true adds the observation latency, in control steps, to the policy's
-    observation: a robot knows its own sensor-to-command delay, and a correction tuned for
-    no delay overshoots under two steps of it (settles slower than `feedback` there,
-    where half of it does not; docs/controller.md). The deployed loop is told the delay
-    (``Controller(..., latency_steps=)``).
-
     obs_history = H > 0 appends the H sensor frames before the observed one (encoders,
     gyro, accelerometer, odometry twist, as observed: noisy and as delayed as the current
     frame), newest first: the 0.5 to 1 s of history (25 to 50 frames at 20 ms) from which a
@@ -112,8 +106,6 @@ class EnvConfig:
     """Low-pass factor of the actions, f in [0, 1): applied = f·previous + (1 − f)·new (0: off)."""
     residual_deadband: float = 0.0
     """Soft threshold of the network's action, in its units, in [0, 1) (0: off)."""
-    observe_latency: bool = False
-    """Whether the policy observes its observation latency, in control steps."""
     obs_history: int = 0
     """Earlier sensor frames the policy observes, one control period apart (0 to
     MAX_OBS_HISTORY; 0: none)."""

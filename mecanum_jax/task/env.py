@@ -88,7 +88,6 @@ class MecanumEnv(Env):
             config.yaw_integral_tau > 0,
             self.feedback_base,
             config.obs_history,
-            config.observe_latency,
         )
         self.privileged_layout = obs_.privileged_layout(self.layout, n)
 
@@ -246,13 +245,7 @@ class MecanumEnv(Env):
     def _observe(self, sens: Sensors, info: dict[str, Any]) -> dict[str, jax.Array]:
         cfg = self.config
         return obs_.observe(
-            self.constants,
-            sens,
-            info,
-            cfg.yaw_integral_tau,
-            self.feedback_base,
-            cfg.obs_history,
-            cfg.observe_latency,
+            self.constants, sens, info, cfg.yaw_integral_tau, self.feedback_base, cfg.obs_history
         )
 
     def noise_std(self, noise: NoiseConfig | None = None) -> jax.Array:

@@ -58,10 +58,9 @@ def policy_layout(
     yaw_integral: bool,
     feedback_integral: bool = False,
     history: int = 0,
-    latency: bool = False,
 ) -> Layout:
-    """The policy observation's entries and their sizes, in order; ``latency``: the
-    observation latency in control steps; ``history`` earlier sensor frames come last."""
+    """The policy observation's entries and their sizes, in order; ``history`` earlier
+    sensor frames come last."""
     layout: Layout = (
         ("command", 3),
         ("wheel_rate", n_wheels),
@@ -74,8 +73,6 @@ def policy_layout(
         layout = (*layout, ("yaw_error_integral", 1))
     if feedback_integral:
         layout = (*layout, ("feedback_integral", 1))
-    if latency:
-        layout = (*layout, ("latency_steps", 1))
     if history > 0:
         layout = (*layout, ("sensor_history", history * sensor_size(n_wheels)))
     return layout
@@ -163,7 +160,6 @@ def observe(
     yaw_integral_tau: float,
     feedback_integral: bool,
     history: int,
-    latency: bool = False,
 ) -> dict[str, jax.Array]:
     """The policy's and the critic's observations of the state ``info`` describes (the
     entries as :func:`policy_layout` lists them)."""
@@ -173,8 +169,6 @@ def observe(
         parts.append((info["yaw_integral"] / (yaw_integral_tau * scale[2]))[None])
     if feedback_integral:  # the integrator of the controller the residual corrects, rad/s
         parts.append((info["feedback_integral"] / scale[2])[None])
-    if latency:  # the robot's own delay, control steps (known to its loop)
-        parts.append(info["latency"].astype(jnp.float32)[None])
     if history > 0:
         parts.append(past_sensors(info, history))
     state = jnp.concatenate(parts)

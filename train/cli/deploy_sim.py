@@ -246,7 +246,6 @@ def play(plant: Plant, controller: Controller, eps: Episodes, seed: int = 0) -> 
         m = plant.reset(eps.params[e])
         channel = SensorChannel(eps.noise_std[e], int(eps.latency[e]), seed=seed * 100_003 + e)
         reading = channel.reset(m)
-        controller.latency_steps = int(eps.latency[e])  # for a policy that observes it
         controller.reset()
         start[e] = m.pose
         for t in range(T):

@@ -175,7 +175,6 @@ def task_meta(env: MecanumEnv) -> dict[str, Any]:
         "feedback": dataclasses.asdict(cfg.feedback),
         "yaw_integral_tau": cfg.yaw_integral_tau,
         "obs_history": cfg.obs_history,
-        "observe_latency": cfg.observe_latency,
         "action_filter": cfg.action_filter,
         "residual_at_stop": cfg.residual_at_stop,
         "residual_deadband": cfg.residual_deadband,
