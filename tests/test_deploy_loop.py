@@ -81,7 +81,7 @@ def _lockstep(env, ctrl, commands, latency, seed=0):
             jax.random.PRNGKey(seed), env.nominal_params, jnp.asarray(latency), env.noise_std()
         )
         ctrl.reset()
-        n, f = env.n_wheels, env.config.action_filter
+        n, f, d = env.n_wheels, env.config.action_filter, env.config.residual_deadband
         scale = np.concatenate(
             [np.asarray(env.max_rates), np.asarray(env.command_scale[2:]), np.full(3, 9.81)]
         )
@@ -91,8 +91,9 @@ def _lockstep(env, ctrl, commands, latency, seed=0):
             sensed = np.asarray(state.info["history"][latency])[: n + 4] * scale
             setpoints, action = ctrl.step(commands[t], sensed[:n], sensed[n], sensed[n + 1 :])
             obs_err = max(obs_err, np.abs(ctrl.observation - np.asarray(state.obs["state"])).max())
-            raw = (action - f * np.asarray(state.info["last_action"])) / (1 - f)
-            state = env.step(state, jnp.asarray(raw))  # applies f·last + (1 − f)·raw
+            shrunk = (action - f * np.asarray(state.info["last_action"])) / (1 - f)
+            raw = shrunk + d * np.sign(shrunk)  # before the deadband (0 stays 0)
+            state = env.step(state, jnp.asarray(raw))  # applies f·last + (1 − f)·shrunk
             set_err = max(set_err, np.abs(robot.setpoints[-1] - setpoints).max())
             integral = max(integral, *(abs(v) for v in ctrl.values.values()))
         return obs_err, set_err, integral
@@ -337,11 +338,11 @@ def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
     """The same 8 nominal episodes (5 s) through mecanum-eval (MJX) and through the NumPy
     loop on C MuJoCo's fast model: the loop's pooled ss v and ss ωz lie inside the
     evaluation's 95% bootstrap interval, and each episode's within 2% of that interval's
-    width, but for at most one episode (a loop that advances the yaw integral with the new
-    command misses it in several). MJX and C MuJoCo agree to about 1e-5 m/s until a
-    contact or saturation event falls on the other side of its threshold: the episodes
-    follow each other to 1e-6 in ss ωz, and one of them, at 4.5 rad/s, branched at step
-    155 of 250 when both sides ran MJX's JAX implementation."""
+    width, but for at most one episode (a loop that forgets the last action, which the
+    filter and the observation need, misses it in several). MJX and C MuJoCo agree to
+    about 1e-5 m/s until a contact or saturation event falls on the other side of its
+    threshold: the episodes follow each other to 1e-6 in ss ωz, and one of them, at 4.5
+    rad/s, branched at step 155 of 250 when both sides ran MJX's JAX implementation."""
     from mecanum_jax.evaluation import metrics, scenarios
     from mecanum_jax.evaluation import rollout as ev
     from train.cli import eval_target
@@ -364,12 +365,12 @@ def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
     plant = Plant(dataclasses.replace(cfg.env, physics_impl="jax").description(), "fast")
     deployed = ev.trace_parts(deploy_sim.play(plant, ctrl, eps), jac, dt)
 
-    class FrozenIntegrator(Controller):  # a loop that never advances the policy's state
-        @policy_state("feedback_integral", "feedback_integral")
-        def _feedback_integral(self, value, tracked, reading):
-            return value
+    class ForgetfulLoop(Controller):  # a loop that forgets the action it applied last
+        def step(self, command, *readings):
+            self.last_action = np.zeros_like(self.last_action)
+            return super().step(command, *readings)
 
-    wrong = ev.trace_parts(deploy_sim.play(plant, FrozenIntegrator(ctrl.policy), eps), jac, dt)
+    wrong = ev.trace_parts(deploy_sim.play(plant, ForgetfulLoop(ctrl.policy), eps), jac, dt)
 
     def per_episode(p):
         return np.sqrt(p.num / p.den)
@@ -380,6 +381,6 @@ def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
         tolerance = 0.02 * (hi - lo)
         gap = np.abs(per_episode(deployed[key]) - per_episode(evaluated[key]))
         assert (gap > tolerance).sum() <= 1, (key, gap, tolerance)
-        if key == "ss_wz":  # the check can fail: a frozen yaw-rate integrator shows in ωz
+        if key == "ss_wz":  # the check can fail: a forgotten last action shows in ωz
             wrong_gap = np.abs(per_episode(wrong[key]) - per_episode(evaluated[key]))
             assert (wrong_gap > tolerance).sum() >= 2, (wrong_gap, tolerance)

@@ -16,9 +16,9 @@ each command change) and earlier sensor frames (``meta["obs_history"]`` > 0, a s
 last ``sensor_frame(...)``s, newest first), passed to ``observation`` as
 ``feedback_integral`` and ``sensor_history``.
 
-The export holds the network's weights, the observation normalizer (mean and standard
-deviation, as Brax's running statistics apply it), the observation layout and scales, and
-the nominal Jacobian and wheel-rate limits of the baseline the residual corrects.
+The export holds the network's weights, the observation normalizer (mean and deviation,
+as Brax's running statistics apply it), the observation layout and scales, and the
+nominal Jacobian and wheel-rate limits of the baseline the residual corrects.
 
 Wheel order, units and signs are those of the robot description used for training
 (``meta["robot"]``); wheel rates are rad/s of the wheel, positive rolling forward.
@@ -101,9 +101,9 @@ class NumpyPolicy:
 
     def action(self, obs: np.ndarray) -> np.ndarray:
         """Actions (..., action_size) in [-1, 1] for policy observations: a correction per
-        wheel, or of the body twist (``meta["residual_space"]``), 0 at a stop command where
-        :attr:`residual_at_stop` is false, low-passed with the last action when the policy
-        was trained so (:attr:`action_filter`)."""
+        wheel, or of the body twist (``meta["residual_space"]``), soft-thresholded by
+        ``meta["residual_deadband"]``, 0 at a stop command where :attr:`residual_at_stop` is
+        false, low-passed with the last action where trained so (:attr:`action_filter`)."""
         x = np.asarray(obs, np.float32)
         if x.shape[-1:] != (self.observation_size,):
             raise ValueError(
@@ -120,6 +120,8 @@ class NumpyPolicy:
             if i < len(self.layers) - 1:
                 x = self.activation(x)
         action = np.tanh(x[..., : self.action_size])
+        d = np.float32(self.meta.get("residual_deadband") or 0.0)  # 0: off
+        action = np.sign(action) * np.maximum(np.abs(action) - d, np.float32(0.0))
         if not self.residual_at_stop:  # the base alone stops: no correction at a zero command
             stop = np.all(raw[..., :3] == 0.0, axis=-1, keepdims=True)
             action = np.where(stop, np.float32(0.0), action)
@@ -371,29 +373,6 @@ def load(path: str | Path) -> NumpyPolicy:
     meta = json.loads(str(data["meta"]))
     if meta.get("format") != FORMAT:
         raise ExportError(f"{where}: format {meta.get('format')!r}, expected {FORMAT!r}")
-    layers = []
-    for i in range(int(meta["layers"])):
-        layers.append((data[f"w{i}"].astype(np.float32), data[f"b{i}"].astype(np.float32)))
+    f32 = {k: v.astype(np.float32) for k, v in data.items() if k[0] in "wb"}
+    layers = [(f32[f"w{i}"], f32[f"b{i}"]) for i in range(int(meta["layers"]))]
     return NumpyPolicy(layers, data["obs_mean"], data["obs_std"], meta)
-
-
-def save(
-    path: str | Path,
-    layers: list[tuple[np.ndarray, np.ndarray]],
-    mean: np.ndarray,
-    std: np.ndarray,
-    meta: dict[str, Any],
-) -> Path:
-    """Write an export (atomically: a crash leaves no half-written file)."""
-    path = Path(path)
-    arrays = {f"w{i}": np.asarray(w, np.float32) for i, (w, _) in enumerate(layers)}
-    arrays |= {f"b{i}": np.asarray(b, np.float32) for i, (_, b) in enumerate(layers)}
-    arrays |= {"obs_mean": np.asarray(mean, np.float32), "obs_std": np.asarray(std, np.float32)}
-    arrays["meta"] = np.asarray(json.dumps(dict(meta, format=FORMAT, layers=len(layers))))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".partial")
-    with tmp.open("wb") as f:
-        savez: Any = np.savez
-        savez(f, **arrays)
-    tmp.replace(path)
-    return path
