@@ -316,11 +316,9 @@ def check_wandb(project: str) -> None:
 
 
 def _drop_retired_keys(data: Any) -> Any:
-    """Saved configs may hold ``env.reward.error_cap = 0`` (a retired option that was off);
-    drop it, and ``env.observe_latency = false`` (a retired observation that was off; the
-    shipped policy's config holds it). Any other value is kept, and rejected as an unknown
-    key. ``run.baseline_cache`` (a retired cache of the baseline's evaluation, either
-    value) is dropped."""
+    """Drop retired keys that were off from saved configs: ``env.reward.error_cap = 0`` and
+    ``env.observe_latency = false`` (the shipped policy's config holds it); any other value
+    is kept and rejected as unknown. ``run.baseline_cache`` (either value) is dropped."""
     reward = data.get("env", {}).get("reward") if isinstance(data, dict) else None
     if isinstance(reward, dict) and reward.get("error_cap", None) == 0:
         reward = {k: v for k, v in reward.items() if k != "error_cap"}
