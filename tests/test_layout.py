@@ -77,3 +77,16 @@ def test_the_check_sees_a_violation(tmp_path):
     bad = tmp_path / "bad.py"
     bad.write_text("from mecanum_jax.task.env import MecanumEnv\nimport mecanum_jax.sim.physics\n")
     assert imported_packages(bad) == {"task", "sim"}
+
+
+def test_no_python_file_is_over_400_lines():
+    """The house rule: a file that grows past 400 lines is split into the rooms it holds."""
+    root = LIBRARY.parent
+    files = [
+        p for d in ("mecanum_jax", "train", "tests", "scripts") for p in (root / d).rglob("*.py")
+    ]
+    assert len(files) > 100
+    long = {
+        str(p.relative_to(root)): n for p in files if (n := len(p.read_text().splitlines())) > 400
+    }
+    assert not long, f"over 400 lines: {long}"
