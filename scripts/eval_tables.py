@@ -1,13 +1,13 @@
 """Markdown tables of one or more ``mecanum-eval`` reports, as docs/evaluation.md shows them.
 
     python scripts/eval_tables.py RUN/eval/report.json [MORE_REPORT.json ...]
-        [--also teacher=TEACHER/report.json ...]
+        [--also candidate=CANDIDATE/report.json ...]
 
 Prints the figures of every controller per scenario, then the policy's ratio to each
 reference with its 95% paired interval (✓ better, ✗ worse, otherwise a tie). ``--also
 NAME=REPORT`` adds the policy of another report on the same episodes (same scenarios,
 episodes, length, seed and physics model) as rows named NAME, with its ratio to
-``analytic`` (e.g. a privileged teacher beside the shipped policy); one NAME may take several
+``analytic`` (e.g. a candidate beside the shipped policy); one NAME may take several
 reports of different scenarios.
 """
 

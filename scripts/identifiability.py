@@ -7,7 +7,7 @@ controller (the `gpu` recipe's base) on the config's randomized robots and on th
 robot, with the training's sensor noise, and fits predictors of the next step's true twist
 error (steady steps, at least 0.5 s after a command change, commands within reach) from
 the policy's observation with 0, 10 or 25 earlier sensor frames, and from the observation
-plus the critic's randomized parameters (what a privileged teacher knows). Predictors are
+plus the critic's randomized parameters (what the privileged critic knows). Predictors are
 fitted on 3/4 of the robots, in the config's share of nominal ones, and judged on the rest:
 the RMS error left after subtracting the prediction, on randomized and on nominal robots,
 beside `feedback`'s own. A predictor that leaves the nominal robot worse than `feedback`

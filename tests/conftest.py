@@ -93,10 +93,8 @@ def pytest_configure(config: pytest.Config) -> None:
 LONG_FILES = (
     "test_distributed.py",
     "test_warp_training.py",
-    "test_distill.py",
     "test_wheel.py",
     "test_physics.py",
-    "test_teacher.py",
 )
 
 

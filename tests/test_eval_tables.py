@@ -38,14 +38,14 @@ def write(tmp_path: Path, name: str, data: dict) -> str:
 
 def test_also_adds_the_other_policys_rows_and_its_ratio(tmp_path, capsys):
     shipped = write(tmp_path, "shipped.json", report(0.123))
-    teacher = write(tmp_path, "teacher.json", report(0.077))
-    assert main([shipped, "--also", f"teacher={teacher}"]) == 0
+    candidate = write(tmp_path, "candidate.json", report(0.077))
+    assert main([shipped, "--also", f"candidate={candidate}"]) == 0
     out = capsys.readouterr().out
     rows = [line for line in out.splitlines() if line.startswith("|")]
     assert any("| policy | 0.100 | 0.123 |" in r for r in rows)
-    assert any("| teacher | 0.100 | 0.077 |" in r for r in rows)
+    assert any("| candidate | 0.100 | 0.077 |" in r for r in rows)
     ratio_rows = [r for r in rows if "0.50 [0.40, 0.60] ✓" in r]
-    assert [r.split("|")[2].strip() for r in ratio_rows] == ["analytic", "analytic (teacher)"]
+    assert [r.split("|")[2].strip() for r in ratio_rows] == ["analytic", "analytic (candidate)"]
 
 
 def test_one_name_takes_reports_of_several_scenarios(tmp_path, capsys):
@@ -53,20 +53,20 @@ def test_one_name_takes_reports_of_several_scenarios(tmp_path, capsys):
     b = write(tmp_path, "b.json", report(0.1, "randomized"))
     ta = write(tmp_path, "ta.json", report(0.05, "nominal"))
     tb = write(tmp_path, "tb.json", report(0.06, "randomized"))
-    assert main([a, b, "--also", f"teacher={ta}", "--also", f"teacher={tb}"]) == 0
+    assert main([a, b, "--also", f"candidate={ta}", "--also", f"candidate={tb}"]) == 0
     out = capsys.readouterr().out
-    assert "| teacher | 0.100 | 0.050 |" in out
-    assert "| teacher | 0.100 | 0.060 |" in out
+    assert "| candidate | 0.100 | 0.050 |" in out
+    assert "| candidate | 0.100 | 0.060 |" in out
 
 
 @pytest.mark.parametrize(
     ("other", "spec", "message"),
     [
-        (report(0.1, seed=8), "teacher={}", "scenario 'nominal': seed = 8, the tables' 7"),
-        (report(0.1, fidelity="reference"), "teacher={}", "fidelity 'reference'"),
+        (report(0.1, seed=8), "candidate={}", "scenario 'nominal': seed = 8, the tables' 7"),
+        (report(0.1, fidelity="reference"), "candidate={}", "fidelity 'reference'"),
         (report(0.1), "analytic={}", "the name 'analytic' is taken"),
-        (report(0.1), "teacher{}", "is not NAME=REPORT"),
-        ({"not": "a report"}, "teacher={}", "is not a mecanum-eval report"),
+        (report(0.1), "candidate{}", "is not NAME=REPORT"),
+        ({"not": "a report"}, "candidate={}", "is not a mecanum-eval report"),
     ],
 )
 def test_bad_also_is_rejected_naming_the_value(tmp_path, capsys, other, spec, message):
@@ -81,5 +81,5 @@ def test_bad_also_is_rejected_naming_the_value(tmp_path, capsys, other, spec, me
 def test_the_same_name_twice_on_one_scenario_is_rejected(tmp_path, capsys):
     shipped = write(tmp_path, "shipped.json", report(0.1))
     t1 = write(tmp_path, "t1.json", report(0.05))
-    assert main([shipped, "--also", f"teacher={t1}", "--also", f"teacher={t1}"]) == 2
-    assert "has 'teacher' already" in capsys.readouterr().err
+    assert main([shipped, "--also", f"candidate={t1}", "--also", f"candidate={t1}"]) == 2
+    assert "has 'candidate' already" in capsys.readouterr().err

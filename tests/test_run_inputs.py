@@ -57,7 +57,7 @@ def test_the_copy_serves_when_the_original_is_deleted_silently(custom):
 
 def test_an_intact_original_keeps_its_name(custom):
     """Where the saved name still gives the bytes the run trained on, the config is left as
-    saved, so it compares equal to the user's (a teacher's, a resumed run's)."""
+    saved, so it compares equal to the user's (a resumed run's)."""
     path, run = custom
     with warnings.catch_warnings():
         warnings.simplefilter("error")

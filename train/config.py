@@ -26,7 +26,7 @@ from mecanum_jax.config import (
 )
 from mecanum_jax.task import EnvConfig
 from mecanum_jax.task.fidelity import check_task
-from train.loss_config import AnchorConfig, DistillConfig, SmoothnessConfig
+from train.loss_config import AnchorConfig, SmoothnessConfig
 
 TRAIN_CONFIG_DIR = CONFIG_DIR / "train"
 
@@ -45,10 +45,6 @@ class NetworkConfig:
     """Initial exploration standard deviation of the policy's actions (> 0)."""
     privileged_critic: bool = True
     """The value function also sees the true twist and the randomized parameters."""
-    teacher: bool = False
-    """The policy sees what the privileged critic sees (the true twist, friction, payload,
-    radii, motor limits and gains, latency): a teacher that measures the headroom of any
-    deployable policy. A robot cannot build its observation, so it is never exported."""
     zero_init_mean: bool = True
     """Start the policy's mean output at 0 (with residual actions: exactly the baseline)."""
 
@@ -105,9 +101,6 @@ class PPOConfig:
     NVIDIA GPU use TF32 there. Rollouts and evaluations keep the run's precision."""
     smoothness: SmoothnessConfig = SmoothnessConfig()
     """CAPS-style smoothness terms in the policy loss (train/learner/losses.py; off by default)."""
-    distill: DistillConfig = DistillConfig()
-    """A privileged teacher the policy imitates on its own rollouts (train/learner/distill.py;
-    off by default)."""
     anchor: AnchorConfig = AnchorConfig()
     """No yaw correction where the base controller is exact (train/learner/losses.py; off by
     default; needs env.residual_space = "twist")."""
@@ -214,7 +207,6 @@ class TrainConfig:
         require(p, "ppo", ("clip_observations",), lambda v: v >= 0, "must be >= 0 (0: off)")
         require(p, "ppo", ("policy_warmup_steps",), lambda v: v >= 0, "must be >= 0 (0: off)")
         p.smoothness.validate("ppo.smoothness")
-        p.distill.validate("ppo.distill")
         p.anchor.validate("ppo.anchor")
         twist = self.env.residual and self.env.residual_space == "twist"
         if p.anchor.enabled and not twist:
@@ -231,13 +223,6 @@ class TrainConfig:
                 p.anchor.weight,
                 "acts on nominal robots only, and env.randomization.nominal_share = 0 trains "
                 "none: give it a share (gpu.toml: 0.25) or set the weight to 0",
-            )
-        if p.distill.enabled and self.network.teacher:
-            raise invalid(
-                "ppo.distill.teacher",
-                p.distill.teacher,
-                "network.teacher = true: a privileged teacher imitates no other; its student "
-                "has network.teacher = false",
             )
         require(p, "ppo", ("discounting", "gae_lambda"), lambda v: 0 < v <= 1, "must be in (0, 1]")
         if (p.batch_size * p.num_minibatches) % p.num_envs:

@@ -1,6 +1,6 @@
 """The settings of the losses added to PPO's (:mod:`train.learner.losses`): the smoothness
-terms (``ppo.smoothness``), the imitation of a teacher (``ppo.distill``) and the anchor
-(``ppo.anchor``); sections of :class:`train.config.PPOConfig`."""
+terms (``ppo.smoothness``) and the anchor (``ppo.anchor``); sections of
+:class:`train.config.PPOConfig`."""
 
 from __future__ import annotations
 
@@ -31,28 +31,6 @@ class SmoothnessConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class DistillConfig:
-    """A privileged teacher to imitate (train/learner/distill.py), and the imitation
-    term's weight."""
-
-    teacher: str = ""
-    """The teacher's run or model directory ("": no teacher): a policy of the same task
-    (env may differ only in obs_history and physics_impl), usually a privileged
-    one (network.teacher = true); of a run, its first seed is the teacher
-    (mecanum-export --model packs another)."""
-    weight: float = 1.0
-    """Weight of ‖μ(s) − μ_teacher(s)‖² in the policy loss (> 0)."""
-
-    def validate(self, where: str = "ppo.distill") -> None:
-        """Check values; raise :class:`ConfigError` naming the field."""
-        require(self, where, ("weight",), lambda v: v > 0, "must be > 0")
-
-    @property
-    def enabled(self) -> bool:
-        return bool(self.teacher)
-
-
-@dataclasses.dataclass(frozen=True)
 class AnchorConfig:
     """Weight of anchor_loss (0: off) and where it applies; needs a twist-space
     residual."""
@@ -78,4 +56,4 @@ class AnchorConfig:
         return self.weight > 0
 
 
-__all__ = ["AnchorConfig", "DistillConfig", "SmoothnessConfig"]
+__all__ = ["AnchorConfig", "SmoothnessConfig"]

@@ -41,7 +41,7 @@
 #                           (default 256) randomized episodes in the reference roller model,
 #                           JAX physics, FID_JOBS models at a time (default 2): the first
 #                           MODEL against every reference, the others against analytic only
-#                           (e.g. a teacher's rows: scripts/eval_tables.py --also); then
+#                           (e.g. a candidate's rows: scripts/eval_tables.py --also); then
 #                           FID_AGREE (default nominal) 8 episodes of the first MODEL on the
 #                           GPU ($OUT/reference_agree_gpu.json; the CPU side of the agreement
 #                           check, about 10 minutes on 2 cores, is best run off the device:
@@ -55,13 +55,6 @@
 #                           (compare them next with: tune /tmp/model_NAME/o_rectangle ...); a
 #                           variant of several --run.seeds K... as /tmp/model_NAME_sK/o_rectangle,
 #                           all of them in $OUT/model_NAME.tgz
-#   student TMIN SMIN 'flags' 'name|flags'...  a privileged teacher of the recipe 'flags' for
-#                           TMIN minutes (/tmp/run_teacher, packaged as model_teacher), then
-#                           students of it side by side for SMIN minutes as in ab (each
-#                           'flags' plus its own, e.g. '--env.obs-history 25'), imitating it
-#                           (--ppo.distill.teacher); compare them next with tune. Two
-#                           students of 25 and 50 frames side by side ran out of memory on
-#                           an H100 (one of them died): give each its own call
 #   multi-gpu EPOCHS [VARIANT...] [-- FLAGS...]  throughput over several GPUs: sh1gpu sh2gpu
 #                           sh2gpu_64k mp2gpu (default), pmap2gpu, sh1gpu_64k, and split2gpu
 #                           split2gpu_64k (each GPU its own rollout program), each with FLAGS
@@ -223,21 +216,6 @@ ab_package() {  # MINUTES 'name|flags': a variant's policy (each of its seeds) p
   }
 }
 
-student() {  # TEACHER_MIN STUDENT_MIN 'recipe flags' 'name|flags'...: a teacher, then students
-  local tmin=$1 smin=$2 recipe=$3 spec; shift 3
-  echo "== teacher: $recipe --network.teacher True"
-  rm -rf /tmp/run_teacher
-  # shellcheck disable=SC2086
-  train /tmp/run_teacher "$tmin" $recipe --network.teacher True 2>&1 | quiet | tail -8
-  package /tmp/run_teacher /tmp/model_teacher "$tmin" "$recipe --network.teacher True" || return 1
-  tar czf "$O/model_teacher.tgz" -C /tmp/model_teacher o_rectangle
-  local specs=()
-  for spec in "$@"; do
-    specs+=("${spec%%|*}|$recipe ${spec#*|} --ppo.distill.teacher /tmp/run_teacher")
-  done
-  ab "$smin" "${specs[@]}"
-}
-
 agree() {  # MODEL [SET SCENARIO [N]]: a scenario on this GPU and on this machine's CPU (JAX physics)
   local set=${2:-default} only=${3:-nominal} n=()
   [ -z "${4:-}" ] || n=(--episodes "$4")
@@ -342,7 +320,6 @@ case "$TASK" in
     [ "${AGREE:-1}" = 1 ] && agree "${1:-models/o_rectangle}" ;;  # AGREE=0: skip the check
   agree) agree "${1:-models/o_rectangle}" "${@:2}" ;;
   ab) ab "$@" ;;
-  student) student "$@" ;;
   multi-gpu) multi_gpu "$@" ;;
   profile) profile "$@" ;;
   coldstart) coldstart "$@" ;;

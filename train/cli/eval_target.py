@@ -65,9 +65,8 @@ class Target:
             self.restored = restore_policy(run_dir, args.seed, epoch or args.epoch)
             base = self.restored.cfg.env
             precision = self.restored.cfg.run.matmul_precision
-            teacher = ", a privileged teacher" if self.restored.cfg.network.teacher else ""
             r = self.restored
-            self.label = f"{run_dir} (epoch {r.epoch}, seed {r.seed}{teacher})"
+            self.label = f"{run_dir} (epoch {r.epoch}, seed {r.seed})"
         # before anything is traced: one number on every device (mecanum_jax.precision)
         self.precision = args.matmul_precision or precision
         set_matmul_precision(self.precision, "--matmul-precision")

@@ -263,11 +263,6 @@ def _prepare(args: EvalArgs) -> tuple[Target, scenarios.ScenarioSet, Path]:
         args.only, args.episodes, args.seconds
     )
     target = Target(args, scenario_set)
-    if args.export and target.restored is not None and target.restored.cfg.network.teacher:
-        raise ConfigError(
-            "--export: the target is a teacher (network.teacher = true), whose observation "
-            "no robot can build; it is evaluated, never exported"
-        )
     smallest = min(s.episodes for s in scenario_set.scenarios)
     if args.video and args.video_episode >= smallest:
         raise ConfigError(
@@ -305,7 +300,6 @@ def _evaluate_into(
         "label": target.label,
         "epoch": None if target.restored is None else target.restored.epoch,
         "seed": None if target.restored is None else target.restored.seed,
-        "teacher": None if target.restored is None else target.restored.cfg.network.teacher,
         "robot": target.env.desc.robot.name,
         "scenario_file": scenario_set.source,
         "device": str(jax.devices()[0]),

@@ -66,7 +66,7 @@ class ExportArgs:
     model: bool = False
     """Write a model directory: the policy's checkpoint (no optimizer-free copy is made:
     the training state of that epoch, without the environment state), the resolved config,
-    provenance.json and the NumPy export (none for a teacher, which no robot can run)."""
+    provenance.json and the NumPy export."""
     provenance: tuple[str, ...] = ()
     """--model: KEY=VALUE pairs for provenance.json (e.g. command=..., device=...)."""
 
@@ -94,8 +94,6 @@ def main(argv: list[str] | None = None) -> int:
             extra[key] = value
         run_dir, epoch = split_target(resolve_model(args.run))
         restored = restore_policy(run_dir, args.seed, epoch or args.epoch)
-        if not args.model:  # a teacher's model directory holds its checkpoint, no export
-            check_exportable(restored)
     except (ConfigError, checkpoint.CheckpointError, OSError) as err:
         _error(err)
         return 2
@@ -108,11 +106,9 @@ def main(argv: list[str] | None = None) -> int:
 
 def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) -> int:
     if args.model:
-        teacher = restored.cfg.network.teacher
-        out = package_model(restored, Path(args.out), {"teacher": teacher, **extra})
-        if not teacher:
-            export_policy(restored, out / "policy.npz")
-        console.log(f"wrote model directory {out}" + (" (a teacher: no export)" if teacher else ""))
+        out = package_model(restored, Path(args.out), extra)
+        export_policy(restored, out / "policy.npz")
+        console.log(f"wrote model directory {out}")
         return 0
     if args.format == "onnx":
         try:
@@ -129,16 +125,6 @@ def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) ->
     path = export_policy(restored, Path(args.out))
     console.log(f"wrote {path} and {path.with_name('mecanum_policy.py')}")
     return 0
-
-
-def check_exportable(restored: RestoredPolicy) -> None:
-    """Raise :class:`CheckpointError` for a policy no robot could run: a teacher."""
-    if restored.cfg.network.teacher:
-        raise checkpoint.CheckpointError(
-            f"{str(restored.run_dir)!r}: network.teacher = true: a teacher policy observes "
-            "the simulator's truth (true twist, friction, payload, ...), which no robot can "
-            "measure, so it is not exported; evaluate it with mecanum-eval"
-        )
 
 
 def export_policy(restored: RestoredPolicy, path: Path) -> Path:
@@ -191,7 +177,6 @@ def _policy_arrays(
     restored: RestoredPolicy,
 ) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray, np.ndarray, dict[str, Any]]:
     """The exported policy's layers, normalizer mean and std, and metadata."""
-    check_exportable(restored)
     cfg = restored.cfg
     env = MecanumEnv(dataclasses.replace(cfg.env, physics_impl="jax"))  # shapes only
     layers_tree = restored.params["params"]

@@ -13,14 +13,6 @@ reported as ``smooth_temporal`` and ``smooth_spatial``. Unlike a low-pass filter
 actions it adds no lag: it asks the policy itself not to flicker, and not to follow
 sensor noise.
 
-:func:`imitation_loss` distils a privileged teacher into the policy (a student that
-observes only its sensors and their history): ``‖μ(s) − μ_teacher(s)‖²`` on the states
-the student's own rollouts visit, so the student learns the teacher's action where it
-goes, as DAgger does (Ross et al., AISTATS 2011; the teacher-student scheme of RMA,
-Kumar et al., RSS 2021), beside the PPO terms ("kickstarting", Schmitt et al. 2018).
-Its weight and the teacher are :class:`DistillConfig`; the teacher's action comes from
-``train.learner.distill``. Reported as ``imitation``.
-
 :func:`anchor_loss` asks the components of a twist-space residual to be zero where its base
 is already exact (:func:`mecanum_jax.task.anchor.exact_components`: the yaw part on steady
 no-yaw commands on the nominal robot; with ``spins`` every part on its steady pure spins and
@@ -76,30 +68,18 @@ def state_extras(
     return extras
 
 
-def imitation_loss(
-    mean_action: Callable[[Any], jax.Array],
-    teacher_action: Callable[[Any], jax.Array],
-    observation: Any,
-) -> jax.Array:
-    """Mean over the batch of ``‖μ(s) − μ_teacher(s)‖²``; the teacher's action is a fixed
-    target (no gradient)."""
-    target = jax.lax.stop_gradient(teacher_action(observation))
-    return jnp.mean(jnp.sum((mean_action(observation) - target) ** 2, axis=-1))
-
-
 def smoothness_loss(
     mean_action: Callable[[Any], jax.Array],
     observation: Any,
     next_observation: Any,
     key: jax.Array,
     cfg: SmoothnessConfig,
-    obs_key: str = "state",
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """The weighted CAPS terms for a batch of transitions, and their unweighted values.
 
     ``mean_action(obs)`` maps a (batched) observation dict to the policy's deterministic
     action; ``observation``/``next_observation`` are the transitions' states; the spatial
-    term perturbs ``observation[obs_key]``, the entry the policy reads.
+    term perturbs ``observation["state"]``, the entry the policy reads.
     """
     action = mean_action(observation)
     zero = jnp.zeros((), action.dtype)
@@ -107,9 +87,9 @@ def smoothness_loss(
     if cfg.temporal > 0:
         temporal = jnp.mean(jnp.sum((action - mean_action(next_observation)) ** 2, axis=-1))
     if cfg.spatial > 0:
-        state = observation[obs_key]
+        state = observation["state"]
         noisy = dict(observation)
-        noisy[obs_key] = state + cfg.sigma * jax.random.normal(key, state.shape, state.dtype)
+        noisy["state"] = state + cfg.sigma * jax.random.normal(key, state.shape, state.dtype)
         spatial = jnp.mean(jnp.sum((action - mean_action(noisy)) ** 2, axis=-1))
     total = cfg.temporal * temporal + cfg.spatial * spatial
     return total, {"smooth_temporal": temporal, "smooth_spatial": spatial}
@@ -122,15 +102,11 @@ def ppo_loss_with_terms(
     rng: jax.Array,
     ppo_network: Any,
     smoothness: SmoothnessConfig,
-    obs_key: str = "state",
-    teacher_action: Callable[[Any], jax.Array] | None = None,
-    imitation_weight: float = 0.0,
     anchor_weight: float = 0.0,
     **ppo_kwargs: Any,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """Brax's ``compute_ppo_loss`` plus :func:`smoothness_loss`, with a teacher
-    ``imitation_weight`` times :func:`imitation_loss`, and with ``anchor_weight`` > 0 that
-    times :func:`anchor_loss` on the mask ``data.extras["state_extras"]["anchor"]`` (same
+    """Brax's ``compute_ppo_loss`` plus :func:`smoothness_loss`, and with ``anchor_weight``
+    > 0 that times :func:`anchor_loss` on the mask ``data.extras["state_extras"]["anchor"]`` (same
     signature as Brax's loss once ``ppo_network``, these terms' settings and Brax's own
     keywords are bound)."""
     k_ppo, k_smooth = jax.random.split(rng)
@@ -143,12 +119,8 @@ def ppo_loss_with_terms(
         return dist.mode(ppo_network.policy_network.apply(normalizer_params, params.policy, obs))
 
     extra, terms = smoothness_loss(
-        mean_action, data.observation, data.next_observation, k_smooth, smoothness, obs_key
+        mean_action, data.observation, data.next_observation, k_smooth, smoothness
     )
-    if teacher_action is not None:
-        imitation = imitation_loss(mean_action, teacher_action, data.observation)
-        extra = extra + imitation_weight * imitation
-        terms = {**terms, "imitation": imitation}
     if anchor_weight > 0:
         mask = data.extras["state_extras"]["anchor"]
         anchor = anchor_loss(mean_action(data.observation), mask)
@@ -176,7 +148,6 @@ def at_precision(fn: Callable[..., Any], name: str) -> Callable[..., Any]:
 __all__ = [
     "anchor_loss",
     "at_precision",
-    "imitation_loss",
     "ppo_loss_with_terms",
     "smoothness_loss",
     "state_extras",

@@ -42,7 +42,7 @@ from jax.sharding import NamedSharding
 from mecanum_jax.host import host_side
 from mecanum_jax.task.env import MecanumEnv, TrainingEnv
 from train.config import TrainConfig
-from train.learner import distill, losses, parallel
+from train.learner import losses, parallel
 from train.learner.parallel import AXIS
 from train.learner.periodic import PeriodicEvaluation, Result
 from train.learner.split_epoch import SplitEpoch
@@ -54,7 +54,6 @@ from train.learner.state import (
     fresh_state_program,
     make_networks,
     make_optimizer,
-    policy_obs_key,
 )
 from train.store import leaves
 
@@ -79,15 +78,10 @@ class Learner:
         self.make_policy = ppo_networks.make_inference_fn(self.networks)
         self.optimizer = make_optimizer(cfg)
         loss: Any = ppo_losses.compute_ppo_loss
-        # a teacher to imitate (train/learner/distill.py)
-        self.teacher = distill.load_teacher(cfg, self.env) if p.distill.enabled else None
-        if p.smoothness.enabled or self.teacher or p.anchor.enabled:  # losses.py's terms
+        if p.smoothness.enabled or p.anchor.enabled:  # losses.py's terms
             loss = functools.partial(
                 losses.ppo_loss_with_terms,
                 smoothness=p.smoothness,
-                obs_key=policy_obs_key(cfg),
-                teacher_action=None if self.teacher is None else self.teacher.action,
-                imitation_weight=p.distill.weight,
                 anchor_weight=p.anchor.weight,
             )
         loss_fn = functools.partial(

@@ -59,11 +59,6 @@ class TrainingState:
     key: jax.Array
 
 
-def policy_obs_key(cfg: TrainConfig) -> str:
-    """The observation the policy network reads: the sensors', or a teacher's truth."""
-    return "privileged_state" if cfg.network.teacher else "state"
-
-
 def make_networks(env: MecanumEnv, cfg: TrainConfig) -> ppo_networks.PPONetworks:
     """Brax PPO networks for this task (the critic sees privileged state if configured)."""
     normalize: Any = (
@@ -81,7 +76,7 @@ def make_networks(env: MecanumEnv, cfg: TrainConfig) -> ppo_networks.PPONetworks
         policy_hidden_layer_sizes=n.policy_hidden,
         value_hidden_layer_sizes=n.value_hidden,
         activation=ACTIVATIONS[n.activation],
-        policy_obs_key=policy_obs_key(cfg),
+        policy_obs_key="state",
         value_obs_key="privileged_state" if n.privileged_critic else "state",
         init_noise_std=n.init_noise_std,
     )

@@ -261,10 +261,7 @@ class Run:
             differs = [f for f in config_diff(learner.cfg, self.cfg) if f not in LOGGING_ONLY]
             if differs:
                 raise ValueError(f"learner was built for another config: {differs}")
-        learner = learner or Learner(self.cfg)
-        if learner.teacher is not None:
-            self.console.log(f"imitating {learner.teacher.describe()} (ppo.distill)")
-        return learner
+        return learner or Learner(self.cfg)
 
     @staticmethod
     def _fresh(learner: Learner) -> tuple[Any, Any]:
