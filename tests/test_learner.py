@@ -1,11 +1,10 @@
 """The PPO learner on the suite's tiny config: devices, its untrained policy, gradient
-clipping, the policy warm-up, its paired evaluation."""
+clipping, its paired evaluation."""
 
 import dataclasses
 
 import jax
 import numpy as np
-import optax
 import pytest
 from brax.training.agents.ppo.losses import PPONetworkParams
 from learners import deterministic_policy, random_obs
@@ -111,39 +110,6 @@ def test_gradient_clipping_per_network(per_network):
         scale = 1.0 / np.linalg.norm([0.3, 0.4, 60.0, 80.0])
         np.testing.assert_allclose(policy, np.array([0.3, 0.4]) * scale, rtol=1e-5)
         np.testing.assert_allclose(value, np.array([60.0, 80.0]) * scale, rtol=1e-5)
-
-
-def test_policy_warmup_ramps_only_the_policy():
-    """ppo.policy_warmup_steps: the policy's steps grow linearly from zero over the warm-up
-    (in environment steps, converted to gradient updates); the value function's do not."""
-    base = TrainConfig(ppo=PPOConfig(num_envs=8, batch_size=8, num_minibatches=2))
-    updates_per_iteration = base.ppo.num_minibatches * base.ppo.num_updates_per_batch  # 8
-    cfg = dataclasses.replace(
-        base, ppo=dataclasses.replace(base.ppo, policy_warmup_steps=base.steps_per_iteration)
-    )  # one iteration of warm-up: 8 updates
-    plain, warm = make_optimizer(base), make_optimizer(cfg)
-    params = PPONetworkParams(
-        policy={"w": np.zeros(2, np.float32)}, value={"w": np.zeros(2, np.float32)}
-    )
-    grads = PPONetworkParams(
-        policy={"w": np.array([0.3, -0.4], np.float32)},
-        value={"w": np.array([0.1, 0.2], np.float32)},
-    )
-    s_plain, s_warm = plain.init(params), warm.init(params)
-    for k in range(updates_per_iteration + 2):
-        ref, s_plain = plain.update(grads, s_plain, params)
-        got, s_warm = warm.update(grads, s_warm, params)
-        ramp = min(k / updates_per_iteration, 1.0)
-        np.testing.assert_allclose(got.policy["w"], ramp * ref.policy["w"], rtol=1e-5, atol=1e-9)
-        np.testing.assert_allclose(got.value["w"], ref.value["w"], rtol=1e-6)
-    assert np.any(np.asarray(ref.policy["w"]) != 0)
-    # no warm-up: the optimizer state's tree (in checkpoints) is the one it always was
-    former = optax.chain(gradient_clip(base), optax.adam(base.ppo.learning_rate))
-    assert jax.tree.structure(s_plain) == jax.tree.structure(former.init(params))
-    with pytest.raises(ConfigError, match=r"ppo\.policy_warmup_steps"):
-        dataclasses.replace(
-            base, ppo=dataclasses.replace(base.ppo, policy_warmup_steps=-1)
-        ).validate()
 
 
 def test_learning_rate_decays_to_its_final_fraction():

@@ -93,8 +93,6 @@ class PPOConfig:
     """Clip normalized observations to ± this many standard deviations (>= 0; 0: off)."""
     clip_per_network: bool = True
     """Clip the policy's and the value function's gradients separately, not together."""
-    policy_warmup_steps: int = 0
-    """Ramp the policy's updates from zero over this many env steps (>= 0; 0: off)."""
     update_precision: Literal["run", "default", "high", "highest"] = "run"
     """Matmul precision of the update's forward and backward passes (train/learner/losses.py
     at_precision): run keeps run.matmul_precision; default lets an
@@ -205,7 +203,6 @@ class TrainConfig:
         require(p, "ppo", ("entropy_cost",), lambda v: v >= 0, "must be >= 0")
         require(p, "ppo", ("learning_rate_final",), lambda v: 0 <= v <= 1, "must be in [0, 1]")
         require(p, "ppo", ("clip_observations",), lambda v: v >= 0, "must be >= 0 (0: off)")
-        require(p, "ppo", ("policy_warmup_steps",), lambda v: v >= 0, "must be >= 0 (0: off)")
         p.smoothness.validate("ppo.smoothness")
         p.anchor.validate("ppo.anchor")
         twist = self.env.residual and self.env.residual_space == "twist"

@@ -100,27 +100,13 @@ def gradient_clip(cfg: TrainConfig) -> optax.GradientTransformation:
 
 def make_optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
     """Adam after :func:`gradient_clip`, its rate decayed to ``ppo.learning_rate_final``
-    of itself over ``ppo.num_timesteps`` (cosine); with ``ppo.policy_warmup_steps``, the
-    policy's updates ramp up linearly from zero (the value function's do not)."""
+    of itself over ``ppo.num_timesteps`` (cosine)."""
     p = cfg.ppo
-    updates_per_iteration = p.num_minibatches * p.num_updates_per_batch
     rate: optax.ScalarOrSchedule = p.learning_rate
     if p.learning_rate_final < 1:
-        updates = cfg.num_iterations * updates_per_iteration
+        updates = cfg.num_iterations * p.num_minibatches * p.num_updates_per_batch
         rate = optax.cosine_decay_schedule(p.learning_rate, updates, p.learning_rate_final)
-    opt = optax.chain(gradient_clip(cfg), optax.adam(rate))
-    if not p.policy_warmup_steps:
-        return opt  # (the optimizer state's tree, and so older checkpoints, stay as they were)
-    warmup_updates = max(
-        1, p.policy_warmup_steps * updates_per_iteration // cfg.steps_per_iteration
-    )
-    ramp = optax.linear_schedule(0.0, 1.0, warmup_updates)
-    return optax.chain(
-        opt,
-        optax.multi_transform(
-            {"policy": optax.scale_by_schedule(ramp), "value": optax.identity()}, _labels
-        ),
-    )
+    return optax.chain(gradient_clip(cfg), optax.adam(rate))
 
 
 def _labels(params: ppo_losses.PPONetworkParams) -> ppo_losses.PPONetworkParams:
