@@ -33,20 +33,17 @@ TRAIN_CONFIG_DIR = CONFIG_DIR / "train"
 
 @dataclasses.dataclass(frozen=True)
 class NetworkConfig:
-    """Policy and value MLPs (Brax's make_ppo_networks)."""
+    """Policy and value MLPs (Brax's make_ppo_networks), swish activations; the value
+    function also sees the true twist and the randomized parameters (the privileged
+    critic), and the policy's mean output starts at 0 (with residual actions: exactly the
+    base)."""
 
     policy_hidden: tuple[int, ...] = (128, 128, 128)
     """Hidden layer sizes of the policy MLP (at least one, each >= 1)."""
     value_hidden: tuple[int, ...] = (256, 256, 256)
     """Hidden layer sizes of the value MLP (at least one, each >= 1)."""
-    activation: Literal["swish", "tanh", "relu", "elu"] = "swish"
-    """Hidden-layer activation of both networks."""
     init_noise_std: float = 0.5
     """Initial exploration standard deviation of the policy's actions (> 0)."""
-    privileged_critic: bool = True
-    """The value function also sees the true twist and the randomized parameters."""
-    zero_init_mean: bool = True
-    """Start the policy's mean output at 0 (with residual actions: exactly the baseline)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,15 +81,12 @@ class PPOConfig:
     clipping_epsilon: float = 0.2
     """PPO ratio clip (> 0)."""
     max_grad_norm: float = 1.0
-    """Gradient norm clip (> 0)."""
+    """Gradient norm clip, of the policy's and the value function's gradients apart (> 0)."""
     reward_scaling: float = 1.0
     """Multiplies rewards before the loss (> 0)."""
-    normalize_observations: bool = True
-    """Normalize observations with running mean and standard deviation."""
     clip_observations: float = 5.0
-    """Clip normalized observations to ± this many standard deviations (>= 0; 0: off)."""
-    clip_per_network: bool = True
-    """Clip the policy's and the value function's gradients separately, not together."""
+    """Clip the observations, normalized by their running mean and standard deviation, to
+    ± this many standard deviations (>= 0; 0: off)."""
     update_precision: Literal["run", "default", "high", "highest"] = "run"
     """Matmul precision of the update's forward and backward passes (train/learner/losses.py
     at_precision): run keeps run.matmul_precision; default lets an

@@ -301,11 +301,9 @@ class Learner:
     def update(self, ts: TrainingState, data: Any, key: jax.Array) -> tuple[TrainingState, Any]:
         """Normalizer update and SGD passes over ``data``: ``(state, loss metrics)``, same key."""
         p = self.cfg.ppo
-        normalizer = ts.normalizer_params
-        if p.normalize_observations:
-            normalizer = running_statistics.update(
-                normalizer, data.observation, pmap_axis_name=AXIS
-            )
+        normalizer = running_statistics.update(
+            ts.normalizer_params, data.observation, pmap_axis_name=AXIS
+        )
 
         def minibatch(c: Any, batch: Any) -> tuple[Any, Any]:
             opt_state, params, k = c

@@ -18,7 +18,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from brax.training import types
 from brax.training.acme import running_statistics, specs
 from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
@@ -27,12 +26,6 @@ from flax import linen
 from mecanum_jax.task.env import MecanumEnv
 from train.config import TrainConfig
 
-ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
-    "swish": linen.swish,
-    "tanh": linen.tanh,
-    "relu": linen.relu,
-    "elu": linen.elu,
-}
 # Domain tags: training and evaluation rng streams never meet, whatever the seeds are.
 TRAIN_STREAM = 0x7A1
 
@@ -60,13 +53,10 @@ class TrainingState:
 
 
 def make_networks(env: MecanumEnv, cfg: TrainConfig) -> ppo_networks.PPONetworks:
-    """Brax PPO networks for this task (the critic sees privileged state if configured)."""
-    normalize: Any = (
-        functools.partial(
-            running_statistics.normalize, max_abs_value=cfg.ppo.clip_observations or None
-        )
-        if cfg.ppo.normalize_observations
-        else types.identity_observation_preprocessor
+    """Brax PPO networks for this task: the policy reads the sensors' observation, the critic
+    also the privileged state; both read it normalized (and clipped)."""
+    normalize = functools.partial(
+        running_statistics.normalize, max_abs_value=cfg.ppo.clip_observations or None
     )
     n = cfg.network
     return ppo_networks.make_ppo_networks(
@@ -75,26 +65,21 @@ def make_networks(env: MecanumEnv, cfg: TrainConfig) -> ppo_networks.PPONetworks
         preprocess_observations_fn=normalize,
         policy_hidden_layer_sizes=n.policy_hidden,
         value_hidden_layer_sizes=n.value_hidden,
-        activation=ACTIVATIONS[n.activation],
+        activation=linen.swish,
         policy_obs_key="state",
-        value_obs_key="privileged_state" if n.privileged_critic else "state",
+        value_obs_key="privileged_state",
         init_noise_std=n.init_noise_std,
     )
 
 
 def gradient_clip(cfg: TrainConfig) -> optax.GradientTransformation:
-    """Gradient-norm clipping at ``ppo.max_grad_norm``.
-
-    ``ppo.clip_per_network``: the policy's and the value function's gradients are clipped
-    each by its own norm (PPO's loss is a sum, so each network's gradient comes from its
-    own term). One global norm over both lets a large value error (the returns' tails)
-    shrink the policy's step in that minibatch by the same factor.
+    """Gradient-norm clipping at ``ppo.max_grad_norm``, of the policy's and the value
+    function's gradients each by its own norm (PPO's loss is a sum, so each network's
+    gradient comes from its own term). One global norm over both would let a large value
+    error (the returns' tails) shrink the policy's step in that minibatch by the same
+    factor.
     """
-    p = cfg.ppo
-    clip = optax.clip_by_global_norm(p.max_grad_norm)
-    if not p.clip_per_network:
-        return clip
-
+    clip = optax.clip_by_global_norm(cfg.ppo.max_grad_norm)
     return optax.multi_transform({"policy": clip, "value": clip}, _labels)
 
 
@@ -126,8 +111,8 @@ def initial_policy(
     random output layer starts the std anywhere in 0.25–2 (mean ≈ 0.7) per state. Here
     the scale outputs start state-independent at ``init_noise_std`` (zero kernel, bias
     ``softplus⁻¹(init_noise_std − 0.001)``); they stay learnable and state-dependent.
-    ``zero_init_mean`` also zeroes the mean outputs (the untrained policy is then the
-    baseline, with residual actions).
+    The mean outputs start at zero too (the untrained policy is then the base, with
+    residual actions).
     """
     params = networks.policy_network.init(key)
     layers = params["params"]
@@ -138,9 +123,8 @@ def initial_policy(
     std = max(cfg.network.init_noise_std - 0.001, 1e-6)
     kernel = kernel.at[:, a:].set(0.0)
     bias = bias.at[a:].set(math.log(math.expm1(std)))  # softplus⁻¹
-    if cfg.network.zero_init_mean:
-        kernel = kernel.at[:, :a].set(0.0)
-        bias = bias.at[:a].set(0.0)
+    kernel = kernel.at[:, :a].set(0.0)
+    bias = bias.at[:a].set(0.0)
     out["kernel"], out["bias"] = kernel, bias
     return {**params, "params": {**layers, last: out}}
 
@@ -221,7 +205,6 @@ def epoch_metrics(ts: TrainingState, metrics: Any, axis: str) -> dict[str, jax.A
 
 
 __all__ = [
-    "ACTIVATIONS",
     "TRAIN_STREAM",
     "TrainingState",
     "all_finite",

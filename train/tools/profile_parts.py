@@ -156,8 +156,6 @@ class EpochParts:
         return self.learner.update(ts, data, ts.key)
 
     def _normalizer(self, ts: TrainingState, data: Any) -> Any:
-        if not self.learner.cfg.ppo.normalize_observations:
-            return ts.normalizer_params
         return running_statistics.update(
             ts.normalizer_params, data.observation, pmap_axis_name=AXIS
         )
