@@ -20,9 +20,7 @@ Public surface::
     rates = kinematics.inverse(geom, twists)      # (..., 3) -> (..., 4) rad/s
     twists = kinematics.forward(geom, rates)      # (..., 4) -> (..., 3)
 
-Importing it changes nothing outside the package and does not import MJX: the JAX shim
-Brax's trainer needs (:mod:`mecanum_jax.compat`) is installed by the trainer
-(:mod:`train`), not here.
+Importing it changes nothing outside the package and does not import MJX.
 """
 
 from mecanum_jax import kinematics

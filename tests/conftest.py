@@ -1,6 +1,6 @@
 """Test configuration shared by the whole suite.
 
-- Two host CPU devices, so multi-device code (pmap, the compat shim) is exercised.
+- Two host CPU devices, so multi-device code (pmap, the sharded mesh) is exercised.
 - ``jax_numpy_rank_promotion = "raise"``: accidental broadcasting is an error (as Equinox does).
 - JAX's persistent compilation cache, shared across test processes and CI runs: the
   clone's ``.cache/jax`` (as ``./dev`` sets it) unless ``JAX_COMPILATION_CACHE_DIR`` names
@@ -61,8 +61,6 @@ settings.register_profile(
 # the fast tier draws half as many examples (the full tier, what CI runs, draws them all)
 settings.register_profile("fast", settings.get_profile("default"), max_examples=20)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
-
-import train  # noqa: E402,F401  (installs the compat shim Brax's trainer needs)
 
 TEST_XLA_FLAGS = (
     "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
@@ -186,12 +184,10 @@ def learner(tiny):
 
 
 # The test files that build the tiny run's learner: they compile its programs (the reset, the
-# epoch and the evaluation's rollout: a minute on 2 cores) and train or read the tiny run;
-# and test_compat.py, whose fresh interpreter (fresh_imports) test_first_hour.py shares.
+# epoch and the evaluation's rollout: a minute on 2 cores) and train or read the tiny run.
 TINY_RUN_FILES = frozenset(
     {
         "test_aot.py",
-        "test_compat.py",
         "test_distributed.py",
         "test_eval.py",
         "test_export.py",
@@ -271,16 +267,13 @@ import jax
 before = dict(vars(jax))
 import mecanum_jax, mecanum_jax.task.env, mecanum_jax.evaluation.rollout
 import mecanum_jax.sim.physics
+import train, train.learner.ppo
 after = dict(vars(jax))
 # submodules that other packages import (jax.extend) are not patches
 changed = sorted(k for k in set(before) | set(after) if before.get(k) is not after.get(k)
                  and not isinstance(after.get(k), types.ModuleType))
-import train, train.learner.ppo
-from mecanum_jax import compat
-shim = compat.has_native_device_put_replicated() or (
-    vars(jax)["device_put_replicated"] is compat.device_put_replicated)
 with open(sys.argv[1], "w") as f:  # not printed: what the imports print is checked
-    json.dump({"changed": changed, "shim": shim}, f)
+    json.dump({"changed": changed}, f)
 """
 
 
@@ -288,9 +281,8 @@ with open(sys.argv[1], "w") as f:  # not printed: what the imports print is chec
 def fresh_imports(tmp_path_factory):
     """One fresh interpreter that imports the library, then the trainer, as a user's
     script does (``MJX_WARP_ENABLED`` unset): ``(process, findings)``, where findings
-    holds the ``jax`` attributes the library's imports changed and whether the trainer's
-    shim is in place. tests/test_compat.py and tests/test_first_hour.py check it (a fresh
-    interpreter takes seconds to import them)."""
+    holds the ``jax`` attributes those imports changed. tests/test_first_hour.py checks it
+    (a fresh interpreter takes seconds to import them)."""
     out = tmp_path_factory.mktemp("imports") / "findings.json"
     env = {k: v for k, v in os.environ.items() if k != "MJX_WARP_ENABLED"}
     cmd = [sys.executable, "-c", FRESH_IMPORTS, str(out)]

@@ -23,6 +23,15 @@ def test_importing_the_task_prints_nothing(fresh_imports):
     assert "warp" not in out.stdout + out.stderr, out.stdout + out.stderr
 
 
+def test_importing_the_library_and_trainer_leaves_jax_untouched(fresh_imports):
+    """``import mecanum_jax`` (its physics, task and evaluation modules) and ``import train``
+    change no attribute of the ``jax`` module (in a fresh interpreter: ``fresh_imports`` in
+    conftest.py)."""
+    proc, findings = fresh_imports
+    assert proc.returncode == 0, proc.stderr
+    assert findings["changed"] == []
+
+
 @pytest.mark.parametrize(
     ("x", "text"), [(0, "0"), (960, "960"), (614_400, "614k"), (1_190_000, "1.19M")]
 )

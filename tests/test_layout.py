@@ -48,7 +48,6 @@ def test_shared_modules_import_no_sub_package():
         "_checks.py",
         "_lazy.py",
         "_quiet_mjx.py",
-        "compat.py",
         "precision.py",
     ):
         assert not imported_packages(LIBRARY / name), name
