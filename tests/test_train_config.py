@@ -16,7 +16,6 @@ from train.config import (
     TRAIN_CONFIG_DIR,
     TrainConfig,
     load_train_config,
-    parse_train_config,
 )
 
 
@@ -106,23 +105,3 @@ def test_every_config_field_has_help_text(capsys):
     with pytest.raises(SystemExit):
         cli.main(["--help"])
     assert "Width of the linear tracking kernel" in capsys.readouterr().out
-
-
-def test_saved_configs_with_the_retired_error_cap_still_load():
-    data = TrainConfig().to_dict()
-    data["env"]["reward"]["error_cap"] = 0.0
-    assert parse_train_config(data, "old run") == TrainConfig()
-    data["env"]["reward"]["error_cap"] = 2.0
-    with pytest.raises(ConfigError, match=r"env\.reward\.error_cap = 2\.0: unknown key"):
-        parse_train_config(data, "old run")
-
-
-def test_saved_configs_with_the_retired_latency_observation_still_load():
-    """The shipped policy's config holds ``env.observe_latency = false``: dropped; true
-    (a policy that observed it) is refused, naming the key."""
-    data = TrainConfig().to_dict()
-    data["env"]["observe_latency"] = False
-    assert parse_train_config(data, "old run") == TrainConfig()
-    data["env"]["observe_latency"] = True
-    with pytest.raises(ConfigError, match=r"env\.observe_latency = True: unknown key"):
-        parse_train_config(data, "old run")

@@ -291,25 +291,7 @@ def check_wandb(project: str) -> None:
         )
 
 
-def _drop_retired_keys(data: Any) -> Any:
-    """Drop retired keys that were off from saved configs: ``env.reward.error_cap = 0`` and
-    ``env.observe_latency = false`` (the shipped policy's config holds it); any other value
-    is kept and rejected as unknown. ``run.baseline_cache`` (either value) is dropped."""
-    reward = data.get("env", {}).get("reward") if isinstance(data, dict) else None
-    if isinstance(reward, dict) and reward.get("error_cap", None) == 0:
-        reward = {k: v for k, v in reward.items() if k != "error_cap"}
-        data = {**data, "env": {**data["env"], "reward": reward}}
-    env = data.get("env") if isinstance(data, dict) else None
-    if isinstance(env, dict) and env.get("observe_latency", None) is False:
-        data = {**data, "env": {k: v for k, v in env.items() if k != "observe_latency"}}
-    run = data.get("run") if isinstance(data, dict) else None
-    if isinstance(run, dict) and "baseline_cache" in run:
-        data = {**data, "run": {k: v for k, v in run.items() if k != "baseline_cache"}}
-    return data
-
-
 def parse_train_config(data: Any, source: str) -> TrainConfig:
-    data = _drop_retired_keys(data)
     try:
         return from_mapping(TrainConfig, data).validate()
     except ConfigError as err:
