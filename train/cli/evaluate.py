@@ -197,17 +197,6 @@ def _parse(argv: list[str], prog: str, cls: type) -> Any:
     return tyro.cli(cls, args=argv, prog=prog)
 
 
-def play_traces(
-    argv: list[str], prog: str = "mecanum-eval"
-) -> tuple[Target, scenarios.ScenarioSet, dict[str, dict[str, ev.Trace]]]:
-    """``mecanum-eval``'s arguments ``argv`` checked and played, no report written: the
-    target, the scenarios and every rollout's trace by scenario and player (for the
-    experiments that look inside the episodes)."""
-    args = _parse(argv, prog, EvalArgs)
-    target, scenario_set, _ = _prepare(args)
-    return target, scenario_set, evaluate(target, scenario_set, args)[1]
-
-
 def main(argv: list[str] | None = None) -> int:
     """``mecanum-eval``: see the module docstring."""
     checkpoint.quiet_closed_loop_noise()
@@ -320,7 +309,6 @@ __all__ = [
     "comparison_table",
     "evaluate",
     "main",
-    "play_traces",
     "results_table",
 ]
 
