@@ -5,7 +5,7 @@ Examples::
     mecanum-train                    # the quick CPU default (configs/train/quick.toml)
     mecanum-train --config gpu --ppo.num-timesteps 50_000_000
     mecanum-train --resume runs/quick-20261122-101500
-    mecanum-train-batch --configs quick quick_direct --seeds 0 1 2 --out runs/compare
+    mecanum-train-batch --configs quick tiny --seeds 0 1 2 --out runs/compare
 
 Any config field can be overridden with a flag named by its dotted path
 (``--ppo.learning-rate 1e-3``, ``--env.randomization.friction 0.3 1.0``); see
