@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from mecanum_jax import atomic
 from mecanum_jax.deploy.policy import NearestFeasible, NumpyPolicy
 
 OPSET = 17
@@ -226,12 +227,10 @@ def _feedback_base(g: _Graph, policy: NumpyPolicy, command: str, jt: str, m: str
 
 
 def write_onnx(policy: NumpyPolicy, path: str | Path) -> Path:
-    """Write :func:`to_onnx` of ``policy`` to ``path`` (a ``.onnx`` file)."""
-    import onnx
-
+    """Write :func:`to_onnx` of ``policy`` to ``path`` (a ``.onnx`` file), atomically: a
+    full disk leaves no file under ``path`` (:mod:`mecanum_jax.atomic`)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    onnx.save(to_onnx(policy), str(path))
+    atomic.write_bytes(path, to_onnx(policy).SerializeToString())
     return path
 
 

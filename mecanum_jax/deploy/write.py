@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from mecanum_jax import atomic
 from mecanum_jax.deploy.policy import FORMAT
 
 
@@ -18,16 +19,13 @@ def save(
     std: np.ndarray,
     meta: dict[str, Any],
 ) -> Path:
-    """Write an export (atomically: a crash leaves no half-written file)."""
+    """Write an export (atomically: a crash or a full disk leaves no half-written file)."""
     path = Path(path)
     arrays = {f"w{i}": np.asarray(w, np.float32) for i, (w, _) in enumerate(layers)}
     arrays |= {f"b{i}": np.asarray(b, np.float32) for i, (_, b) in enumerate(layers)}
     arrays |= {"obs_mean": np.asarray(mean, np.float32), "obs_std": np.asarray(std, np.float32)}
     arrays["meta"] = np.asarray(json.dumps(dict(meta, format=FORMAT, layers=len(layers))))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".partial")
-    with tmp.open("wb") as f:
+    with atomic.open_atomic(path, "wb") as f:
         savez: Any = np.savez
         savez(f, **arrays)
-    tmp.replace(path)
     return path

@@ -17,13 +17,13 @@ the loop starts), so the figures are comparable episode for episode: ``ss v``, `
 of mecanum-eval's table, each pooled figure with a 95% bootstrap interval over the
 episodes. Sensors are exact unless the scenario or ``--noise-scale`` / ``--latency`` add
 noise and delay. Nothing in the loop imports JAX: the controller sees only readings.
-Exit codes: 2 bad input, 130 interrupted.
+Exit codes: 2 bad input, or a disk that is full or read-only (one line naming the path;
+nothing is left behind), 130 interrupted.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import sys
 import time
 from pathlib import Path
@@ -34,6 +34,7 @@ import tyro
 from rich.console import Console
 from rich.table import Table
 
+from mecanum_jax import atomic
 from mecanum_jax.config import ConfigError
 from mecanum_jax.deploy.loop import Controller
 from mecanum_jax.deploy.plant import Plant, PlantParams, SensorChannel
@@ -364,12 +365,9 @@ def main(argv: list[str] | None = None) -> int:
     result["wall_s"] = {"prepare": round(t1 - t0, 2), "loop": round(time.time() - t1, 2)}
     Console(width=None if sys.stdout.isatty() else 120).print(table(result))
     try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        partial = out.with_name(out.name + ".partial")
-        partial.write_text(json.dumps(result, indent=1) + "\n")
-        partial.replace(out)
+        atomic.write_json(out, result, indent=1)  # whole or not at all
     except OSError as err:
-        _error(err)
+        _error(atomic.explain(err, out))
         return 2
     console.log(f"figures: {out} ({time.time() - t0:.0f} s)")
     return 0

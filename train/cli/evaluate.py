@@ -18,9 +18,10 @@ the whole interval lies below 1 (mecanum_jax/evaluation/metrics.py). Evaluation 
 scenario file, in an rng domain of their own: evaluation never replays a training stream.
 
 Everything is written to a ``<out>.partial`` directory that is renamed to ``<out>`` only
-when complete, so an interrupted evaluation never leaves a report that looks finished;
-an existing ``<out>`` is never overwritten. Exit codes: 2 bad input (arguments, scenario
-file, checkpoint), 130 interrupted.
+when complete and removed on any error, so an interrupted evaluation never leaves a report
+that looks finished; an existing ``<out>`` is never overwritten. Exit codes: 2 bad input
+(arguments, scenario file, checkpoint) or a disk that is full or read-only (one line naming
+the path), 130 interrupted.
 
 The console tables and the plots are drawn by :mod:`train.cli.eval_output`; ``--export`` writes
 the deployable policy as ``mecanum-export`` does (:mod:`train.cli.export`).
@@ -32,7 +33,6 @@ from mecanum_jax.sim.render import ensure_gl_backend
 
 ensure_gl_backend()  # before MuJoCo is imported: OSMesa when there is no display
 
-import shutil  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -43,6 +43,7 @@ import numpy as np  # noqa: E402
 import tyro  # noqa: E402
 from rich.console import Console  # noqa: E402
 
+from mecanum_jax import atomic  # noqa: E402
 from mecanum_jax.config import ConfigError  # noqa: E402
 from mecanum_jax.evaluation import episodes, metrics, paired, plots, scenarios  # noqa: E402
 from mecanum_jax.evaluation import rollout as ev  # noqa: E402
@@ -208,19 +209,17 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, checkpoint.CheckpointError, OSError) as err:
         _error(err)
         return 2
-    partial = out.with_name(out.name + ".partial")
-    try:
-        if partial.exists():
-            shutil.rmtree(partial)  # debris of an interrupted evaluation of the same name
-        partial.mkdir(parents=True)
-        console.log(f"evaluating {target.label} on {scenario_set.names} ({scenario_set.source})")
-        results = _evaluate_into(partial, target, scenario_set, args, t_start)
-        partial.rename(out)
+    try:  # built in <out>.partial, renamed when complete, removed on an error (atomic.py)
+        with atomic.directory(out) as partial:
+            console.log(
+                f"evaluating {target.label} on {scenario_set.names} ({scenario_set.source})"
+            )
+            results = _evaluate_into(partial, target, scenario_set, args, t_start)
     except (ConfigError, OSError) as err:
-        _error(err)
+        _error(atomic.explain(err, out))
         return 2
     except KeyboardInterrupt:
-        console.print(f"[yellow]interrupted[/]: incomplete output left in {partial}")
+        console.print(f"[yellow]interrupted[/]: nothing written (no {out})")
         return 130
     title = (
         "the reference controllers"

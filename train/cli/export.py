@@ -21,7 +21,6 @@ An existing output is never overwritten. Exit code 2: bad input (arguments, chec
 from __future__ import annotations
 
 import dataclasses
-import shutil
 import sys
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -30,6 +29,7 @@ import numpy as np
 import tyro
 from rich.console import Console
 
+from mecanum_jax import atomic
 from mecanum_jax.config import ConfigError
 from mecanum_jax.deploy import policy as deploy
 from mecanum_jax.deploy.write import save
@@ -100,14 +100,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _write(args, restored, extra)
     except OSError as err:  # the disk filled, or the folder went away, while writing
-        _error(err)
+        _error(atomic.explain(err, args.out))  # (what it wrote is gone: mecanum_jax.atomic)
         return 2
 
 
 def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) -> int:
     if args.model:
-        out = package_model(restored, Path(args.out), extra)
-        export_policy(restored, out / "policy.npz")
+        fill = lambda folder: export_policy(restored, folder / "policy.npz")  # noqa: E731
+        out = package_model(restored, Path(args.out), extra, fill)
         console.log(f"wrote model directory {out}")
         return 0
     if args.format == "onnx":
@@ -129,10 +129,19 @@ def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) ->
 
 def export_policy(restored: RestoredPolicy, path: Path) -> Path:
     """Write ``policy.npz`` (weights, normalizer, control-loop constants) and copy the
-    NumPy inference module beside it as ``mecanum_policy.py``."""
-    path = save(path, *_policy_arrays(restored))
-    shutil.copyfile(deploy.__file__, path.with_name("mecanum_policy.py"))
-    shutil.copyfile(Path(deploy.__file__).with_name("loop.py"), path.with_name("mecanum_loop.py"))
+    NumPy inference module beside it as ``mecanum_policy.py``. Each file atomically; on an
+    error, those it had written are removed again."""
+    source = Path(deploy.__file__)
+    modules = {"mecanum_policy.py": source, "mecanum_loop.py": source.with_name("loop.py")}
+    new = [p for p in (path, *map(path.with_name, modules)) if not p.exists()]
+    try:
+        save(path, *_policy_arrays(restored))
+        for name, src in modules.items():
+            atomic.copy_file(src, path.with_name(name))
+    except BaseException:
+        for p in new:
+            p.unlink(missing_ok=True)
+        raise
     return path
 
 

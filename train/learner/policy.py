@@ -19,6 +19,7 @@ from typing import Any
 
 import jax
 
+from mecanum_jax import atomic
 from mecanum_jax.config import ConfigError
 from train.store import inputs
 from train.store.checkpoint import CHECKPOINT_DIR, checkpoint_path, read_checked, unpack_train
@@ -143,20 +144,31 @@ def _provenance(run_dir: Path) -> dict[str, Any]:
         raise CheckpointError(f"{str(path)!r}: unreadable: {err}") from err
 
 
-def package_model(restored: RestoredPolicy, out: Path, provenance: dict[str, Any]) -> Path:
+def package_model(
+    restored: RestoredPolicy,
+    out: Path,
+    provenance: dict[str, Any],
+    fill: Callable[[Path], Any] | None = None,
+) -> Path:
     """A self-contained model directory from one checkpoint of a run: ``config.json``,
     ``checkpoints/<epoch>/`` with the training state and metadata but not the environment
     state (the robots of every training slot), and ``provenance.json`` (the run, epoch,
     seed, wall time and env steps from the checkpoint, plus ``provenance``). mecanum-eval
-    and mecanum-export read it as they read a run directory. Written atomically."""
+    and mecanum-export read it as they read a run directory. ``fill(folder)`` adds files
+    (an export). Written atomically (:func:`mecanum_jax.atomic.directory`): on any error no
+    ``out``, and no ``.partial``, remains."""
+    with atomic.directory(out) as tmp:
+        _pack(restored, tmp, provenance)
+        if fill is not None:
+            fill(tmp)
+    return out
+
+
+def _pack(restored: RestoredPolicy, tmp: Path, provenance: dict[str, Any]) -> None:
     src = checkpoint_path(restored.run_dir, restored.epoch)
-    tmp = out.with_name(out.name + ".partial")
-    if tmp.exists():
-        shutil.rmtree(tmp)
     dst = tmp / CHECKPOINT_DIR / str(restored.epoch)
-    dst.mkdir(parents=True)
     for item in ("train", "meta"):
-        shutil.copytree(src / item, dst / item)
+        atomic.copy_tree(src / item, dst / item)
     for name in ("_CHECKPOINT_METADATA", "commit_success.txt"):
         if (src / name).exists():
             shutil.copyfile(src / name, dst / name)
@@ -177,8 +189,6 @@ def package_model(restored: RestoredPolicy, out: Path, provenance: dict[str, Any
         **provenance,
     }
     (tmp / PROVENANCE).write_text(json.dumps(record, indent=2) + "\n")
-    tmp.rename(out)
-    return out
 
 
 def check_compatible(meta: dict[str, Any], env: Any, what: str) -> None:

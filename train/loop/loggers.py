@@ -12,6 +12,7 @@ import math
 from pathlib import Path
 from typing import Any, Protocol
 
+from mecanum_jax import atomic
 from train.loop import run_records as records
 
 
@@ -107,10 +108,9 @@ class EpochLog:
     def log(self, epoch: int, steps: int, walltime: float, rows: list[dict[str, Any]]) -> None:
         if not self.enabled:
             return
-        with (self.dir / "metrics.jsonl").open("a") as f:
-            for row in rows:
-                line = {"epoch": epoch, "env_steps": steps, "walltime": walltime, **row}
-                f.write(json.dumps(records.jsonable(line)) + "\n")
+        lines = [{"epoch": epoch, "env_steps": steps, "walltime": walltime, **r} for r in rows]
+        text = "".join(json.dumps(records.jsonable(line)) + "\n" for line in lines)
+        atomic.append_text(self.dir / "metrics.jsonl", text)  # the epoch's rows whole, or none
         numbers = {
             seed: {
                 k: v

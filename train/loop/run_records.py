@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -16,6 +15,7 @@ import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
+from mecanum_jax import atomic
 from train.learner.periodic import Result
 from train.loop.progress import TrainLines, evaluation_text, wants_lines
 from train.loop.progress import count as _si
@@ -35,10 +35,9 @@ def jsonable(x: Any) -> Any:
 
 
 def write_json(path: Path, data: Any) -> None:
-    """Write atomically: a crash never leaves a half-written file that looks complete."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(jsonable(data), indent=2) + "\n")
-    os.replace(tmp, path)
+    """Write atomically (:mod:`mecanum_jax.atomic`): a crash or a full disk never leaves a
+    half-written file that looks complete, nor a temporary one."""
+    atomic.write_json(path, jsonable(data))
 
 
 def keep_rows(path: Path, epoch: int) -> int:
@@ -57,9 +56,7 @@ def keep_rows(path: Path, epoch: int) -> int:
         if line.endswith("\n") and isinstance(row, dict) and row.get("epoch", 0) <= epoch:
             kept.append(line)
     if len(kept) < len(lines):
-        tmp = path.with_suffix(path.suffix + ".tmp")
-        tmp.write_text("".join(kept))
-        os.replace(tmp, path)
+        atomic.write_text(path, "".join(kept))
     return len(lines) - len(kept)
 
 

@@ -19,11 +19,11 @@ from __future__ import annotations
 
 import hashlib
 import json
-import shutil
 import warnings
 from pathlib import Path
 from typing import Any
 
+from mecanum_jax import atomic
 from mecanum_jax.config import CONFIG_DIR, ConfigError, find_config
 
 INPUTS_DIR = "inputs"
@@ -60,14 +60,11 @@ def read_index(run_dir: Path) -> dict[str, Any]:
 def add_file(run_dir: Path, key: str, source: Path) -> None:
     """Copy ``source`` into ``run_dir/inputs/<key><suffix>`` and record it in the index."""
     folder = run_dir / INPUTS_DIR
-    folder.mkdir(parents=True, exist_ok=True)
     copy = f"{key}{source.suffix or '.toml'}"
-    shutil.copyfile(source, folder / copy)
+    atomic.copy_file(source, folder / copy)
     index = read_index(run_dir)
     index[key] = {"source": str(source.resolve()), "copy": copy, "sha256": sha256(source)}
-    tmp = folder / (INDEX + ".partial")
-    tmp.write_text(json.dumps(index, indent=2) + "\n")
-    tmp.replace(folder / INDEX)
+    atomic.write_json(folder / INDEX, index)
 
 
 def save_inputs(run_dir: str | Path, cfg: Any) -> None:
@@ -76,9 +73,10 @@ def save_inputs(run_dir: str | Path, cfg: Any) -> None:
 
 
 def copy_inputs(src_dir: Path, dst_dir: Path) -> None:
-    """Carry a run's ``inputs/`` into a directory packed from it (a model directory)."""
+    """Carry a run's ``inputs/`` into a directory packed from it (a model directory, built
+    under its ``.partial`` name: :func:`mecanum_jax.atomic.directory`)."""
     if (src_dir / INPUTS_DIR / INDEX).is_file():
-        shutil.copytree(src_dir / INPUTS_DIR, dst_dir / INPUTS_DIR)
+        atomic.copy_tree(src_dir / INPUTS_DIR, dst_dir / INPUTS_DIR)
 
 
 def robot_copy(run_dir: Path, given: str) -> Path | None:
