@@ -92,13 +92,10 @@ def test_a_tampered_copy_is_refused(custom):
 
 
 def test_the_config_file_a_run_was_given_is_copied(tmp_path):
-    from train.cli.train import _copy_config_file
+    from train.cli.train import _config_file
+    from train.loop.run import Run
 
-    class FakeRun:
-        dir = tmp_path / "run"
-        is_writer = True
-
-    _copy_config_file(FakeRun(), "tiny")  # type: ignore[arg-type]
+    Run.create(load_train_config("tiny"), tmp_path / "run", _config_file("tiny")).close()
     copy = tmp_path / "run" / "inputs" / "config.toml"
     assert load_train_config(copy) == load_train_config("tiny")
 

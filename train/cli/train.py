@@ -9,7 +9,9 @@ Examples::
 
 Any config field can be overridden with a flag named by its dotted path
 (``--ppo.learning-rate 1e-3``, ``--env.randomization.friction 0.3 1.0``); see
-``mecanum-train --help``. Exit codes: 2 bad config or run directory, 3 diverged,
+``mecanum-train --help``. Exit codes: 2 bad config or run directory (one in use by another
+process included), or a disk that is full or read-only (one line naming the path; the last
+good checkpoint is kept and status.json says ``failed: no space``: resume once freed), 3 diverged,
 130 interrupted by Ctrl-C, 143 stopped by SIGTERM, 138 by SIGUSR1 (128 + the signal;
 a checkpoint was written: resume with --resume; train/loop/preemption.py).
 """
@@ -18,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import math
 import sys
 import time
@@ -36,7 +39,7 @@ from train.loop.distributed import init_distributed
 from train.loop.progress import print_error
 from train.loop.run import Run, RunDirError, TrainingDiverged
 from train.loop.run_records import write_json
-from train.store import checkpoint, inputs
+from train.store import checkpoint, inputs, lock
 
 console = Console(stderr=True)
 
@@ -96,12 +99,39 @@ def _check_meta(meta: argparse.Namespace) -> None:
         raise ConfigError(f"--max-minutes = {m}: must be a positive number of minutes")
 
 
-def _copy_config_file(run: Run, name: str) -> None:
+def _config_file(name: str) -> Path:
     """The config file a run was given, copied into its inputs/ (train.store.inputs)."""
+    return find_config(name, TRAIN_CONFIG_DIR, "config", "")
+
+
+_HELD: list[Path] = []
+
+
+def _hold(run: Run) -> Run:
+    """The run directory's lock, held until the command ends (train.loop.run_dir): the
+    learning curve written after training too."""
     if run.is_writer:
-        inputs.add_file(run.dir, "config", find_config(name, TRAIN_CONFIG_DIR, "config", ""))
+        lock.acquire(run.dir)
+        _HELD.append(run.dir)
+    return run
 
 
+def _releasing(command: Any) -> Any:
+    """``command`` giving back the locks :func:`_hold` took when it returns (an in-process
+    caller, a test, may resume the run from another process next)."""
+
+    @functools.wraps(command)
+    def run(argv: list[str] | None = None) -> int:
+        try:
+            return int(command(argv))
+        finally:
+            while _HELD:
+                lock.release(_HELD.pop())
+
+    return run
+
+
+@_releasing
 def main(argv: list[str] | None = None) -> int:
     """``mecanum-train``: train one run (several seeds side by side), then evaluate it."""
     checkpoint.quiet_closed_loop_noise()
@@ -125,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
             base = inputs.load_saved_config(saved.parent) if saved.exists() else TrainConfig()
             cfg = apply_flags(base, rest, prog, description)
             require_impl(cfg.env.physics_impl, "env.physics_impl")
-            run = Run.resume(meta.resume, overrides=cfg, console=console)
+            run = _hold(Run.resume(meta.resume, overrides=cfg, console=console))
             done = checkpoint.latest_epoch(run.dir)
             if done is not None and done >= run.cfg.num_epochs:
                 steps = done * run.cfg.steps_per_iteration * run.cfg.run.epoch_iterations
@@ -147,8 +177,8 @@ def main(argv: list[str] | None = None) -> int:
             require_impl(cfg.env.physics_impl, "env.physics_impl")  # before the run dir
             run_dir = meta.run_dir or f"runs/{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
             check_output(run_dir, "--run-dir", empty_dir_ok=True)
-            run = Run.create(cfg, run_dir, console=console)
-            _copy_config_file(run, meta.config or "quick")
+            config_file = _config_file(meta.config or "quick")
+            run = _hold(Run.create(cfg, run_dir, config_file=config_file, console=console))
         console.log(f"run directory: {run.dir}")
         limit = None if meta.max_minutes is None else 60 * meta.max_minutes
         summary = run.train(time_limit_s=limit)
@@ -176,6 +206,7 @@ def _plot(run: Run) -> None:
         console.log(f"learning curve: {path}")
 
 
+@_releasing
 def batch_main(argv: list[str] | None = None) -> int:
     """``mecanum-train-batch``: several config variants, each with all seeds vectorized."""
     argv = compilation_cache.configure(sys.argv[1:] if argv is None else argv)
@@ -207,9 +238,10 @@ def batch_main(argv: list[str] | None = None) -> int:
         names = [n for n, _ in variants]
         if len(set(names)) != len(names):
             raise ConfigError(f"--configs = {meta.configs}: variant names must be distinct")
-        runs = [Run.create(cfg, out / name, console=console) for name, cfg in variants]
-        for run, name in zip(runs, meta.configs, strict=True):
-            _copy_config_file(run, name)
+        runs = [
+            _hold(Run.create(cfg, out / name, config_file=_config_file(c), console=console))
+            for (name, cfg), c in zip(variants, meta.configs, strict=True)
+        ]
     except (ConfigError, RunDirError, OSError) as err:
         return _fail(err, 2)
     summaries = []

@@ -3,8 +3,10 @@
 A run directory holds::
 
     config.json        the resolved configuration (written before anything compiles)
-    status.json        created | running | finished | stopped | interrupted | diverged, the
-                       epoch and its env steps, the last checkpoint (rewritten every epoch)
+    .lock              held by the run's one writer (train.loop.run_dir)
+    status.json        created | running | finished | stopped | interrupted | diverged |
+                       failed: no space | failed: not writable, the epoch and its env
+                       steps, the last checkpoint (rewritten every epoch)
     metrics.jsonl      one line per seed per epoch (training, evaluation, baseline)
     tb/seed_<k>/       TensorBoard event files
     checkpoints/<e>/   orbax checkpoints (full state; see train.store.checkpoint)
@@ -15,12 +17,14 @@ Rules: a run directory is never overwritten (an existing one is only *resumed*, 
 cut back to the checkpoint's epoch); a NaN stops the run with a message naming the first
 non-finite quantity and keeps the last good checkpoint (train.loop.divergence); Ctrl-C
 writes a checkpoint of the last completed epoch before exiting, SIGTERM and SIGUSR1 one of
-the epoch in progress, once it ends (train.loop.preemption).
+the epoch in progress, once it ends (train.loop.preemption); a second writer is refused,
+and a full or read-only disk stops the run resumably (train.loop.run_dir). Every file is
+written atomically (mecanum_jax.atomic).
 """
 
 from __future__ import annotations
 
-import json
+import contextlib
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -31,43 +35,36 @@ import jax
 import numpy as np
 from rich.console import Console
 
-from mecanum_jax.config import ConfigError
+from mecanum_jax import atomic
 from mecanum_jax.precision import set_matmul_precision
 from train.config import TrainConfig, config_diff
 from train.learner.periodic import Result, beats, compare
 from train.learner.ppo import Learner, first_device, to_host
-from train.loop import aot, divergence
+from train.loop import aot, divergence, warm_start
 from train.loop import run_records as records
 from train.loop.aot import first_runs_alone
 from train.loop.distributed import barrier
 from train.loop.loggers import EpochLog, MetricLogger
 from train.loop.preemption import Preempted, StopSignals, agree
+from train.loop.run_dir import (
+    RunDirError,
+    clean_up_failed_save,
+    failed_state,
+    first_files,
+    has_content,
+    resumed_config,
+    take_lock,
+)
 from train.loop.run_records import stacked, write_json
 from train.loop.session import Session
-from train.store import checkpoint, inputs
+from train.store import checkpoint
 
-# Fields a resumed run may change: its length, logging and evaluation cadence.
-RESUMABLE_CHANGES = {
-    "ppo.num_timesteps",
-    "run.eval_every",
-    "run.checkpoint_every",
-    "run.max_checkpoints",
-    "run.wandb_project",
-    "run.progress_every_s",
-}
-# ... and, resuming a run that diverged, the optimizer's and the loss's step sizes.
-STEP_SIZES = ("learning_rate", "max_grad_norm", "entropy_cost", "clipping_epsilon")
-AFTER_DIVERGENCE = {f"ppo.{name}" for name in STEP_SIZES}
 # Fields the compiled learner never reads: a learner built without them serves the run.
 LOGGING_ONLY = {"run.wandb_project", "run.progress_every_s"}
 
 
 class TrainingDiverged(RuntimeError):  # noqa: N818 (reads as the event it reports)
     """Loss or parameters went non-finite; the last good checkpoint was kept."""
-
-
-class RunDirError(ValueError):
-    """The run directory cannot be used as asked (exists, or is not a run)."""
 
 
 class Run:
@@ -88,26 +85,36 @@ class Run:
         self.is_writer = jax.process_index() == 0
         self.learner: Learner | None = None
         self._logs = EpochLog(cfg, run_dir, loggers or [], self.is_writer)
+        self._unlock: Callable[[], None] | None = None
+
+    def close(self) -> None:
+        """Give back the run directory's lock (:meth:`train` does when it ends)."""
+        unlock = self._unlock
+        self._unlock = None
+        if unlock is not None:
+            unlock()
 
     # --- directories ------------------------------------------------------------------------
 
     @classmethod
-    def create(cls, cfg: TrainConfig, run_dir: str | Path, **kw: Any) -> Run:
-        """A new run; refuses a directory that already has content."""
+    def create(
+        cls, cfg: TrainConfig, run_dir: str | Path, config_file: Path | None = None, **kw: Any
+    ) -> Run:
+        """A new run; refuses a directory that already has content, or that another
+        process writes. ``config_file``: the config file it was given, copied into its
+        inputs/. Where its first files cannot be written, none stay."""
         cfg.validate()
         run_dir = Path(run_dir)
-        if run_dir.exists() and any(run_dir.iterdir()):
-            raise RunDirError(
-                f"run directory {str(run_dir)!r} already exists and is not empty; "
-                f"resume it with --resume {run_dir} or choose another --run-dir"
-            )
+        exists = (
+            f"run directory {str(run_dir)!r} already exists and is not empty; "
+            f"resume it with --resume {run_dir} or choose another --run-dir"
+        )
+        if has_content(run_dir):
+            raise RunDirError(exists)
         barrier("run-create")  # every process checks before process 0 writes
         run = cls(cfg, run_dir, **kw)
         if run.is_writer:
-            run_dir.mkdir(parents=True, exist_ok=True)
-            write_json(run_dir / "config.json", cfg.to_dict())
-            inputs.save_inputs(run_dir, cfg)
-            run._status("created", epoch=0)
+            run._unlock = first_files(run_dir, cfg, config_file, exists)
         return run
 
     @classmethod
@@ -119,24 +126,20 @@ class Run:
         path = run_dir / "config.json"
         if not path.exists():
             raise RunDirError(f"--resume {str(run_dir)!r}: not a run directory (no config.json)")
-        saved = inputs.load_saved_config(run_dir)  # its robot: the run's copy, if it has one
-        cfg = saved
-        if overrides is not None:
-            allowed = RESUMABLE_CHANGES | (
-                AFTER_DIVERGENCE if _state(run_dir) == "diverged" else set()
-            )
-            changed = [f for f in config_diff(saved, overrides) if f not in allowed]
-            if changed:
-                raise ConfigError(
-                    f"{changed[0]}: cannot change when resuming {str(run_dir)!r} "
-                    f"(saved {_get(saved, changed[0])!r}, given {_get(overrides, changed[0])!r}); "
-                    f"only {sorted(allowed)} may change"
-                )
-            cfg = overrides.validate()
-        barrier("run-resume")  # every process has read it before process 0 rewrites it
-        if cfg is not saved and jax.process_index() == 0:
-            write_json(path, inputs.as_given(cfg.to_dict(), json.loads(path.read_text())))
-        return cls(cfg, run_dir, **kw)
+        # the lock first: a second writer is refused before it reads or writes anything
+        unlock = (
+            take_lock(run_dir, f"resume with --resume {run_dir}")
+            if jax.process_index() == 0
+            else None
+        )
+        try:
+            run = cls(resumed_config(run_dir, overrides), run_dir, **kw)
+        except BaseException:
+            if unlock is not None:
+                unlock()
+            raise
+        run._unlock = unlock
+        return run
 
     def _status(self, state: str, **extra: Any) -> None:
         if self.is_writer:
@@ -164,10 +167,24 @@ class Run:
         the main thread) stops it after the epoch in progress, with a checkpoint, raising
         :class:`~train.loop.preemption.Preempted` (train.loop.preemption).
         """
-        with StopSignals() as signals:
-            loop = self._set_up(learner)
-            self._epochs(loop, stop_after_epochs, time_limit_s, signals)
-            return self._finish(loop)
+        if self.is_writer and self._unlock is None:  # the run's one writer (run_dir.py)
+            self._unlock = take_lock(self.dir, f"resume with --resume {self.dir}")
+        loop: Session | None = None
+        try:
+            with StopSignals() as signals:
+                loop = self._set_up(learner)
+                self._epochs(loop, stop_after_epochs, time_limit_s, signals)
+                return self._finish(loop)
+        except Exception as err:
+            disk = atomic.explain(err, self.dir)
+            if not isinstance(disk, atomic.DiskError):
+                raise
+            clean_up_failed_save(self.dir)  # the last good checkpoint stays
+            with contextlib.suppress(OSError):  # where the disk still takes it
+                self._status(failed_state(disk), **(loop.status() if loop else {}), error=str(disk))
+            raise disk from err
+        finally:
+            self.close()
 
     def _epochs(
         self,
@@ -236,6 +253,8 @@ class Run:
         t_start = time.time()
         learner = self.learner = self._learner(learner)
         loop = Session(self.cfg, self.dir, self.is_writer, learner, t_start, *self._fresh(learner))
+        if self.is_writer and (debris := checkpoint.remove_partial_saves(self.dir)):
+            self.console.log(f"removed a checkpoint cut short: {', '.join(map(str, debris))}")
         if checkpoint.latest_epoch(self.dir) is not None:
             loop.restore(self.console.log)
         loop.saved_epoch, loop.first_epoch = loop.epoch, loop.epoch + 1
@@ -256,12 +275,13 @@ class Run:
         return loop
 
     def _learner(self, learner: Learner | None) -> Learner:
-        """``learner`` where it was built for this run's config, else a new one."""
+        """``learner`` where it was built for this run's config, else a new one (its
+        programs kept on disk for the next start: train/loop/warm_start.py)."""
         if learner is not None:
             differs = [f for f in config_diff(learner.cfg, self.cfg) if f not in LOGGING_ONLY]
             if differs:
                 raise ValueError(f"learner was built for another config: {differs}")
-        return learner or Learner(self.cfg)
+        return learner or warm_start.attach(Learner(self.cfg), self.console.log)
 
     @staticmethod
     def _fresh(learner: Learner) -> tuple[Any, Any]:
@@ -373,20 +393,6 @@ def _in_thread(fn: Callable[..., Result], *args: Any) -> Future[Result]:
     job = pool.submit(fn, *args)
     pool.shutdown(wait=False)
     return job
-
-
-def _state(run_dir: Path) -> str | None:
-    """The state status.json gives (``None``: none)."""
-    try:
-        return str(json.loads((run_dir / "status.json").read_text()).get("state"))
-    except (OSError, ValueError, AttributeError):
-        return None
-
-
-def _get(cfg: Any, dotted: str) -> Any:
-    for part in dotted.split("."):
-        cfg = getattr(cfg, part)
-    return cfg
 
 
 __all__ = ["Preempted", "Run", "RunDirError", "TrainingDiverged"]

@@ -19,6 +19,8 @@ One seed's policy is restored from ``train`` and ``meta`` by :mod:`train.learner
 
 from __future__ import annotations
 
+import contextlib
+import shutil
 import sys
 import warnings
 from collections.abc import Callable
@@ -27,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 import jax
 
+from mecanum_jax import atomic
 from train.store.leaves import CheckpointError, corruption, pack, unpack
 
 if TYPE_CHECKING:
@@ -83,18 +86,48 @@ def manager(run_dir: Path, max_to_keep: int = 3, create: bool = True) -> ocp.Che
 def save(
     mgr: ocp.CheckpointManager, epoch: int, train: Any, env: Any, meta: dict[str, Any]
 ) -> None:
-    """Save host (numpy) trees; blocks until written so a crash cannot leave it half done."""
+    """Save host (numpy) trees; blocks until written so a crash cannot leave it half done.
+    orbax writes ``<epoch>.orbax-checkpoint-tmp`` and renames it when complete; a save that
+    fails (a full disk) removes it and raises :class:`mecanum_jax.atomic.DiskError` where
+    the disk was at fault, the checkpoints before it untouched."""
     ocp = _orbax()
-    mgr.save(
-        epoch,
-        args=ocp.args.Composite(
-            train=ocp.args.StandardSave(pack(train)),
-            env=ocp.args.StandardSave(pack(env)),
-            meta=ocp.args.JsonSave(meta),
-        ),
-        force=True,
-    )
-    mgr.wait_until_finished()
+    try:
+        mgr.save(
+            epoch,
+            args=ocp.args.Composite(
+                train=ocp.args.StandardSave(pack(train)),
+                env=ocp.args.StandardSave(pack(env)),
+                meta=ocp.args.JsonSave(meta),
+            ),
+            force=True,
+        )
+        mgr.wait_until_finished()
+    except Exception as err:
+        root = Path(mgr.directory)
+        with contextlib.suppress(OSError):
+            remove_partial_saves(root.parent)
+        disk = atomic.explain(err, root / str(epoch))
+        if disk is err:
+            raise
+        raise disk from err
+
+
+PARTIAL_SAVE = "*.orbax-checkpoint-tmp*"
+"""orbax's name for a checkpoint being written (renamed to ``<epoch>`` when complete)."""
+
+
+def remove_partial_saves(run_dir: Path) -> list[Path]:
+    """Remove the checkpoints of ``run_dir`` that a failed or killed save left half written
+    (``<epoch>.orbax-checkpoint-tmp``); returns them. Only the run's one writer calls it
+    (train.store.lock)."""
+    root = run_dir / CHECKPOINT_DIR
+    found = sorted(root.glob(PARTIAL_SAVE)) if root.is_dir() else []
+    for path in found:
+        if path.is_dir():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
+    return found
 
 
 def latest_epoch(run_dir: Path) -> int | None:
@@ -254,6 +287,7 @@ __all__ = [
     "read_checked",
     "read_meta",
     "read_train",
+    "remove_partial_saves",
     "restore",
     "save",
     "unpack_train",
