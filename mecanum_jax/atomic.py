@@ -102,8 +102,14 @@ def explain(err: BaseException, path: str | Path | None = None) -> BaseException
     code = disk_errno(err)
     if isinstance(err, DiskError) or code is None:
         return err
-    name = getattr(err, "filename", None) or path
+    name = _written(err) or path
     return DiskError(code, name) if name is not None else err
+
+
+def _written(err: BaseException) -> str | None:
+    """The file a failed OS call was writing: a copy's or a rename's destination
+    (``filename2``; shutil's copy names its source first), else its one file."""
+    return getattr(err, "filename2", None) or getattr(err, "filename", None)
 
 
 @contextlib.contextmanager
@@ -115,7 +121,7 @@ def disk_errors(path: str | Path) -> Iterator[None]:
     except OSError as err:
         if isinstance(err, DiskError) or err.errno not in DISK_ERRNOS:
             raise
-        raise DiskError(err.errno, err.filename or path) from err
+        raise DiskError(err.errno, _written(err) or path) from err
 
 
 def fsync_dir(path: Path) -> None:
