@@ -71,6 +71,10 @@ class PeriodicEvaluation:
         self._jacobian = np.asarray(kinematics.jacobian(self.env.geometry))
         self._batches: dict[str, episodes.EpisodeBatch] | None = None
 
+    def store_programs(self, wrap: Any) -> None:
+        """Run the rollout through ``wrap(jitted rollout)`` (train/loop/warm_start.py)."""
+        self.evaluator._run = wrap(self.evaluator._run)
+
     def batches(self) -> dict[str, episodes.EpisodeBatch]:
         """The episodes, drawn once (the same for every evaluation of the run)."""
         if self._batches is None:

@@ -5,27 +5,17 @@ baseline's evaluation and the first epoch one after the other, never side by sid
 :func:`compile_together`, which ``mecanum-train`` uses there, compiles the three at the
 same time before any of them runs.
 
-Compiling the epoch from shapes, while the robots reset:
-
-A cold start compiles three large programs before its first evaluation: the robots'
-reset, the training epoch and the evaluation rollout (docs/benchmarks.md). The epoch
-needs only the *shapes* of the states it will be given, and those follow from the
-config, so its compilation can start before the reset has run:
-:func:`compile_epoch_ahead` lowers and compiles it on a worker thread (XLA compiles with
-Python's lock released) while the caller resets the robots, and the caller waits on the
-returned future before the first epoch. ``python -m train.tools.coldstart --ahead`` measures
-it; ``mecanum-train`` does not use it yet: on the 2-core CPU it saved a few seconds of a
-tiny cold start, and a run that also started the baseline's evaluation before the reset
-(three compilations on two cores) took 8% longer (docs/benchmarks.md); on an H200 under
-Warp it saved about 5 s of a cold start but broke a warm one (:func:`compile_epoch_ahead`),
-and under MJX's JAX physics on a GPU it has not been measured. The states
-:meth:`~train.learner.ppo.Learner.place` lays out (and a restored checkpoint's, which it places the
-same way) carry exactly those shapes, dtypes and shardings, so the compiled program takes
-them without recompiling."""
+The reset and the epoch are lowered from shapes (:func:`env_keys_shape`,
+:func:`abstract_state`): the states :meth:`~train.learner.ppo.Learner.place` lays out (and
+a restored checkpoint's, which it places the same way) carry exactly those shapes, dtypes
+and shardings, so the compiled programs take them without recompiling. (Compiling the
+epoch on a worker thread while the robots reset was tried and removed: a few seconds off
+a tiny cold start on the 2-core CPU, and under Warp it broke a warm start on an H200;
+docs/benchmarks.md.)"""
 
 from __future__ import annotations
 
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import jax
@@ -56,30 +46,6 @@ def abstract_state(learner: Learner) -> tuple[Any, Any]:
 
     env_state = learner.pack_env(learner.env_template)
     return jax.tree.map(spec, one_seed), jax.tree.map(spec, env_state)
-
-
-def compile_epoch_ahead(learner: Learner) -> Future[None]:
-    """Start compiling ``learner``'s epoch for the states of :func:`abstract_state` on a
-    worker thread; the future's ``result()`` returns once :meth:`Learner.epoch` runs the
-    compiled program (and raises what the compilation raised).
-
-    Refused under MJX's Warp implementation. With Warp's stream table pinned
-    (:mod:`mecanum_jax.sim.warp_streams`) two cold starts of ``train.tools.coldstart --ahead``
-    ran, but ``mecanum-train`` compiling ahead from a warm compilation cache failed in the
-    robots' reset with ``Warp CUDA error 904: capturing stream has unjoined work`` (H200,
-    2026-11-27): the worker's tracing of Warp's calls overlapped a graph capture on the
-    main thread."""
-    if learner.env.robot.impl == "warp":
-        raise ValueError(
-            "env.physics_impl = 'warp': the epoch cannot be compiled ahead on a worker "
-            "thread under MJX's Warp implementation (Warp CUDA error 904 in the reset's "
-            "graph capture); drop --ahead or use --env.physics-impl jax"
-        )
-    state, env_state = abstract_state(learner)  # traced here: cheap, and errors surface now
-    pool = ThreadPoolExecutor(1, thread_name_prefix="epoch-compile")
-    job = pool.submit(learner.compile_epoch, state, env_state)
-    pool.shutdown(wait=False)
-    return job
 
 
 def first_runs_alone(learner: Learner) -> bool:
@@ -155,7 +121,6 @@ def env_keys_shape(learner: Learner) -> jax.ShapeDtypeStruct:
 __all__ = [
     "abstract_state",
     "can_compile_together",
-    "compile_epoch_ahead",
     "compile_together",
     "env_keys_shape",
     "first_runs_alone",

@@ -4,13 +4,17 @@ Runs what ``mecanum-train`` runs before its first evaluation, in its order: impo
 config, the model and environment build (:class:`train.learner.ppo.Learner`); where the baseline
 runs first (``train.loop.aot.first_runs_alone``, as under Warp) the reset, the epoch and the
 evaluation compiled together before any of them runs (``train.loop.aot.compile_together``,
-unless ``--compile-together off``); the robots' reset (``--ahead``: with the epoch
-compiling alongside from shapes, ``train.loop.aot``, a candidate for machines with many cores;
-docs/benchmarks.md); the evaluation of the analytic baseline (first where
+unless ``--compile-together off``); the robots' reset; the evaluation of the analytic
+baseline (first where
 the baseline runs first; elsewhere ``mecanum-train`` overlaps it with the first epoch, and
 here it is timed after that epoch, alone); the first epoch; the policy's evaluation
 (``mecanum-train`` evaluates each session's first epoch); and then a second epoch
-(compiled already: the first one's compilation shows as the difference).
+(compiled already: the first one's compilation shows as the difference). With
+``--to-end``, the rest of the run's epochs and the trained policy's evaluation follow: the
+time from a fresh process to a trained, evaluated policy.
+
+The programs come from the warm-start store as in ``mecanum-train``
+(``train.loop.warm_start``; ``--warm-start off``: traced and compiled as before it).
 
 Every program JAX compiles is listed from ``jax.monitoring``'s events: its tracing,
 lowering and XLA compilation times, whether the persistent compilation cache served it
@@ -29,6 +33,7 @@ from __future__ import annotations
 import time
 
 T_MODULE = time.perf_counter()  # before anything heavy is imported here
+CPU_AT_MODULE = time.process_time()  # the process's CPU seconds so far (all threads)
 
 import argparse  # noqa: E402
 import contextlib  # noqa: E402
@@ -151,10 +156,11 @@ class Clock:
         self.offset = (AGE_AT_MODULE or 0.0) - T_MODULE
         self.log = log
         self.phases: list[dict[str, Any]] = []
-        self._t = T_MODULE
+        self._t, self._cpu = T_MODULE, CPU_AT_MODULE
         if AGE_AT_MODULE is not None:
             name = "interpreter, import train (jax, mecanum_jax)"
-            self.phases.append({"phase": name, "s": AGE_AT_MODULE, "at_s": AGE_AT_MODULE})
+            first = {"phase": name, "s": AGE_AT_MODULE, "at_s": AGE_AT_MODULE}
+            self.phases.append({**first, "cpu_s": CPU_AT_MODULE})
 
     @contextlib.contextmanager
     def phase(self, name: str) -> Iterator[dict[str, Any]]:
@@ -163,9 +169,12 @@ class Clock:
         self.log.phase = name
         extra: dict[str, Any] = {}
         yield extra
-        now = time.perf_counter()
-        self.phases.append({"phase": name, "s": now - self._t, "at_s": now + self.offset, **extra})
-        self._t = now
+        now, cpu = time.perf_counter(), time.process_time()
+        at = now + self.offset
+        self.phases.append(
+            {"phase": name, "s": now - self._t, "at_s": at, "cpu_s": cpu - self._cpu, **extra}
+        )
+        self._t, self._cpu = now, cpu
 
 
 def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
@@ -190,7 +199,16 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         parser.add_argument("--config", default="gpu")
         parser.add_argument("--json-out", default=None)
         parser.add_argument(
-            "--ahead", action="store_true", help="compile the epoch while the robots reset"
+            "--warm-start",
+            choices=("on", "off"),
+            default="on",
+            help="keep the compiled programs on disk for the next start, as mecanum-train "
+            "does (train.loop.warm_start)",
+        )
+        parser.add_argument(
+            "--to-end",
+            action="store_true",
+            help="train to ppo.num_timesteps and evaluate the trained policy",
         )
         parser.add_argument(
             "--compile-together",
@@ -211,12 +229,11 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         set_matmul_precision(cfg.run.matmul_precision)
     with clock.phase("model and environment build"):
         learner = Learner(cfg)
-    from train.loop.aot import (
-        can_compile_together,
-        compile_epoch_ahead,
-        compile_together,
-        first_runs_alone,
-    )
+        if args.warm_start == "on":
+            from train.loop import warm_start
+
+            warm_start.attach(learner, lambda line: print(line, file=sys.stderr))
+    from train.loop.aot import can_compile_together, compile_together, first_runs_alone
 
     baseline_first = first_runs_alone(learner)  # as mecanum-train orders them
     on = args.compile_together == "on"
@@ -225,36 +242,40 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
     if together:
         with clock.phase("compiling together: the reset, the epoch and the evaluation"):
             prepared = compile_together(learner)
-    with clock.phase("robots' reset" + (" (the epoch compiling)" if args.ahead else "")):
-        try:
-            ahead = compile_epoch_ahead(learner) if args.ahead else None
-        except ValueError as err:
-            print(f"error: {err}", file=sys.stderr)
-            raise SystemExit(2) from None
+    with clock.phase("robots' reset"):
         ts, env = jax.block_until_ready(learner.init(*prepared))
 
     def epoch(name: str) -> None:
-        nonlocal ts, env, ahead
+        nonlocal ts, env
         with clock.phase(name) as extra:
-            if ahead is not None:
-                ahead.result()
-                ahead = None
             ts, env, metrics = learner.epoch(ts, env)
-            extra["finite"] = bool(np.all(np.asarray(jax.device_get(metrics["finite"])) > 0))
+            metrics = jax.device_get(metrics)
+            extra["finite"] = bool(np.all(np.asarray(metrics["finite"]) > 0))
+            extra["metrics"] = {k: np.asarray(v).tolist() for k, v in metrics.items()}
 
     def baseline() -> None:
-        with clock.phase("first evaluation: baseline"):
-            learner.evaluate_baseline(first_device(ts))
+        with clock.phase("first evaluation: baseline") as extra:
+            extra["values"] = learner.evaluate_baseline(first_device(ts)).values
 
     if baseline_first:
         baseline()
     epoch("first epoch")
     if not baseline_first:
         baseline()
-    with clock.phase("first evaluation: policy"):
-        learner.evaluate(first_device(ts))
+    with clock.phase("first evaluation: policy") as extra:
+        extra["values"] = [r.values for r in learner.evaluate(first_device(ts))]
     epoch("second epoch")
+    if args.to_end:
+        with clock.phase(f"the run's other {max(cfg.num_epochs - 2, 0)} epochs"):
+            for _ in range(2, cfg.num_epochs):
+                ts, env, _ = learner.epoch(ts, env)
+            jax.block_until_ready(ts)
+        with clock.phase("trained policy's evaluation") as extra:
+            extra["values"] = [r.values for r in learner.evaluate(first_device(ts))]
     from train.loop.run_records import machine_record
+    from train.loop.warm_start import store_of
+
+    store = store_of(learner)
 
     return {
         **machine_record(cfg, learner.env.robot.impl),
@@ -267,7 +288,9 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         },
         "from_process_start": AGE_AT_MODULE is not None,
         "json_out": args.json_out,
-        "epoch_compiled_ahead": args.ahead,
+        "warm_start": None
+        if store is None
+        else {"loaded": store.loaded, "written": store.written, "dir": str(store.directory)},
         "compiled_together": together,
     }
 
@@ -307,10 +330,10 @@ def _tables(report: dict[str, Any], top: int) -> list[Any]:
         f"({report['physics_impl']} physics, {report['robots']} robots, "
         f"cache {report['cache']['dir'] or 'off'})"
     )
-    for col in ("phase", "s", "at s (from process start)"):
+    for col in ("phase", "s", "CPU s", "at s (from process start)"):
         phases.add_column(col, justify="left" if col == "phase" else "right")
     for p in report["phases"]:
-        phases.add_row(p["phase"], f"{p['s']:.2f}", f"{p['at_s']:.2f}")
+        phases.add_row(p["phase"], f"{p['s']:.2f}", f"{p['cpu_s']:.2f}", f"{p['at_s']:.2f}")
     progs = Table(title=f"Compiled programs (the {top} slowest of {len(report['programs'])})")
     for col in ("program", "phase", "trace s", "lower s", "compile s", "cache"):
         progs.add_column(col, justify="left" if col in ("program", "phase", "cache") else "right")

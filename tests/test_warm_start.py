@@ -1,0 +1,183 @@
+"""The warm-start store of compiled programs (train/loop/warm_start.py): a program loaded
+from it gives the numbers of the one compiled, and a stale or corrupt entry is never used."""
+
+import dataclasses
+import json
+import subprocess
+import sys
+from types import SimpleNamespace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from train.loop import warm_start
+
+
+def _program():
+    """A small program with random numbers, floats and a pytree in and out."""
+
+    def f(state, x):
+        key, sub = jax.random.split(state["key"])
+        noise = jax.random.normal(sub, x.shape)
+        return {"key": key, "sum": jnp.sum(jnp.sin(x) * noise)}, jnp.cumsum(x * noise)
+
+    return jax.jit(f)
+
+
+def _args():
+    return {"key": jax.random.PRNGKey(3), "sum": jnp.float32(0)}, np.linspace(
+        0, 1, 64, dtype=np.float32
+    )
+
+
+def _store(tmp_path, key=None, lines=None):
+    log = (lines if lines is not None else []).append
+    return warm_start.Store(tmp_path, key or {"run": "a"}, log)
+
+
+def test_a_loaded_program_gives_the_compiled_ones_numbers_bit_for_bit(tmp_path):
+    cold_store = _store(tmp_path)
+    cold = warm_start.Stored(_program(), "f", cold_store)(*_args())
+    assert cold_store.written == ["f"]
+    assert cold_store.loaded == []
+    warm_store = _store(tmp_path)
+    warm = warm_start.Stored(_program(), "f", warm_store)(*_args())
+    assert warm_store.loaded == ["f"]
+    assert warm_store.written == []
+    for a, b in zip(jax.tree.leaves(cold), jax.tree.leaves(warm), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        assert np.asarray(a).dtype == np.asarray(b).dtype
+    direct = _program()(*_args())  # and those of the plain jitted function
+    for a, b in zip(jax.tree.leaves(direct), jax.tree.leaves(warm), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_a_stale_entry_is_not_used(tmp_path):
+    warm_start.Stored(_program(), "f", _store(tmp_path, {"run": "a"}))(*_args())
+    other = _store(tmp_path, {"run": "b"})  # e.g. another code hash
+    warm_start.Stored(_program(), "f", other)(*_args())
+    assert other.loaded == []
+    assert other.written == ["f"]
+    # a file whose stored key differs from the one asked for (a collision, a rename)
+    first = _store(tmp_path, {"run": "a"})
+    full_key = {"run": "a", "program": "f", "signature": "s"}
+    first.save("f", full_key, _program().lower(*_args()).compile())
+    path = first.path(full_key)
+    moved = first.path({**full_key, "signature": "t"})
+    path.rename(moved)
+    lines: list[str] = []
+    assert _store(tmp_path, lines=lines).load("f", {**full_key, "signature": "t"}) is None
+    assert "stale" in lines[0]
+    assert not moved.exists()
+
+
+@pytest.mark.parametrize("damage", ["flip", "truncate", "garbage"])
+def test_a_corrupt_file_is_rebuilt(tmp_path, damage):
+    warm_start.Stored(_program(), "f", _store(tmp_path))(*_args())
+    (path,) = tmp_path.glob(f"*{warm_start.SUFFIX}")
+    blob = bytearray(path.read_bytes())
+    if damage == "flip":
+        blob[len(blob) // 2] ^= 0xFF
+    elif damage == "truncate":
+        del blob[len(blob) // 3 :]
+    else:
+        blob = bytearray(b"not a program")
+    path.write_bytes(bytes(blob))
+    lines: list[str] = []
+    store = _store(tmp_path, lines=lines)
+    out = warm_start.Stored(_program(), "f", store)(*_args())
+    assert store.loaded == []
+    assert store.written == ["f"]
+    assert "unusable" in lines[0]
+    np.testing.assert_array_equal(np.asarray(out[1]), np.asarray(_program()(*_args())[1]))
+    assert _store(tmp_path).load("f", _key_of(path.parent)) is not None  # rewritten whole
+
+
+def _key_of(directory):
+    (path,) = directory.glob(f"*{warm_start.SUFFIX}")
+    header, _ = warm_start._unframe(path.read_bytes())
+    return header
+
+
+def test_the_key_holds_the_config_the_versions_the_devices_and_the_code(tiny):
+    key = warm_start.run_key(tiny, jax.devices())
+    assert set(key) >= {"config", "robot", "versions", "devices", "xla_flags", "code"}
+    assert set(key["versions"]) >= {"jax", "jaxlib", "mujoco", "mujoco-mjx", "warp-lang"}
+    other = dataclasses.replace(tiny, ppo=dataclasses.replace(tiny.ppo, entropy_cost=0.5))
+    assert warm_start.run_key(other, jax.devices())["config"] != key["config"]
+    assert warm_start.run_key(tiny, jax.devices()) == key  # deterministic
+
+
+def test_it_is_off_where_it_cannot_serve(monkeypatch):
+    impl = SimpleNamespace(env=SimpleNamespace(robot=SimpleNamespace(impl="jax")))
+    learner = SimpleNamespace(n_processes=1, parallel="pmap", **vars(impl))
+    assert warm_start.why_not(learner, {}) in (None, "the persistent compilation cache is off")
+    assert "MECANUM_WARM_START" in warm_start.why_not(learner, {warm_start.ENV_VAR: "off"})
+    monkeypatch.setattr("train.loop.compilation_cache.in_force", lambda: "/tmp")
+    assert "Warp" in warm_start.why_not(
+        SimpleNamespace(
+            n_processes=1, parallel="pmap", env=SimpleNamespace(robot=SimpleNamespace(impl="warp"))
+        ),
+        {},
+    )
+    assert "split" in warm_start.why_not(SimpleNamespace(n_processes=1, parallel="split"), {})
+    assert "processes" in warm_start.why_not(SimpleNamespace(n_processes=2), {})
+
+
+@pytest.mark.full
+def test_a_warm_start_of_the_tiny_run_matches_a_cold_one_bit_for_bit(tmp_path):
+    """Two fresh processes on one cache: the second loads the reset, the epoch and the
+    rollout, traces none of them, and its epochs' metrics and evaluations are the first's."""
+
+    def start(name):
+        out = tmp_path / f"{name}.json"
+        cmd = [sys.executable, "-m", "train.tools.coldstart", "--config", "tiny", "--to-end"]
+        cmd += ["--compilation-cache", str(tmp_path / "cache"), "--json-out", str(out)]
+        subprocess.run(cmd, check=True, capture_output=True, text=True)
+        return json.loads(out.read_text())
+
+    cold, warm = start("cold"), start("warm")
+    assert sorted(warm["warm_start"]["loaded"]) == ["epoch", "reset", "rollout"]
+    assert warm["warm_start"]["written"] == []
+    assert not any(p["name"] == "jit(_rollout)" for p in warm["programs"])  # not traced
+
+    def figures(report):
+        return [
+            {k: v for k, v in p.items() if k in ("metrics", "values")} for p in report["phases"]
+        ]
+
+    assert figures(cold) == figures(warm)
+
+
+TRAINER_MODULES = (
+    "train.learner.ppo",
+    "train.learner.losses",
+    "train.learner.split_epoch",
+    "train.learner.distill",
+    "train.learner.parallel",
+    "train.loop.run",
+    "train.loop.aot",
+    "train.loop.warm_start",
+)
+EVAL_IMPORTS = """
+import json, sys
+from pathlib import Path
+import train.cli.evaluate
+from train.learner.policy import restore_policy
+restore_policy(Path(sys.argv[1]))
+print(json.dumps(sorted(sys.modules)))
+"""
+
+
+def test_evaluating_a_saved_model_imports_no_trainer():
+    """``mecanum-eval MODEL`` imports the CLI and restores the policy without the learner,
+    the trainer's loop or their programs (a fresh interpreter)."""
+    from pathlib import Path
+
+    model = Path(__file__).parents[1] / "models" / "o_rectangle"
+    cmd = [sys.executable, "-c", EVAL_IMPORTS, str(model)]
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
+    imported = set(json.loads(out.strip().splitlines()[-1]))
+    assert not imported & set(TRAINER_MODULES)

@@ -1,0 +1,258 @@
+"""A warm start without tracing: the run's compiled programs kept on disk.
+
+With JAX's persistent cache warm, a start still traces and lowers its three large
+programs (the robots' reset, the epoch, the evaluation's rollout) to find them in the
+cache: on the 2-core CPU 6.7 of the tiny config's 11 s, on an H200 10 s
+(docs/benchmarks.md). :func:`attach` gives a learner's programs a store of their compiled
+executables (``jax.experimental.serialize_executable``) in the compilation cache's
+directory (``<dir>/mecanum-programs``), so a later start of the same run loads them
+without tracing. A cold start compiles each as ``jit(...).lower(...).compile()`` would
+and writes it; a warm one runs the executable it wrote, so the two give the same numbers
+bit for bit.
+
+Each entry is keyed by everything its program depends on (:func:`run_key`): the resolved
+config, the robot, the versions of jax, jaxlib, MuJoCo, MJX, Warp, Brax, Flax and optax,
+the devices, ``XLA_FLAGS``, JAX's numerics flags, a hash of the ``mecanum_jax`` and
+``train`` sources, and the program's name and argument signature. A file is trusted only
+if its checksum, its stored key and its deserialization all pass; else it is compiled
+again and rewritten, with a log line.
+
+Off (:func:`why_not`), with a log line, where the store cannot serve: no persistent
+cache, several processes, ``run.parallel = "split"``, MJX's Warp implementation (Warp
+registers its FFI calls when they are traced, so an executable loaded untraced would call
+unregistered targets), or ``MECANUM_WARM_START=off``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.metadata
+import json
+import os
+import pickle
+import threading
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+import mecanum_jax
+import train
+
+MAGIC = b"mecanum-jax executable 1\n"
+SUFFIX = ".jaxexe"
+SUBDIR = "mecanum-programs"
+ENV_VAR = "MECANUM_WARM_START"
+PACKAGES = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "warp-lang", "brax", "flax", "optax")
+JAX_FLAGS = (
+    "jax_enable_x64",
+    "jax_default_matmul_precision",
+    "jax_threefry_partitionable",
+    "jax_default_prng_impl",
+)
+Log = Callable[[str], None]
+
+
+def _version(package: str) -> str | None:
+    try:
+        return importlib.metadata.version(package)
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
+def code_hash() -> str:
+    """sha256 of the ``mecanum_jax`` and ``train`` packages' ``.py`` files (paths and bytes)."""
+    h = hashlib.sha256()
+    for package in (mecanum_jax, train):
+        root = Path(str(package.__file__)).parent
+        for path in sorted(root.rglob("*.py")):
+            h.update(str(path.relative_to(root.parent)).encode() + b"\0")
+            h.update(path.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def _digest(obj: Any) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=repr).encode()).hexdigest()
+
+
+def run_key(cfg: Any, devices: list[Any]) -> dict[str, Any]:
+    """What a run's programs depend on, as JSON-ready values (see the module docstring)."""
+    return {
+        "config": _digest(cfg.to_dict()),
+        "robot": _digest(repr(cfg.env.description())),
+        "versions": {p: _version(p) for p in PACKAGES},
+        "devices": [f"{d.platform}:{d.device_kind}:{d.id}" for d in devices],
+        "backend_devices": jax.device_count(),
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
+        "jax_flags": {f: str(getattr(jax.config, f, None)) for f in JAX_FLAGS},
+        "code": code_hash(),
+    }
+
+
+class Store:
+    """Compiled programs in a directory, each file keyed, checksummed and checked on load."""
+
+    def __init__(self, directory: Path, key: dict[str, Any], log: Log):
+        self.directory = directory
+        self.key = key
+        self.log = log
+        self.loaded: list[str] = []
+        self.written: list[str] = []
+
+    def path(self, full_key: dict[str, Any]) -> Path:
+        return self.directory / f"{_digest(full_key)[:40]}{SUFFIX}"
+
+    def load(self, name: str, full_key: dict[str, Any]) -> Any | None:
+        """The program stored under ``full_key``, or ``None`` (absent, stale or corrupt:
+        logged, and the file removed)."""
+        path = self.path(full_key)
+        try:
+            blob = path.read_bytes()
+        except FileNotFoundError:
+            return None
+        try:
+            header, payload = _unframe(blob)
+            if header != json.loads(json.dumps(full_key, default=repr)):
+                raise ValueError("its key differs (a stale entry)")
+            compiled = _deserialize(*pickle.loads(payload))
+        except Exception as err:  # anything wrong with the file: never trusted
+            self.log(f"warm start: {name}: {path.name} unusable ({err}); compiling it again")
+            path.unlink(missing_ok=True)
+            return None
+        self.loaded.append(name)
+        return compiled
+
+    def save(self, name: str, full_key: dict[str, Any], compiled: Any) -> None:
+        """Write ``compiled`` (atomically); a program that cannot be serialized is logged."""
+        from jax.experimental import serialize_executable
+
+        try:
+            devices = [d.id for d in compiled.runtime_executable().local_devices()]
+            payload = pickle.dumps((*serialize_executable.serialize(compiled), devices))
+        except Exception as err:
+            self.log(f"warm start: {name} cannot be stored ({err}); it compiles on each start")
+            return
+        path = self.path(full_key)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".tmp{os.getpid()}")
+        tmp.write_bytes(_frame(full_key, payload))
+        os.replace(tmp, path)
+        self.written.append(name)
+
+
+def _deserialize(serialized: bytes, in_tree: Any, out_tree: Any, device_ids: list[int]) -> Any:
+    """The executable, loaded onto the devices it was compiled for."""
+    from jax.experimental import serialize_executable
+
+    by_id = {d.id: d for d in jax.local_devices()}
+    devices = [by_id[i] for i in device_ids]
+    return serialize_executable.deserialize_and_load(
+        serialized, in_tree, out_tree, backend=devices[0].client, execution_devices=devices
+    )
+
+
+def _frame(key: dict[str, Any], payload: bytes) -> bytes:
+    header = json.dumps(key, sort_keys=True, default=repr).encode()
+    body = len(header).to_bytes(8, "little") + header + payload
+    return MAGIC + hashlib.sha256(body).digest() + body
+
+
+def _unframe(blob: bytes) -> tuple[Any, bytes]:
+    if not blob.startswith(MAGIC):
+        raise ValueError("not a stored program")
+    digest, body = blob[len(MAGIC) : len(MAGIC) + 32], blob[len(MAGIC) + 32 :]
+    if hashlib.sha256(body).digest() != digest:
+        raise ValueError("checksum mismatch")
+    n = int.from_bytes(body[:8], "little")
+    return json.loads(body[8 : 8 + n]), body[8 + n :]
+
+
+class Stored:
+    """A jitted (or pmapped) function whose compiled programs come from a :class:`Store`:
+    called, it runs the program for its arguments' signature, loaded, or compiled (and
+    written) on first use; :meth:`lower` is the function's own."""
+
+    def __init__(self, fn: Any, name: str, store: Store):
+        self.fn = fn
+        self.name = name
+        self.store = store
+        self._programs: dict[Any, Any] = {}
+        self._lock = threading.Lock()  # (the baseline's evaluation runs in a thread)
+
+    def lower(self, *args: Any) -> Any:
+        return self.fn.lower(*args)
+
+    def __call__(self, *args: Any) -> Any:
+        leaves, tree = jax.tree.flatten(args)
+        sig = (tree, tuple(_aval(x) for x in leaves))
+        with self._lock:
+            program = self._programs.get(sig)
+            if program is None:
+                program = self._programs[sig] = self._program(args, sig)
+        return program(*args)
+
+    def _program(self, args: tuple[Any, ...], sig: Any) -> Any:
+        full_key = {**self.store.key, "program": self.name, "signature": repr(sig)}
+        compiled = self.store.load(self.name, full_key)
+        if compiled is None:
+            compiled = self.fn.lower(*args).compile()
+            self.store.save(self.name, full_key, compiled)
+        return compiled
+
+
+def _aval(x: Any) -> tuple[Any, ...]:
+    weak = bool(getattr(x, "weak_type", False))
+    sharding = x.sharding if isinstance(x, jax.Array) and x.committed else None
+    dtype = x.dtype if hasattr(x, "dtype") else np.result_type(x)
+    return (np.shape(x), str(dtype), weak, sharding)
+
+
+def why_not(learner: Any, environ: Any = os.environ) -> str | None:
+    """Why the store cannot serve ``learner`` (``None``: it can)."""
+    from train.loop import compilation_cache
+
+    if environ.get(ENV_VAR, "").lower() in ("0", "off", "false", "no"):
+        return f"{ENV_VAR}={environ[ENV_VAR]}"
+    if compilation_cache.in_force() is None:
+        return "the persistent compilation cache is off"
+    if learner.n_processes > 1:
+        return "several processes"
+    if learner.parallel == "split":
+        return "run.parallel = 'split' compiles per GPU on first use"
+    if learner.env.robot.impl == "warp":
+        return "MuJoCo Warp registers its FFI calls when traced"
+    return None
+
+
+def attach(learner: Any, log: Log = print) -> Any:
+    """Serve ``learner``'s reset, epoch and evaluation rollout from a :class:`Store` in the
+    compilation cache's directory (once per learner; :func:`store_of` gives it), unless
+    :func:`why_not` (said in a log line). Returns ``learner``."""
+    if store_of(learner) is not None:
+        return learner
+    reason = why_not(learner)
+    if reason is not None:
+        log(f"warm start off: {reason}; the programs are traced and compiled as usual")
+        return learner
+    from train.loop import compilation_cache
+
+    directory = compilation_cache.in_force()
+    assert directory is not None
+    store = Store(directory / SUBDIR, run_key(learner.cfg, learner.devices), log)
+    # the learner's and the evaluator's jitted programs, wrapped in place (their calls
+    # and lowerings go through the wrappers unchanged)
+    learner._reset = Stored(learner._reset, "reset", store)
+    learner._parallel_epoch = Stored(learner._parallel_epoch, "epoch", store)
+    learner.evaluation.store_programs(lambda fn: Stored(fn, "rollout", store))
+    learner.warm_store = store
+    return learner
+
+
+def store_of(learner: Any) -> Store | None:
+    """The store :func:`attach` gave ``learner`` (``None``: none)."""
+    return getattr(learner, "warm_store", None)
+
+
+__all__ = ["ENV_VAR", "Store", "Stored", "attach", "code_hash", "run_key", "store_of", "why_not"]
