@@ -56,6 +56,7 @@ def scripted_commands(env: MecanumEnv, scenario: Scenario) -> np.ndarray:
     c = scenario.commands
     T = steps(env, scenario)
     scale = np.asarray(env.command_scale, np.float64)
+    reachable = np.asarray(env.constants.reachable, np.float64)  # the identity for rank 3
     segments: list[tuple[np.ndarray, float]] = []
 
     def reach(direction: np.ndarray) -> float:
@@ -63,15 +64,18 @@ def scripted_commands(env: MecanumEnv, scenario: Scenario) -> np.ndarray:
         return float(limits.max_speed(env.geometry, d, env.max_rates))
 
     def toward(direction: np.ndarray, seconds: float) -> None:
-        unit = direction / np.linalg.norm(direction)
-        segments.append((unit * reach(direction) * c.speed, seconds))
+        direction = reachable @ direction  # a direction the layout cannot drive: a stop
+        norm = np.linalg.norm(direction)
+        twist = direction / norm * reach(direction) * c.speed if norm > 1e-6 else 0 * direction
+        segments.append((twist, seconds))
         if c.pause_s > 0:
             segments.append((np.zeros(3), c.pause_s))
 
     if c.kind == "sequence":
         for seg in c.sequence:
             twist = np.asarray(seg[:3], np.float64)
-            segments.append((twist * scale if c.units == "reach" else twist, seg[3]))
+            twist = reachable @ (twist * scale if c.units == "reach" else twist)
+            segments.append((twist, seg[3]))
     elif c.kind == "six_modes":
         for _, unit, _ in SIX_MODES.values():
             toward(np.asarray(unit, np.float64), c.segment_s)

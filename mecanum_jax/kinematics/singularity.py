@@ -11,11 +11,20 @@ the other wheels.
 Seed 003's remedy, for lengthways-symmetric layouts where two wheels share a singular
 direction: turn the body 10–30° so the travel direction is off the singular one
 (:func:`avoidance_turn`).
+
+A *rank-deficient* layout (an X-square: its rollers' axes all pass through the centre, so
+it cannot spin) still drives every translation. Such a layout is *usable*: commands are
+projected onto the twists it can reach (:func:`reachable_projector`,
+:func:`project_reachable`), with one :class:`SingularLayoutWarning` naming the robot and
+the lost direction (:func:`warn_unreachable`). A layout that cannot drive every planar
+translation (rank < 2, or rank 2 losing a translation) is refused with a named
+:class:`SingularLayoutError` (:func:`require_usable`).
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from typing import NamedTuple
 
 import jax
@@ -23,12 +32,17 @@ import jax.numpy as jnp
 import numpy as np
 
 from mecanum_jax._checks import checked_twist
-from mecanum_jax.kinematics.geometry import WheelGeometry
+from mecanum_jax.kinematics.geometry import (
+    SingularLayoutError,
+    SingularLayoutWarning,
+    WheelGeometry,
+)
 from mecanum_jax.kinematics.model import (
     apply_rows,
     condition_number,
     jacobian,
     jacobian_rank,
+    null_twists,
     roller_axes,
 )
 
@@ -38,9 +52,15 @@ __all__ = [
     "condition_number",
     "heading_margin",
     "jacobian_rank",
+    "lost_directions",
+    "project_reachable",
+    "reachable_forward_matrix",
+    "reachable_projector",
+    "require_usable",
     "singular_directions",
     "singular_headings",
     "singular_wheels",
+    "warn_unreachable",
 ]
 
 
@@ -153,3 +173,72 @@ def avoidance_turn(
     best = jnp.argmin(cost, axis=-1)
     delta = jnp.take_along_axis(deltas, best[..., None], axis=-1)[..., 0]
     return jnp.where(jnp.any(ok, axis=-1), delta, jnp.nan)
+
+
+# --- rank-deficient layouts: the reachable twist subspace ----------------------------------
+
+
+def reachable_projector(geometry: WheelGeometry) -> np.ndarray:
+    """The (3, 3) orthogonal projector onto the twists the wheels can drive: the row space
+    of the Jacobian (the identity for a rank-3 layout). Needs a concrete geometry."""
+    lost = np.asarray(null_twists(geometry), dtype=float)
+    return np.eye(3) - lost.T @ lost
+
+
+def project_reachable(twist: jax.typing.ArrayLike, projector: jax.typing.ArrayLike) -> jax.Array:
+    """Twists (..., 3) projected onto the reachable subspace (``projector`` from
+    :func:`reachable_projector`): the part of a command the layout cannot drive is dropped.
+    Pure and traceable (three fused multiply-adds per component), so it runs in the jitted
+    command sampler; an identity projector returns the twists unchanged."""
+    t = jnp.asarray(twist)
+    return apply_rows(jnp.asarray(projector, t.dtype), t)
+
+
+def reachable_forward_matrix(geometry: WheelGeometry) -> np.ndarray:
+    """The (3, n) least-squares forward map restricted to the reachable twists: the
+    pseudo-inverse of J. Equal to the forward matrix of a rank-3 layout; for a
+    rank-deficient one it reports no motion along the lost directions (the wheels can't
+    sense it) instead of NaN. Needs a concrete geometry."""
+    J = np.asarray(jacobian(geometry), dtype=float)
+    rank = jacobian_rank(geometry)
+    u, s, vt = np.linalg.svd(J, full_matrices=False)
+    return (vt[:rank].T / s[:rank]) @ u[:, :rank].T
+
+
+def lost_directions(geometry: WheelGeometry) -> str:
+    """The twist directions (vx, vy, ωz) a layout cannot drive, in words ("" for rank 3)."""
+    named = {0: "vx (forward translation)", 1: "vy (sideways translation)", 2: "ωz (spin)"}
+    words = []
+    for v in np.asarray(null_twists(geometry), dtype=float):
+        axis = int(np.argmax(np.abs(v)))
+        if abs(abs(v[axis]) - 1.0) < 1e-6:
+            words.append(named[axis])
+        else:
+            words.append(f"(vx, vy, ωz) = {np.round(v, 4).tolist()}")
+    return ", ".join(words)
+
+
+def require_usable(geometry: WheelGeometry, robot: str) -> None:
+    """Raise :class:`SingularLayoutError` naming ``robot`` unless the wheels can drive
+    every planar translation (a rank-3 layout, or a rank-2 one that only loses the spin)."""
+    P = reachable_projector(geometry)
+    if np.allclose(P[:2, :2], np.eye(2), atol=1e-6):
+        return
+    raise SingularLayoutError(
+        f"robot {robot!r}: the wheels cannot drive every planar translation (Jacobian rank "
+        f"{jacobian_rank(geometry)} of 3; lost: {lost_directions(geometry)}); such a layout "
+        "cannot be simulated usefully or trained"
+    )
+
+
+def warn_unreachable(geometry: WheelGeometry, robot: str, stacklevel: int = 2) -> None:
+    """The one :class:`SingularLayoutWarning` of a rank-deficient layout: it names the robot
+    and the lost direction, and says that commands are projected (nothing for rank 3)."""
+    if jacobian_rank(geometry) < 3:
+        warnings.warn(
+            f"robot {robot!r}: singular layout (Jacobian rank {jacobian_rank(geometry)}): it "
+            f"cannot drive {lost_directions(geometry)}; commands are projected onto the twists "
+            "it can reach",
+            SingularLayoutWarning,
+            stacklevel=stacklevel + 1,
+        )

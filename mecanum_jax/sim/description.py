@@ -3,7 +3,9 @@
 One description drives both the analytic model and (later) the physics. A file has the
 tables ``[robot]``, ``[geometry]`` and ``[motors]``; see ``configs/robots/*.toml`` for
 commented examples. Unknown or missing keys, and keys that the chosen layout does not
-use, are rejected with an error naming the key and the value.
+use, are rejected with an error naming the key and the value; so are numbers no real
+robot has (:mod:`mecanum_jax.sim.plausible`; ``allow_implausible = true`` in ``[robot]``
+accepts them) and layouts that cannot drive every planar translation.
 """
 
 from __future__ import annotations
@@ -28,7 +30,8 @@ from mecanum_jax.config import (
     read_config_bytes,
 )
 from mecanum_jax.kinematics import geometry as geo
-from mecanum_jax.kinematics import motors
+from mecanum_jax.kinematics import motors, singularity
+from mecanum_jax.sim import plausible
 from mecanum_jax.sim.specs import (  # the tables, re-exported: callers import them from here
     ActuatorSpec as ActuatorSpec,
 )
@@ -161,13 +164,22 @@ def build_geometry(
 
 def parse_description(data: dict, source: str = "robot description") -> RobotDescription:
     """Validate a parsed description mapping (e.g. from TOML)."""
+    if isinstance(data, dict) and "robot" not in data and "geometry" not in data:
+        kind = "a training config" if "env" in data or "ppo" in data else "another kind of file"
+        kind = "a scenario file" if "defaults" in data or "scenarios" in data else kind
+        raise ConfigError(
+            f"{source}: not a robot description (it has {sorted(data)}, not the tables "
+            f"[robot], [geometry] and [motors]); it looks like {kind}"
+        )
     try:
         desc = from_mapping(RobotDescription, data)
     except ConfigError as err:
         raise ConfigError(f"{source}: {err}") from None
     try:
         geometry = desc.build_geometry(warn_singular=False)
-    except ConfigError as err:
+        plausible.check_plausible(desc.robot, desc.geometry, desc.body, geometry)
+        singularity.require_usable(geometry, desc.robot.name)
+    except (ConfigError, geo.SingularLayoutError) as err:
         raise ConfigError(f"{source}: {err}") from None
     check_physics(desc, source)
     m = desc.motors
@@ -301,8 +313,10 @@ def resolve_description(robot: str, where: str = "") -> RobotDescription:
 def fingerprint(desc: RobotDescription) -> str:
     """A short hash of everything in a description (geometry, motors, body, actuators,
     simulation): two descriptions with the same fingerprint build the same robot. The MJX
-    implementation (``sim.impl``) is left out: it simulates the same robot."""
+    implementation (``sim.impl``) and ``robot.allow_implausible`` are left out: they build
+    the same robot."""
     fields = dataclasses.asdict(desc)
     del fields["sim"]["impl"]
+    del fields["robot"]["allow_implausible"]  # accepts the numbers, changes no robot
     text = json.dumps(fields, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]

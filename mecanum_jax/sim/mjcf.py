@@ -24,15 +24,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import warnings
 from typing import Literal
 
 import mujoco
 import numpy as np
 
 from mecanum_jax.config import ConfigError
-from mecanum_jax.kinematics.geometry import SingularLayoutWarning, WheelGeometry
-from mecanum_jax.kinematics.model import jacobian_rank
+from mecanum_jax.kinematics.geometry import WheelGeometry
+from mecanum_jax.kinematics.singularity import warn_unreachable
 from mecanum_jax.sim.description import SOLVERS, RobotDescription
 
 Fidelity = Literal["fast", "reference"]
@@ -145,13 +144,7 @@ def _validate(
                 f"{np.round(np.asarray(geom.positions[i]), 4).tolist()} (radius "
                 f"{float(geom.radii[i]):.4g} m, width {desc.body.wheel_width} m)"
             )
-    if jacobian_rank(geom) < 3:
-        warnings.warn(
-            f"robot {desc.robot.name!r}: singular layout (Jacobian rank {jacobian_rank(geom)}); "
-            "it builds so that physics can show what it cannot do",
-            SingularLayoutWarning,
-            stacklevel=3,
-        )
+    warn_unreachable(geom, desc.robot.name, stacklevel=3)  # rank < 3: commands projected
 
 
 def _hub_inertia(mass: float, r: float, width: float) -> str:

@@ -152,3 +152,6 @@ class RobotSpec:
 
     name: str
     description: str = ""
+    allow_implausible: bool = False
+    """Accept numbers no real robot has (lengths outside 1 mm–5 m, a wheel larger than the
+    base or wider than 4 radii; :mod:`mecanum_jax.sim.plausible`)."""

@@ -3,7 +3,8 @@
 Commands are sampled per robot and resampled at random times: zeros, pure translations in
 every direction, pure spins, combinations, and commands beyond reach (more than the
 wheels' rate limits allow), each a fraction of the feasible set's radius in its direction
-(from the description's motor limits).
+(from the description's motor limits). A layout that cannot drive some twist (an
+X-square cannot spin) gets commands projected onto the twists it can reach.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from mecanum_jax.config import invalid, require
-from mecanum_jax.kinematics import limits
+from mecanum_jax.kinematics import limits, singularity
 from mecanum_jax.task.constants import RobotConstants
 
 COMMAND_KINDS = ("zero", "translation", "spin", "combined", "beyond")
@@ -86,6 +87,7 @@ def sample_command(robot: RobotConstants, key: jax.Array, c: CommandConfig) -> j
     direction = jnp.select(
         [kind == 1, kind == 2], [translation, spin], jnp.where(kind == 0, 0.0, combined)
     )
+    direction = singularity.project_reachable(direction, robot.reachable)
     norm = jnp.linalg.norm(direction)
     unit = direction / jnp.where(norm > 0, norm, 1.0)
     reach = limits.max_speed(robot.geometry, jnp.where(norm > 0, unit, 1.0), robot.max_rates)
