@@ -23,6 +23,7 @@ import tyro
 from rich.console import Console
 from rich.table import Table
 
+from mecanum_jax._checks import require_platform
 from mecanum_jax.bench_kinematics import KinematicsBench, run_kinematics
 from mecanum_jax.bench_physics import PhysicsBench, run_physics
 from mecanum_jax.bench_report import write_json
@@ -99,24 +100,27 @@ def _ensure_malloc_tuning(argv: list[str] | None) -> None:
     os.execve(sys.executable, [sys.executable, "-m", "mecanum_jax.bench", *sys.argv[1:]], env)
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Entry point of ``mecanum-bench``."""
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``mecanum-bench``: exit 2 with one ``error:`` line for a bad argument."""
     _ensure_malloc_tuning(argv)
-    set_matmul_precision("highest")  # one number on every device (mecanum_jax.precision)
     cmd = tyro.extras.subcommand_cli_from_dict(
         {"kinematics": KinematicsBench, "physics": PhysicsBench, "drives": DrivesComparison},
         args=argv,
     )
-    if isinstance(cmd, DrivesComparison):
-        run_drives(cmd)
-    elif isinstance(cmd, KinematicsBench):
-        run_kinematics(cmd)
-    elif isinstance(cmd, PhysicsBench):
-        try:
+    try:
+        require_platform()
+        set_matmul_precision("highest")  # one number on every device (mecanum_jax.precision)
+        if isinstance(cmd, DrivesComparison):
+            run_drives(cmd)
+        elif isinstance(cmd, KinematicsBench):
+            run_kinematics(cmd)
+        elif isinstance(cmd, PhysicsBench):
             run_physics(cmd)
-        except ConfigError as err:
-            raise SystemExit(f"error: {err}") from None
+    except ConfigError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -23,7 +23,6 @@ import dataclasses
 import functools
 import os
 import platform
-import statistics
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -35,7 +34,8 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from mecanum_jax.bench_report import header, write_json
+from mecanum_jax.bench_report import header, median_spread, warn_spread, write_json
+from mecanum_jax.config import ConfigError
 from mecanum_jax.kinematics import geometry, odometry
 from mecanum_jax.kinematics import model as kinematics
 
@@ -79,8 +79,8 @@ def _available_bytes() -> int:
 
 def _time(
     fn: Callable[[], Any], repeats: int, min_time: float, block: Callable[[Any], Any] | None = None
-) -> float:
-    """Median seconds per call of ``fn``.
+) -> tuple[float, float]:
+    """Median seconds per call of ``fn``, and the repeats' spread (bench_report.median_spread).
 
     Without ``block`` each call is synchronous (NumPy, or a blocking JAX call: latency).
     With ``block``, calls are dispatched back to back and only the last result is waited
@@ -100,7 +100,7 @@ def _time(
             out = fn()
         wait(out)
         samples.append((time.perf_counter() - start) / inner)
-    return statistics.median(samples)
+    return median_spread(samples)
 
 
 def _block(x: Any) -> Any:
@@ -184,13 +184,16 @@ def _make_calls(
 def _check_kinematics_args(args: KinematicsBench) -> None:
     for name, value in (("repeats", args.repeats), ("odometry_steps", args.odometry_steps)):
         if value < 1:
-            raise SystemExit(f"--{name.replace('_', '-')} = {value}: must be >= 1")
+            raise ConfigError(f"--{name.replace('_', '-')} = {value}: must be >= 1")
     bad = [s for s in args.sizes if s < 1]
-    if bad:
-        raise SystemExit(f"--sizes: {bad[0]} is not a positive batch size")
+    if bad or not args.sizes:
+        raise ConfigError(
+            f"--sizes = {list(args.sizes)}: "
+            f"{bad[0] if bad else 'none'} is not a positive batch size"
+        )
     unknown = sorted(set(args.ops) - {"inverse", "inverse_soa", "forward", "odometry"})
     if unknown:
-        raise SystemExit(
+        raise ConfigError(
             f"--ops: unknown operation {unknown[0]!r}; "
             "known: inverse, inverse_soa, forward, odometry"
         )
@@ -245,16 +248,20 @@ def _time_op(
     """One row: the JAX call's throughput and latency, a copy of as many bytes (the
     bandwidth roofline) and, for small batches, NumPy."""
     moved = _bytes_moved(op, size, args.odometry_steps)
-    t_jax = _time(call, args.repeats, args.min_time, _block)
-    t_latency = _time(functools.partial(_call_and_block, call), args.repeats, args.min_time)
+    t_jax, s_jax = _time(call, args.repeats, args.min_time, _block)
+    t_latency, s_latency = _time(
+        functools.partial(_call_and_block, call), args.repeats, args.min_time
+    )
     del call
     half = jnp.zeros((max(moved // 8, 1),), jnp.float32)  # read + write = moved bytes
-    t_copy = _time(functools.partial(_copy, half), args.repeats, args.min_time, _block)
+    t_copy, s_copy = _time(functools.partial(_copy, half), args.repeats, args.min_time, _block)
     del half
-    t_np = None
+    t_np, s_np = None, None
     if args.numpy and size <= args.numpy_max_size:
-        t_np = _time(ref, max(3, args.repeats // 2), args.min_time)
+        t_np, s_np = _time(ref, max(3, args.repeats // 2), args.min_time)
+    spread = {"jax": s_jax, "latency": s_latency, "copy": s_copy, "numpy": s_np}
     return {
+        "spread": {k: v for k, v in spread.items() if v is not None},
         "op": op,
         "size": size,
         "jax_s": t_jax,
@@ -275,7 +282,8 @@ def _print_table(result: dict[str, Any], console: Console) -> None:
     table = Table(
         title=f"kinematics on {result['device']} (jax {result['jax']}), median of repeats",
         caption="JAX robots/s: calls dispatched back to back (throughput); latency: one "
-        "blocking call; roofline: JAX GB/s over a device copy of the same bytes",
+        "blocking call; roofline: JAX GB/s over a device copy of the same bytes; spread: "
+        "the row's largest (max − min)/median over repeats",
     )
     for col in (
         "op",
@@ -287,11 +295,12 @@ def _print_table(result: dict[str, Any], console: Console) -> None:
         "JAX GB/s",
         "copy GB/s",
         "roofline",
+        "spread",
     ):
         table.add_column(col, justify="right")
     for r in result["results"]:
         if "skipped" in r:
-            table.add_row("—", f"{r['size']:.0e}", "skipped (memory)", "", "", "", "", "", "")
+            table.add_row("—", f"{r['size']:.0e}", "skipped (memory)", *[""] * 7)
             continue
         np_rate = f"{r['numpy_robots_per_s']:.3g}" if r["numpy_robots_per_s"] else "—"
         ratio = f"{r['jax_over_numpy']:.2f}×" if r["jax_over_numpy"] else "—"
@@ -305,8 +314,12 @@ def _print_table(result: dict[str, Any], console: Console) -> None:
             f"{r['jax_GBps']:.1f}",
             f"{r['copy_GBps']:.1f}",
             f"{100 * r['roofline_fraction']:.0f}%",
+            f"{100 * max(r['spread'].values()):.0f}%",
         )
     console.print(table)
+    for r in result["results"]:
+        for figure, spread in r.get("spread", {}).items():
+            warn_spread(console, f"{r['op']} batch {r['size']:.0e}, {figure} time", spread)
 
 
 __all__ = ["KinematicsBench", "numpy_forward", "numpy_integrate", "numpy_inverse", "run_kinematics"]

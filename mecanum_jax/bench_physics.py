@@ -10,7 +10,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import itertools
-import statistics
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -22,7 +21,8 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from mecanum_jax.bench_report import header, write_json
+from mecanum_jax.bench_report import header, median_spread, warn_spread, write_json
+from mecanum_jax.config import ConfigError
 from mecanum_jax.kinematics import model as kinematics
 
 
@@ -77,9 +77,9 @@ def time_physics(
             t0 = time.perf_counter()
             state = jax.block_until_ready(run(state, cmd, p))
             samples.append(time.perf_counter() - t0)
-        t = statistics.median(samples)
+        t, spread = median_spread(samples)
         rows.append(
-            {"size": size, "seconds_per_call": t, "compile_s": compile_s,
+            {"size": size, "seconds_per_call": t, "spread": spread, "compile_s": compile_s,
              "steps_per_s": size * steps / t, "unstable": int(np.asarray(state.unstable).sum())}
         )  # fmt: skip
     return rows
@@ -109,10 +109,9 @@ def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str,
         )
         for row in time_physics(robot, sizes, args.steps, args.repeats):
             rows.append({"fidelity": fidelity, "impl": impl, "servo": servo, **row})
-            console.print(
-                f"{fidelity:9s} {impl:4s} {servo:5s} batch {row['size']:6d}: "
-                f"{row['steps_per_s']:12.4g} steps/s"
-            )
+            what = f"{fidelity:9s} {impl:4s} {servo:5s} batch {row['size']:6d}"
+            console.print(f"{what}: {row['steps_per_s']:12.4g} steps/s")
+            warn_spread(console, what.replace("  ", " ").strip(), row["spread"])
     result = {**header("physics", args), "results": rows}
     console.print(_physics_table(result, args.steps))
     write_json(result, args.json_out, console)
@@ -122,15 +121,15 @@ def run_physics(args: PhysicsBench, console: Console | None = None) -> dict[str,
 def _check_physics_args(args: PhysicsBench, impls: tuple[str, ...]) -> None:
     bad = sorted(set(args.fidelities) - {"fast", "reference"})
     if bad:
-        raise SystemExit(f"--fidelities: unknown fidelity {bad[0]!r}; known: fast, reference")
+        raise ConfigError(f"--fidelities: unknown fidelity {bad[0]!r}; known: fast, reference")
     bad = sorted(set(args.servos) - {"chord", "mjx"})
     if bad or not args.servos:
-        raise SystemExit(f"--servos: {list(args.servos)}: expected chord and/or mjx")
+        raise ConfigError(f"--servos: {list(args.servos)}: expected chord and/or mjx")
     bad = sorted(set(args.impls) - set(impls))
     if bad or not args.impls:
-        raise SystemExit(f"--impls: {list(args.impls)}: expected {' and/or '.join(impls)}")
-    if args.steps < 1 or args.repeats < 1 or any(n < 1 for n in args.sizes):
-        raise SystemExit(
+        raise ConfigError(f"--impls: {list(args.impls)}: expected {' and/or '.join(impls)}")
+    if args.steps < 1 or args.repeats < 1 or not args.sizes or any(n < 1 for n in args.sizes):
+        raise ConfigError(
             f"--steps = {args.steps}, --repeats = {args.repeats}, "
             f"--sizes = {list(args.sizes)}: all must be >= 1"
         )
@@ -147,12 +146,14 @@ def _physics_table(result: dict[str, Any], steps: int) -> Table:
         "ms per step",
         "compile s",
         "unstable",
+        "spread",
     ):
         table.add_column(col, justify="right")
     for r in result["results"]:
         ms = 1e3 * r["seconds_per_call"] / steps
         cells = (r["fidelity"], r["impl"], r["servo"], str(r["size"]), f"{r['steps_per_s']:.4g}")
-        table.add_row(*cells, f"{ms:.3f}", f"{r['compile_s']:.1f}", str(r["unstable"]))
+        spread = f"{100 * r['spread']:.0f}%"  # (max − min) / median over the repeats
+        table.add_row(*cells, f"{ms:.3f}", f"{r['compile_s']:.1f}", str(r["unstable"]), spread)
     return table
 
 

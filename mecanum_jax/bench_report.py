@@ -5,6 +5,8 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import json
+import statistics
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +28,25 @@ def header(benchmark: str, args: Any) -> dict[str, Any]:
     }
 
 
+SPREAD_WARN = 0.2
+"""Repeats whose spread (max − min over the median) passes this disagree: a warning."""
+
+
+def median_spread(samples: Sequence[float]) -> tuple[float, float]:
+    """The median of timed repeats and their spread, (max − min) / median (0 for one)."""
+    median = statistics.median(samples)
+    return median, (max(samples) - min(samples)) / median if median > 0 else 0.0
+
+
+def warn_spread(console: Console, what: str, spread: float) -> None:
+    """Print one warning line when a figure's repeats disagree by more than SPREAD_WARN."""
+    if spread > SPREAD_WARN:
+        console.print(
+            f"[yellow]warning[/]: {what}: repeats disagree by {100 * spread:.0f}% (max − min "
+            f"over the median; > {100 * SPREAD_WARN:.0f}%): a busy machine? more --repeats"
+        )
+
+
 def write_json(result: dict[str, Any], path: Path | None, console: Console) -> None:
     """Write ``result`` to ``path`` (none: nothing), never leaving a half-written file."""
     if path is None:
@@ -37,4 +58,4 @@ def write_json(result: dict[str, Any], path: Path | None, console: Console) -> N
     console.print(f"wrote {path}")
 
 
-__all__ = ["header", "write_json"]
+__all__ = ["SPREAD_WARN", "header", "median_spread", "warn_spread", "write_json"]

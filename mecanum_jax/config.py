@@ -58,6 +58,7 @@ def _convert(value: Any, tp: Any, where: str) -> Any:
         raise ConfigError(
             errors[0] if len(errors) == 1 else f"{where} = {value!r}: " + "; ".join(errors)
         )
+    value = python_number(value)
     if origin is Literal:
         allowed = get_args(tp)
         if value not in allowed:
@@ -98,6 +99,23 @@ def _convert(value: Any, tp: Any, where: str) -> Any:
     raise TypeError(f"{where}: unsupported config field type {tp!r}")  # a bug in the schema
 
 
+def python_number(value: Any) -> Any:
+    """A NumPy or JAX scalar (a concrete 0-d array of bool, integer or float dtype) as the
+    Python ``bool``/``int``/``float`` it holds; any other value unchanged. So
+    ``np.float32(0.05)``, ``jnp.float32(0.05)`` and ``np.int64(3)`` pass wherever a number
+    does. A traced scalar (inside ``jit``) has no value yet and comes back unchanged."""
+    if isinstance(value, bool | int | float) or getattr(value, "shape", None) != ():
+        return value
+    kind = getattr(getattr(value, "dtype", None), "kind", None)
+    convert = {"b": bool, "i": int, "u": int, "f": float}.get(kind)  # type: ignore[arg-type]
+    if convert is None:
+        return value
+    try:
+        return convert(value)
+    except Exception:  # a tracer: no concrete value to convert
+        return value
+
+
 def invalid(path: str, value: Any, why: str) -> ConfigError:
     """The error for a well-typed value out of its range: ``path = value: why``."""
     return ConfigError(f"{path} = {value!r}: {why}")
@@ -133,6 +151,14 @@ def validated_once(validate: Callable[Concatenate[S, P], S]) -> Callable[Concate
     return once
 
 
+def _short(value: Any, limit: int = 80) -> str:
+    """A value for an error message, cut at ``limit``; a long table named by its keys."""
+    text = repr(value)
+    if len(text) > limit and isinstance(value, Mapping):
+        text = f"a table of keys {sorted(value)}"
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def from_mapping(cls: type[T], data: Any, where: str = "") -> T:
     """Build the frozen dataclass ``cls`` from a mapping, validating every key.
 
@@ -151,7 +177,7 @@ def from_mapping(cls: type[T], data: Any, where: str = "") -> T:
     if unknown:
         key = unknown[0]
         raise ConfigError(
-            f"{_join(where, key)} = {data[key]!r}: unknown key; "
+            f"{_join(where, key)} = {_short(data[key])}: unknown key; "
             f"expected keys of {where or cls.__name__}: {sorted(fields)}"
         )
     kwargs = {}

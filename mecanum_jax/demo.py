@@ -13,12 +13,16 @@ import tyro
 from rich.console import Console
 from rich.table import Table
 
+from mecanum_jax._checks import require_platform
 from mecanum_jax.config import ConfigError
 from mecanum_jax.kinematics import model as kinematics
-from mecanum_jax.kinematics import motors
+from mecanum_jax.kinematics import motors, singularity
 from mecanum_jax.kinematics.modes import SIX_MODES
 from mecanum_jax.precision import set_matmul_precision
 from mecanum_jax.sim.description import resolve_description
+
+MAX_SPEED = 100.0
+"""The largest ``--speed`` accepted, m/s or rad/s: far beyond any wheel, well short of 1e9."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,20 +38,26 @@ class DemoArgs:
 def main(argv: list[str] | None = None) -> int:
     """``mecanum-demo``: exit code 2 for a bad speed or robot description."""
     args = tyro.cli(DemoArgs, args=argv, prog="mecanum-demo")
-    set_matmul_precision("highest")
     try:
-        if not 0 < args.speed < float("inf"):
-            raise ConfigError(f"--speed = {args.speed!r}: must be a finite number > 0")
+        require_platform()  # JAX_PLATFORMS names a backend that exists
+        set_matmul_precision("highest")
+        if not 0 < args.speed <= MAX_SPEED:
+            raise ConfigError(
+                f"--speed = {args.speed!r}: must be a number > 0 and at most {MAX_SPEED} "
+                "(m/s or rad/s; a mecanum robot's motors reach a few)"
+            )
         desc = resolve_description(args.robot)
-        geom = desc.build_geometry()
+        geom = desc.build_geometry(warn_singular=False)
     except (ConfigError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    twists = jnp.asarray([t for _, t, _ in SIX_MODES.values()]) * args.speed
+    singularity.warn_unreachable(geom, desc.robot.name)  # rank < 3: the modes are projected
+    modes = jnp.asarray([t for _, t, _ in SIX_MODES.values()]) * args.speed
+    twists = singularity.project_reachable(modes, singularity.reachable_projector(geom))
     rates = kinematics.inverse(geom, twists)
     signs = desc.motor_signs(geom.names)
     rpm = motors.wheel_rates_to_motor_rpm(rates, jnp.asarray(signs), desc.motors.gear_ratio)
-    back = kinematics.forward(geom, rates)
+    back = rates @ jnp.asarray(singularity.reachable_forward_matrix(geom), rates.dtype).T
 
     title = f"{desc.robot.name}: seed 000's six motion modes at speed {args.speed}"
     table = Table(title=title, caption="wheel rates, rad/s (+ rolls the robot forward)")

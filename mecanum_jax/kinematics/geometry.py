@@ -30,7 +30,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mecanum_jax._checks import InputError, as_float_array, check_finite, fmt, is_concrete
+from mecanum_jax._checks import (
+    InputError,
+    as_float_array,
+    check_finite,
+    fmt,
+    is_concrete,
+    real_number,
+)
+from mecanum_jax.config import python_number
 from mecanum_jax.precision import HIGHEST
 
 FOUR_WHEEL_NAMES = ("left_front", "left_back", "right_back", "right_front")
@@ -239,11 +247,12 @@ def _warn_if_singular(geometry: WheelGeometry) -> None:
         )
 
 
-def _require_positive(value: float, field: str) -> None:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise GeometryError(f"{field} = {value!r}: expected a finite number")
-    if value <= 0:
+def _require_positive(value: Any, field: str) -> float:
+    """``value`` as a float: a finite number (NumPy/JAX scalars too) > 0, else an error."""
+    number = real_number(value, field, GeometryError)
+    if number <= 0:
         raise GeometryError(f"{field} = {value!r}: must be > 0")
+    return number
 
 
 def four_wheel(
@@ -272,11 +281,10 @@ def four_wheel(
     """
     if shape not in ("O", "X"):
         raise GeometryError(f"shape = {shape!r}: expected 'O' or 'X'")
-    _require_positive(radius, "radius")
-    _require_positive(half_wheelbase, "half_wheelbase")
-    _require_positive(half_track, "half_track")
-    _require_positive(roller_angle, "roller_angle")
-    rx, ry = half_wheelbase, half_track
+    radius = _require_positive(radius, "radius")
+    rx = _require_positive(half_wheelbase, "half_wheelbase")
+    ry = _require_positive(half_track, "half_track")
+    roller_angle = _require_positive(roller_angle, "roller_angle")
     positions = [[rx, ry], [-rx, ry], [-rx, -ry], [rx, -ry]]
     sign = -1.0 if shape == "O" else 1.0
     rollers = [sign * roller_angle, -sign * roller_angle, sign * roller_angle, -sign * roller_angle]
@@ -336,10 +344,12 @@ def centripetal(
     rollers share the angle ``roller_angle``, as the seed recommends. With an odd n at most
     one wheel is singular in any direction of travel.
     """
-    if isinstance(n_wheels, bool) or not isinstance(n_wheels, int) or n_wheels < 3:
+    n = python_number(n_wheels)
+    if isinstance(n, bool) or not isinstance(n, int) or n < 3:
         raise GeometryError(f"n_wheels = {n_wheels!r}: expected an integer >= 3")
-    _require_positive(radius, "radius")
-    _require_positive(centre_distance, "centre_distance")
+    n_wheels = n
+    radius = _require_positive(radius, "radius")
+    centre_distance = _require_positive(centre_distance, "centre_distance")
     beta = first_wheel_angle + 2 * math.pi * np.arange(n_wheels) / n_wheels
     positions = centre_distance * np.stack([np.cos(beta), np.sin(beta)], axis=-1)
     names = [f"wheel_{i}" for i in range(n_wheels)]

@@ -29,6 +29,7 @@ from mecanum_jax._checks import (
     fmt,
     is_concrete,
 )
+from mecanum_jax.config import python_number
 from mecanum_jax.kinematics.geometry import WheelGeometry
 from mecanum_jax.kinematics.model import apply_rows, jacobian
 from mecanum_jax.precision import HIGHEST
@@ -104,10 +105,10 @@ def nearest_feasible(
     ``C(2n, 1) + C(2n, 2) + C(2n, 3)`` candidates per twist (92 for 4 wheels).
     Feasible twists pass unchanged.
     """
-    if not (isinstance(omega_weight, (int, float)) and math.isfinite(omega_weight)) or not (
-        omega_weight > 0
-    ):
+    weight = python_number(omega_weight)
+    if not (isinstance(weight, int | float) and math.isfinite(weight)) or not weight > 0:
         raise InputError(f"omega_weight = {omega_weight!r}: must be a finite number > 0")
+    omega_weight = float(weight)
     t = checked_twist(twist)
     with jax.numpy_rank_promotion("allow"):  # batch dims broadcast against per-facet ones
         return _nearest(t, *feasible_facets(geometry, max_rates), omega_weight)
@@ -245,13 +246,17 @@ def limit_acceleration(
     The linear velocity change is limited in magnitude (its direction kept), the angular
     one in value: ``|Δv| <= a_lin dt``, ``|Δω| <= α dt``.
     """
+    checked = []
     for name, value in (
         ("dt", dt),
         ("max_linear_accel", max_linear_accel),
         ("max_angular_accel", max_angular_accel),
     ):
-        if not (isinstance(value, int | float) and value > 0):
+        number = python_number(value)
+        if isinstance(number, bool) or not (isinstance(number, int | float) and number > 0):
             raise InputError(f"{name} = {value!r}: expected a number > 0")
+        checked.append(float(number))
+    dt, max_linear_accel, max_angular_accel = checked
     prev, tgt = checked_twist(previous), checked_twist(target)
     dv = tgt[..., :2] - prev[..., :2]
     norm = jnp.linalg.norm(dv, axis=-1, keepdims=True)

@@ -35,6 +35,7 @@ from rich.console import Console
 from rich.table import Table
 
 from mecanum_jax import atomic
+from mecanum_jax._checks import require_platform
 from mecanum_jax.config import ConfigError
 from mecanum_jax.deploy.loop import Controller
 from mecanum_jax.deploy.plant import Plant, PlantParams, SensorChannel
@@ -338,6 +339,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.time()
     stamp = time.strftime("%Y%m%d-%H%M%S")
     try:
+        require_platform()  # JAX_PLATFORMS names a backend that exists (mecanum_jax._checks)
         _check(args)
         name = Path(args.model).name
         out = check_output(args.out or f"runs/deploy-sim-{name}-{stamp}.json", "--out")

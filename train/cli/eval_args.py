@@ -15,6 +15,9 @@ import tyro  # noqa: E402
 from mecanum_jax.config import ConfigError  # noqa: E402
 from mecanum_jax.task.references import REFERENCES  # noqa: E402
 
+MIN_SECONDS = 0.1
+"""The shortest episode ``--seconds`` accepts, s."""
+
 
 @dataclasses.dataclass
 class EvalArgs:
@@ -105,10 +108,15 @@ def check_args(args: EvalArgs) -> None:
         raise ConfigError(f"--settle-s = {args.settle_s}: must be >= 0")
     if not 0 < args.progress_every_s < float("inf"):
         raise ConfigError(f"--progress-every-s = {args.progress_every_s}: must be > 0 seconds")
+    if args.seconds is not None and args.seconds < MIN_SECONDS:
+        raise ConfigError(
+            f"--seconds = {args.seconds}: an episode must last at least {MIN_SECONDS} s "
+            "(5 control steps at 50 Hz); shorter episodes measure no tracking"
+        )
     if args.bootstrap < 100:
         raise ConfigError(f"--bootstrap = {args.bootstrap}: must be >= 100")
     if args.export and args.target == "baseline":
         raise ConfigError("--export: the baseline has no weights to export; give a checkpoint")
 
 
-__all__ = ["EvalArgs", "check_args"]
+__all__ = ["MIN_SECONDS", "EvalArgs", "check_args"]

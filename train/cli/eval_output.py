@@ -144,6 +144,12 @@ def scorecard_table(results: dict[str, Any], who: str, refs: Sequence[str]) -> T
             row.append(counts + (f"[red]{n}[/]" if n else "0"))
             lost += [f"{ref}:{key}" for key in card["losses"]]
         table.add_row(*row, ", ".join(lost) or "-")
+    few = [f"{n} ({r['episodes']})" for n, r in results.items() if r.get("episodes", 8) < 8]
+    if few:  # a paired interval over so few episodes says little
+        table.caption = (
+            f"not significant: {', '.join(few)} had fewer than 8 episodes, so their "
+            "verdicts are not significant (--episodes 8 or more)"
+        )
     return table
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.util
+import json
 import time
 from pathlib import Path
 from typing import Any
@@ -13,6 +14,7 @@ from typing import Any
 import jax
 from rich.console import Console
 
+from mecanum_jax import memory
 from mecanum_jax.config import ConfigError
 from mecanum_jax.evaluation import episodes, scenarios
 from mecanum_jax.evaluation import rollout as ev
@@ -63,6 +65,7 @@ class Target:
             if epoch is not None and args.epoch is not None and epoch != args.epoch:
                 raise ConfigError(f"--epoch = {args.epoch}: the target names epoch {epoch}")
             self.restored = restore_policy(run_dir, args.seed, epoch or args.epoch)
+            check_config_robot(self.restored)
             base = self.restored.cfg.env
             precision = self.restored.cfg.run.matmul_precision
             r = self.restored
@@ -82,6 +85,7 @@ class Target:
             base = dataclasses.replace(base, physics_impl=impl)
         eval_cfg = episodes.eval_env_config(base.validate("env"), scenario_set)
         fid.check_task(eval_cfg, fidelity, "--fidelity")
+        _require_memory(args, scenario_set, max_batch, eval_cfg.control_dt, self.restored)
         self.env = MecanumEnv(eval_cfg, robots=max_batch, fidelity=fidelity)
         self.label += "" if fidelity == "fast" else f" in the {fidelity} model"
         apply = None
@@ -95,6 +99,43 @@ class Target:
         return None if r is None else (r.normalizer, r.params)
 
 
+def _require_memory(
+    args: EvalArgs,
+    scenario_set: scenarios.ScenarioSet,
+    max_batch: int,
+    control_dt: float,
+    restored: RestoredPolicy | None,
+) -> None:
+    """Refuse an evaluation whose largest rollout would not fit (mecanum_jax.memory)."""
+    robots = min(max_batch, sum(s.episodes for s in scenario_set.scenarios))
+    steps = max(round(s.seconds / control_dt) for s in scenario_set.scenarios)
+    players = len(args.references) + (restored is not None)
+    need = memory.evaluation_bytes(robots, steps, players)
+    memory.require_memory(
+        need,
+        f"evaluation of {robots} robots at once × {steps} steps × {players} controllers",
+        "use a smaller --max-batch, fewer --episodes or shorter --seconds",
+    )
+
+
+def check_config_robot(restored: RestoredPolicy) -> None:
+    """Refuse a model whose config.json names another robot than its checkpoint was
+    trained on (an edit by hand): the checkpoint's config decides, so the edit would be
+    ignored silently."""
+    path = restored.run_dir / "config.json"
+    try:
+        given = json.loads(path.read_text())["env"]["robot"]
+        trained = restored.meta["config"]["env"]["robot"]
+    except (OSError, ValueError, KeyError, TypeError):  # none, or check_saved_config's to report
+        return
+    if given != trained:
+        raise ConfigError(
+            f"{path}: env.robot = {given!r}, but the checkpoint was trained on robot "
+            f"{trained!r}; a policy plays the robot it was trained on (config.json does not "
+            f"change it): set env.robot back to {trained!r}, or train on {given!r}"
+        )
+
+
 def default_out(args: EvalArgs, target: Target) -> Path:
     stamp = time.strftime("%Y%m%d-%H%M%S")
     if target.restored is None:
@@ -105,4 +146,4 @@ def default_out(args: EvalArgs, target: Target) -> Path:
     return run_dir / "eval" / f"epoch{target.restored.epoch}-{stamp}"
 
 
-__all__ = ["Target", "default_impl", "default_out"]
+__all__ = ["Target", "check_config_robot", "default_impl", "default_out"]

@@ -44,6 +44,7 @@ import tyro  # noqa: E402
 from rich.console import Console  # noqa: E402
 
 from mecanum_jax import atomic  # noqa: E402
+from mecanum_jax._checks import require_platform  # noqa: E402
 from mecanum_jax.config import ConfigError  # noqa: E402
 from mecanum_jax.evaluation import episodes, metrics, paired, plots, scenarios  # noqa: E402
 from mecanum_jax.evaluation import rollout as ev  # noqa: E402
@@ -242,6 +243,7 @@ def main(argv: list[str] | None = None) -> int:
 def _prepare(args: EvalArgs) -> tuple[Target, scenarios.ScenarioSet, Path]:
     """Check everything that can be checked before a rollout: the arguments, the
     scenarios (scripted ones included), the target and the output directory."""
+    require_platform()  # JAX_PLATFORMS names a backend that exists (mecanum_jax._checks)
     check_args(args)
     if args.out:  # before anything is built
         check_output(args.out, "--out")

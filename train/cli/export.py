@@ -30,6 +30,7 @@ import tyro
 from rich.console import Console
 
 from mecanum_jax import atomic
+from mecanum_jax._checks import require_platform
 from mecanum_jax.config import ConfigError
 from mecanum_jax.deploy import policy as deploy
 from mecanum_jax.deploy.write import save
@@ -77,6 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     args = tyro.cli(ExportArgs, args=argv, prog="mecanum-export")
     try:
+        require_platform()  # JAX_PLATFORMS names a backend that exists (mecanum_jax._checks)
         suffix = "." + args.format
         if args.model and args.format != "npz":
             raise ConfigError(f"--format = {args.format!r}: --model writes its own npz export")
@@ -123,7 +125,8 @@ def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) ->
         console.log(f"wrote {path}")
         return 0
     path = export_policy(restored, Path(args.out))
-    console.log(f"wrote {path} and {path.with_name('mecanum_policy.py')}")
+    modules = [path.with_name(m) for m in ("mecanum_policy.py", "mecanum_loop.py")]
+    console.log(f"wrote {path}, {modules[0]} and {modules[1]}")
     return 0
 
 

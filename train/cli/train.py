@@ -27,9 +27,12 @@ import time
 from pathlib import Path
 from typing import Any
 
+import jax
 from rich.console import Console
 from rich.table import Table
 
+from mecanum_jax import memory
+from mecanum_jax._checks import require_platform
 from mecanum_jax.config import ConfigError, find_config
 from mecanum_jax.sim.description import require_impl
 from train.cli.paths import check_input_dir, check_output
@@ -99,6 +102,19 @@ def _check_meta(meta: argparse.Namespace) -> None:
         raise ConfigError(f"--max-minutes = {m}: must be a positive number of minutes")
 
 
+def _require_memory(cfg: TrainConfig) -> None:
+    """Refuse a config whose estimated footprint (mecanum_jax.memory) exceeds the memory."""
+    p, seeds = cfg.ppo, len(cfg.run.seeds)
+    need = memory.training_bytes(
+        seeds * p.num_envs,
+        seeds * p.batch_size * p.num_minibatches,
+        p.unroll_length,
+        seeds * cfg.run.num_eval_envs,
+    )
+    where = f"ppo.num_envs = {p.num_envs}, ppo.batch_size = {p.batch_size} ({seeds} seed(s))"
+    memory.require_memory(need, where, "use fewer --ppo.num-envs and --ppo.batch-size")
+
+
 def _config_file(name: str) -> Path:
     """The config file a run was given, copied into its inputs/ (train.store.inputs)."""
     return find_config(name, TRAIN_CONFIG_DIR, "config", "")
@@ -148,6 +164,7 @@ def main(argv: list[str] | None = None) -> int:
         # before anything touches JAX (loading a config may): jax.distributed requires it
         _check_meta(meta)
         init_distributed(meta.distributed)
+        require_platform()  # after jax.distributed starts, before anything is built
         if meta.resume and (meta.config or meta.run_dir):
             raise ConfigError("--resume: give either --resume or --config/--run-dir, not both")
         if meta.resume:
@@ -175,6 +192,13 @@ def main(argv: list[str] | None = None) -> int:
                     "differ between processes)"
                 )
             require_impl(cfg.env.physics_impl, "env.physics_impl")  # before the run dir
+            if Path(meta.config or "quick").stem == "gpu" and jax.default_backend() == "cpu":
+                console.print(
+                    "[yellow]warning[/]: --config gpu on a CPU: its first epoch alone takes "
+                    "about 10 minutes here, and --max-minutes stops only between epochs; "
+                    "on a CPU use --config quick"
+                )
+            _require_memory(cfg)  # before the run dir too: a refused run leaves none
             run_dir = meta.run_dir or f"runs/{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
             check_output(run_dir, "--run-dir", empty_dir_ok=True)
             config_file = _config_file(meta.config or "quick")
@@ -222,6 +246,7 @@ def batch_main(argv: list[str] | None = None) -> int:
         _check_meta(meta)
         check_output(out, "--out", empty_dir_ok=True)  # never over an earlier batch
         init_distributed(meta.distributed)
+        require_platform()
         if meta.distributed and not meta.out:
             raise ConfigError(
                 "--distributed: give --out (a default name from the clock could differ "
