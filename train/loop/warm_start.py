@@ -104,9 +104,9 @@ class Store:
     def path(self, full_key: dict[str, Any]) -> Path:
         return self.directory / f"{_digest(full_key)[:40]}{SUFFIX}"
 
-    def load(self, name: str, full_key: dict[str, Any]) -> Any | None:
+    def load(self, name: str, full_key: dict[str, Any], read_back: bool = False) -> Any | None:
         """The program stored under ``full_key``, or ``None`` (absent, stale or corrupt:
-        logged, and the file removed)."""
+        logged, and the file removed); ``read_back``: just written, not counted as loaded."""
         path = self.path(full_key)
         try:
             blob = path.read_bytes()
@@ -121,7 +121,8 @@ class Store:
             self.log(f"warm start: {name}: {path.name} unusable ({err}); compiling it again")
             path.unlink(missing_ok=True)
             return None
-        self.loaded.append(name)
+        if not read_back:
+            self.loaded.append(name)
         return compiled
 
     def save(self, name: str, full_key: dict[str, Any], compiled: Any) -> None:
@@ -190,16 +191,30 @@ class Stored:
         with self._lock:
             program = self._programs.get(sig)
             if program is None:
-                program = self._programs[sig] = self._program(args, sig)
+                program, out = self._first_call(args, sig)
+                self._programs[sig] = program
+                return out
         return program(*args)
 
-    def _program(self, args: tuple[Any, ...], sig: Any) -> Any:
+    def _first_call(self, args: tuple[Any, ...], sig: Any) -> tuple[Any, Any]:
+        """The program for ``sig`` and its first outputs. The program is the stored one,
+        loaded, or written now and read back, so a cold start runs what a warm one will;
+        its first run is waited for, and one that fails (XLA:CPU of jaxlib 0.10.2 wrote an
+        executable it had read from the persistent cache without all its functions) is
+        dropped, the program compiled and run instead, and not stored."""
         full_key = {**self.store.key, "program": self.name, "signature": repr(sig)}
-        compiled = self.store.load(self.name, full_key)
-        if compiled is None:
+        program = self.store.load(self.name, full_key)
+        if program is None:
             compiled = self.fn.lower(*args).compile()
             self.store.save(self.name, full_key, compiled)
-        return compiled
+            program = self.store.load(self.name, full_key, read_back=True) or compiled
+        try:
+            return program, jax.block_until_ready(program(*args))
+        except Exception as err:  # the stored executable is broken: never used again
+            self.store.log(f"warm start: {self.name} failed to run ({err}); compiled instead")
+            self.store.path(full_key).unlink(missing_ok=True)
+            compiled = self.fn.lower(*args).compile()
+            return compiled, compiled(*args)
 
 
 def _aval(x: Any) -> tuple[Any, ...]:
