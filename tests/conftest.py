@@ -91,6 +91,7 @@ def pytest_configure(config: pytest.Config) -> None:
 LONG_FILES = (
     "test_distributed.py",
     "test_warp_training.py",
+    "test_learns.py",
     "test_wheel.py",
     "test_physics.py",
 )
