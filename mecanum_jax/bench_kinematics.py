@@ -38,6 +38,7 @@ from mecanum_jax.bench_report import header, median_spread, warn_spread, write_j
 from mecanum_jax.config import ConfigError
 from mecanum_jax.kinematics import geometry, odometry
 from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.memory import available_bytes
 
 DEFAULT_SIZES = (1_000, 10_000, 100_000, 1_000_000, 10_000_000, 100_000_000)
 
@@ -64,17 +65,6 @@ class KinematicsBench:
     """Skip a size whose buffers would exceed this fraction of the device's (or host's) memory."""
     json_out: Path | None = None
     """Write the results as JSON here."""
-
-
-def _available_bytes() -> int:
-    dev = jax.devices()[0]
-    try:
-        stats = dev.memory_stats()
-    except Exception:
-        stats = None
-    if stats and "bytes_limit" in stats:
-        return int(stats["bytes_limit"]) - int(stats.get("bytes_in_use", 0))
-    return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES"))
 
 
 def _time(
@@ -215,7 +205,7 @@ def run_kinematics(args: KinematicsBench, console: Console | None = None) -> dic
     rows: list[dict[str, Any]] = []
     for size in args.sizes:
         need = max(_bytes_moved(op, size, args.odometry_steps) for op in args.ops) * 3
-        if need > args.memory_fraction * _available_bytes():
+        if need > args.memory_fraction * available_bytes():
             console.print(
                 f"[yellow]batch {size:.0e}: skipped, needs ~{need / 2**30:.1f} GiB[/yellow]"
             )
