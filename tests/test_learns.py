@@ -61,5 +61,8 @@ def test_with_the_policy_gradient_flipped_it_does_not_learn(learning, tmp_path, 
 
     # the learner binds Brax's loss when it is built (train/learner/ppo.py)
     monkeypatch.setattr(ppo_losses, "compute_ppo_loss", flipped)
+    # the warm-start store keys programs by config and source hash, not by a monkeypatch:
+    # with it on, this run would load the learning run's executables (CI did, 2026-12-01)
+    monkeypatch.setenv("MECANUM_WARM_START", "off")
     errors = _ss_wz(tmp_path / "flipped")
     assert errors[-1] >= FLIPPED * learning[0], f"learned with the gradient flipped: {errors}"
