@@ -12,7 +12,8 @@ them as ``/tmp/tune-reports/tune_NAME.json``) and ranks every candidate against
    the nominal robot's ss ωz and settling of ωz; the translations' ss ωz and energy; the
    closed path's ss ωz and final drift; the spins' ss ωz and energy; the motion modes' ss ωz
    and final drift; the slippery floors' ss ωz and settling of ωz; the settling of v and ωz
-   with noisy sensors.
+   with noisy sensors; the transients' final drift, the slalom's RMSE ωz, the bursts' and
+   stop-and-go's ss v and the zigzag's RMSE v.
 
 Prints one row per candidate and, last, the path of the chosen one's model (the report's
 ``target``), so that a device call can evaluate it on held-out scenarios next::
@@ -58,6 +59,14 @@ FIGURES = (
     ("tuning_slippery", "settle_wz_s"),
     ("tuning_noisy", "settle_lin_s"),
     ("tuning_noisy", "settle_wz_s"),
+    ("tuning_slalom", "drift_m"),
+    ("tuning_slalom", "rmse_wz"),
+    ("tuning_bursts", "drift_m"),
+    ("tuning_bursts", "ss_lin"),
+    ("tuning_zigzag", "rmse_lin"),
+    ("tuning_zigzag", "drift_m"),
+    ("tuning_stop_go", "drift_m"),
+    ("tuning_stop_go", "ss_lin"),
 )
 """(scenario, metric) pairs whose ratios to ``analytic`` the geometric mean takes."""
 

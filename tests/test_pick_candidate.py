@@ -109,4 +109,6 @@ def test_every_figure_of_the_rule_is_a_scenario_of_the_tuning_file() -> None:
     tuning = load_scenarios("tuning")
     assert set(SCENARIOS) <= set(tuning.names), sorted(set(SCENARIOS) - set(tuning.names))
     scripted = {s.name for s in tuning.scenarios if s.commands.kind != "random"}
-    assert {"tuning_path", "tuning_modes"} <= scripted  # their final drift is a figure
+    drifts = {name for name, key in FIGURES if key == "drift_m"}  # a scripted path's end
+    assert {"tuning_path", "tuning_modes", "tuning_slalom", "tuning_stop_go"} <= drifts
+    assert drifts <= scripted, sorted(drifts - scripted)
