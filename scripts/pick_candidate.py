@@ -5,8 +5,8 @@ them as ``/tmp/tune-reports/tune_NAME.json``) and ranks every candidate against
 ``analytic`` on the same episodes:
 
 1. fewest **losses** against ``analytic`` and against ``feedback`` together
-   (``train.cli.eval_output.score``: the paired 95% interval on the worse side and an excess
-   above the metric's margin) over the tuning scenarios;
+   (``mecanum_jax.evaluation.compare.score``: the paired 95% interval on the worse side and
+   an excess above the metric's margin) over the tuning scenarios;
 2. then the lowest **geometric mean of the ratios** to ``analytic`` over the figures the
    product is judged on: the training mix's ss v, ss ωz, settling of v and ωz and energy;
    the nominal robot's ss ωz and settling of ωz; the translations' ss ωz and energy; the
@@ -34,7 +34,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from train.cli.eval_output import score
+from mecanum_jax.evaluation.compare import score
 
 JUDGED_AGAINST = ("analytic", "feedback")
 """The references a loss counts against (a report without one counts none against it)."""

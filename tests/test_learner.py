@@ -10,12 +10,13 @@ from brax.training.agents.ppo.losses import PPONetworkParams
 from learners import deterministic_policy, random_obs
 
 from mecanum_jax.config import ConfigError
+from mecanum_jax.evaluation.compare import TRAINING_COMPARED
 from mecanum_jax.evaluation.metrics import Part
 from train.config import (
     PPOConfig,
     TrainConfig,
 )
-from train.learner.periodic import COMPARED, Result, beats, compare
+from train.learner.periodic import Result, beats, compare
 from train.learner.ppo import to_host
 from train.learner.state import gradient_clip, make_optimizer
 from train.store import leaves
@@ -48,7 +49,7 @@ def _result(ss_lin, ss_wz):
     parts = {}
     for key, err in (("ss_lin", ss_lin), ("ss_wz", ss_wz)):
         parts[key] = Part(np.asarray(err, float) ** 2, np.ones(len(err)), "rms")
-    for key in set(COMPARED) - set(parts):
+    for key in set(TRAINING_COMPARED) - set(parts):
         parts[key] = Part(np.ones(len(ss_lin)), np.ones(len(ss_lin)), "mean")
     return Result({"randomized": {}}, {"randomized": parts})
 

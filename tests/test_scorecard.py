@@ -1,7 +1,8 @@
 """mecanum-eval's scorecard: a win or a loss needs the interval on one side of 1 and a
 mean difference above the metric's margin; anything else is a tie."""
 
-from train.cli.eval_output import score, scorecard_table
+from mecanum_jax.evaluation.compare import score
+from train.cli.eval_output import scorecard_table
 
 
 def _results(policy_ss_wz, verdict):

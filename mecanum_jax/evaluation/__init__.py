@@ -1,6 +1,7 @@
 """Evaluating controllers: scenarios (:mod:`.scenarios`) and their episodes as arrays
 (:mod:`.episodes`), batched rollouts (:mod:`.rollout`) and their plots (:mod:`.plots`),
-tracking metrics and paired statistics (:mod:`.metrics`), and velocity spaces of the
+tracking metrics and paired statistics (:mod:`.metrics`), one controller's ratios to
+another's and its wins, ties and losses (:mod:`.compare`), and velocity spaces of the
 drives (:mod:`.velocity_space`).
 
 The metrics import eagerly (NumPy only); the names that need the environment import on

@@ -1,7 +1,8 @@
 """What ``mecanum-eval`` shows and draws: its console tables and its plots.
 
 ``results`` is the report's ``scenarios`` mapping (:func:`train.cli.evaluate.evaluate`): per
-scenario, each controller's summary and the paired comparisons.
+scenario, each controller's summary and the paired comparisons. The comparisons and the
+scorecard's wins, ties and losses are computed by :mod:`mecanum_jax.evaluation.compare`.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from rich.table import Table
 
 from mecanum_jax.evaluation import plots
 from mecanum_jax.evaluation import rollout as ev
+from mecanum_jax.evaluation.compare import score
 from mecanum_jax.task import REFERENCES
 
 TABLE = (
@@ -83,47 +85,10 @@ def comparison_table(results: dict[str, Any], pair: str) -> Table:
     return table
 
 
-LOSS_MARGIN = {
-    "ss_lin": 0.01,
-    "rmse_lin": 0.01,
-    "ss_wz": 0.02,
-    "rmse_wz": 0.02,
-    "drift_m": 0.05,
-    "settle_lin_s": 0.05,
-    "settle_wz_s": 0.05,
-}
-"""The tracking metrics a scorecard counts, and the excess (m/s, rad/s, m, s) below which
-a difference whose interval lies on one side is still called a tie."""
-
-
-def score(results: dict[str, Any], pair: str) -> dict[str, dict[str, list[str]]]:
-    """Per scenario, ``pair``'s tracking metrics (:data:`LOSS_MARGIN`) as wins, ties and
-    losses: a win or a loss needs the paired 95% interval on one side of 1 *and* a mean
-    difference above the metric's margin; anything else is a tie."""
-    who, ref = pair.split("/")
-    out: dict[str, dict[str, list[str]]] = {}
-    for name, r in results.items():
-        cmp = r.get("compare", {}).get(pair)
-        if cmp is None:
-            continue
-        card: dict[str, list[str]] = {"wins": [], "ties": [], "losses": []}
-        for key, margin in LOSS_MARGIN.items():
-            c, a, b = cmp.get(key), r[who].get(key), r[ref].get(key)
-            if c is None or a is None or b is None:
-                continue
-            kind = "ties"
-            if c["verdict"] == "worse" and a - b > margin:
-                kind = "losses"
-            elif c["verdict"] == "better" and b - a > margin:
-                kind = "wins"
-            card[kind].append(key)
-        out[name] = card
-    return out
-
-
 def scorecard_table(results: dict[str, Any], who: str, refs: Sequence[str]) -> Table:
-    """:func:`score` of ``who`` against each of ``refs`` as one table: per scenario, the
-    wins/ties/losses against each reference, and the metrics lost (``ref:metric``)."""
+    """:func:`~mecanum_jax.evaluation.compare.score` of ``who`` against each of ``refs``
+    as one table: per scenario, the wins/ties/losses against each reference, and the
+    metrics lost (``ref:metric``)."""
     refs = [r for r in refs if r != who]
     title = f"{who} against {' and '.join(refs)}: wins/ties/losses of the tracking metrics"
     table = Table(title=title)
@@ -174,4 +139,4 @@ def write_plots(
     return paths
 
 
-__all__ = ["comparison_table", "results_table", "write_plots"]
+__all__ = ["comparison_table", "results_table", "scorecard_table", "write_plots"]

@@ -46,7 +46,14 @@ from rich.console import Console  # noqa: E402
 from mecanum_jax import atomic  # noqa: E402
 from mecanum_jax._checks import require_platform  # noqa: E402
 from mecanum_jax.config import ConfigError  # noqa: E402
-from mecanum_jax.evaluation import episodes, metrics, paired, plots, scenarios  # noqa: E402
+from mecanum_jax.evaluation import (  # noqa: E402
+    compare,
+    episodes,
+    metrics,
+    paired,
+    plots,
+    scenarios,
+)
 from mecanum_jax.evaluation import rollout as ev  # noqa: E402
 from mecanum_jax.kinematics import model as kinematics  # noqa: E402
 from train.cli.eval_args import EvalArgs, check_args  # noqa: E402
@@ -67,36 +74,8 @@ from train.store import checkpoint  # noqa: E402
 console = Console(stderr=True)
 
 
-COMPARED = (
-    "rmse_lin",
-    "rmse_wz",
-    "ss_lin",
-    "ss_wz",
-    "settle_lin_s",
-    "settle_wz_s",
-    "drift_m",
-    "heading_drift_rad",
-    "energy_j",
-    "energy_per_m",
-)
-"""Metrics compared pairwise (policy against each reference), with intervals."""
-
-
 def whos(target: Target, args: EvalArgs) -> list[str]:
     return (["policy"] if target.restored is not None else []) + list(args.references)
-
-
-def compare(
-    parts: dict[str, dict[str, metrics.Part]], who: str, ref: str, n_boot: int
-) -> dict[str, dict[str, float | str]]:
-    """``who``'s metrics over ``ref``'s on the same episodes: ratio, interval, verdict."""
-    out: dict[str, dict[str, float | str]] = {}
-    for key in COMPARED:
-        if key in parts[who]:
-            c = metrics.paired_ratio(parts[who][key], parts[ref][key], n_boot)
-            if c is not None:
-                out[key] = c.as_dict()
-    return out
 
 
 def evaluate(
@@ -141,7 +120,7 @@ def evaluate(
             "scripted": sc.scripted,
             **{who: ev.summarize(tr, dt, sc.scripted, jac, mcfg) for who, tr in per.items()},
             "compare": {
-                f"{first}/{ref}": compare(parts, first, ref, args.bootstrap)
+                f"{first}/{ref}": compare.ratios(parts[first], parts[ref], n_boot=args.bootstrap)
                 for ref in refs
                 if first != ref
             },

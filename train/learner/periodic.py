@@ -19,6 +19,7 @@ import numpy as np
 
 from mecanum_jax.evaluation import episodes, metrics, scenarios
 from mecanum_jax.evaluation import rollout as evaluation
+from mecanum_jax.evaluation.compare import TRAINING_COMPARED, ratios
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.task import fidelity as fid
 from mecanum_jax.task.env import MecanumEnv
@@ -26,9 +27,8 @@ from train.config import TrainConfig
 
 BEAT_SCENARIO = "randomized"
 BEAT_METRICS = ("ss_lin", "ss_wz")
-COMPARED = ("rmse_lin", "rmse_wz", "ss_lin", "ss_wz", "settle_wz_s", "energy_j")
-"""Metrics logged as policy / baseline ratios with their paired intervals."""
 N_BOOT = 1000
+"""Bootstrap resamples of the logged ratios' intervals."""
 
 
 def deterministic_apply(networks: Any) -> evaluation.PolicyApply:
@@ -108,16 +108,12 @@ class PeriodicEvaluation:
 
 
 def compare(policy: Result, baseline: Result) -> dict[str, dict[str, Any]]:
-    """Per scenario, policy / baseline ratios of :data:`COMPARED` with paired intervals."""
-    out: dict[str, dict[str, Any]] = {}
-    for name, parts in policy.parts.items():
-        out[name] = {}
-        weights = metrics.bootstrap_weights(len(parts[COMPARED[0]].num), N_BOOT)
-        for key in COMPARED:
-            c = metrics.paired_ratio(parts[key], baseline.parts[name][key], weights=weights)
-            if c is not None:
-                out[name][key] = c.as_dict()
-    return out
+    """Per scenario, policy / baseline ratios of
+    :data:`~mecanum_jax.evaluation.compare.TRAINING_COMPARED` with paired intervals."""
+    return {
+        name: ratios(parts, baseline.parts[name], TRAINING_COMPARED, N_BOOT)
+        for name, parts in policy.parts.items()
+    }
 
 
 def beats(comparison: dict[str, dict[str, Any]]) -> bool:
@@ -129,7 +125,6 @@ def beats(comparison: dict[str, dict[str, Any]]) -> bool:
 
 __all__ = [
     "BEAT_METRICS",
-    "COMPARED",
     "PeriodicEvaluation",
     "Result",
     "beats",
