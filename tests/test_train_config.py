@@ -4,19 +4,23 @@ import ast
 import dataclasses
 import inspect
 import itertools
+import re
 import textwrap
 import tomllib
 
 import pytest
 
-from mecanum_jax.config import ConfigError
+from mecanum_jax.config import ConfigError, validated_once
 from mecanum_jax.task import EnvConfig
+from train import config as train_config
 from train.cli import train as cli
 from train.config import (
     TRAIN_CONFIG_DIR,
     TrainConfig,
     load_train_config,
 )
+from train.learner.ppo import Learner
+from train.loop.run import Run
 
 
 @pytest.mark.parametrize(
@@ -48,6 +52,63 @@ def test_bad_config_files(tmp_path):
     with pytest.raises(ConfigError, match="no such built-in config; known"):
         load_train_config("no_such_config")
     assert TrainConfig().validate().num_iterations >= 1
+
+
+def test_a_bad_file_is_named_with_flags_too(tmp_path):
+    """Flags are applied before the file's values are checked; an error in a value of the
+    file's own still names the file, one in a flag's does not."""
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "x"\n[ppo]\nlearning_rate = -1.0\n')
+    with pytest.raises(ConfigError, match=rf"^{re.escape(str(bad))}: ppo\.learning_rate = -1\.0"):
+        load_train_config(bad, ["--ppo.num-timesteps", "1000"])
+    with pytest.raises(ConfigError, match=r"^ppo\.num_envs = 7: must divide"):
+        load_train_config("tiny", ["--ppo.num-envs", "7"])
+    assert load_train_config(bad, ["--ppo.learning-rate", "1e-3"]).ppo.learning_rate == 1e-3
+
+
+def test_a_config_is_checked_once_however_many_ask(monkeypatch):
+    """Asked again, a config that passed is returned at once (validated_once)."""
+    checks = []
+    monkeypatch.setattr(train_config, "check_wandb", checks.append)  # once per check
+    cfg = load_train_config("tiny")
+    assert cfg.validate() is cfg.validate() is cfg
+    assert len(checks) == 1
+
+
+class _SetUpError(Exception):
+    """Stops mecanum-train once its run and learner are set up."""
+
+
+def test_mecanum_train_validates_its_config_once(tmp_path, monkeypatch):
+    """A new run (with and without a flag) and a resumption each check the config once:
+    the file's values after the flags; the run directory and the learner ask again and
+    get it at once."""
+    checked = []
+    body = getattr(TrainConfig.validate, "__wrapped__", TrainConfig.validate)  # the checks
+
+    def counted(cfg):
+        checked.append(cfg)
+        return body(cfg)
+
+    def set_up_only(run, **_):
+        try:
+            Learner(run.cfg)
+        finally:
+            run.close()
+        raise _SetUpError
+
+    monkeypatch.setattr(TrainConfig, "validate", validated_once(counted))
+    monkeypatch.setattr(Run, "train", set_up_only)
+    run_dir = str(tmp_path / "run")
+    for argv in (
+        ["--config", "tiny", "--run-dir", str(tmp_path / "plain")],
+        ["--config", "tiny", "--ppo.learning-rate", "1e-3", "--run-dir", run_dir],
+        ["--resume", run_dir, "--ppo.num-timesteps", "8000"],
+    ):
+        checked.clear()
+        with pytest.raises(_SetUpError):
+            cli.main(argv)
+        assert len(checked) == 1, f"{argv}: validated {len(checked)} times"
 
 
 def _nested_keys(cls, where=""):

@@ -2,16 +2,20 @@
 
 Every key is validated (type by :func:`mecanum_jax.config.from_mapping`, value by
 :meth:`TrainConfig.validate`) and unknown keys are rejected, all before anything compiles.
-Command-line overrides are tyro flags over the same dataclasses (``--ppo.learning-rate``).
+Command-line overrides are tyro flags over the same dataclasses (``--ppo.learning-rate``),
+applied before the values are checked (:func:`load_train_config`); each config is checked
+once, however many layers ask (:func:`mecanum_jax.config.validated_once`).
 The resolved configuration is saved as ``config.json`` in each run directory.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib.util
 import json
 import math
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Literal
 
@@ -23,6 +27,7 @@ from mecanum_jax.config import (
     invalid,
     load_toml,
     require,
+    validated_once,
 )
 from mecanum_jax.task import EnvConfig
 from mecanum_jax.task.fidelity import check_task
@@ -164,6 +169,7 @@ class TrainConfig:
     run: RunConfig = RunConfig()
     """Seeds, evaluation, checkpoints, devices."""
 
+    @validated_once  # each config once, however many layers ask
     def validate(self) -> TrainConfig:
         """Value checks (types were checked on load); raise :class:`ConfigError`."""
         if not self.name or any(c in self.name for c in "/\\ \t\n"):
@@ -291,17 +297,33 @@ def check_wandb(project: str) -> None:
         )
 
 
-def parse_train_config(data: Any, source: str) -> TrainConfig:
+def parse_train_config(data: Any, source: str, validate: bool = True) -> TrainConfig:
+    """The config of the mapping ``data``; errors name ``source``. ``validate=False``: the
+    types checked, the values left to :func:`apply_flags` (given ``source``)."""
+    with _named(source):
+        cfg = from_mapping(TrainConfig, data)
+        return cfg.validate() if validate else cfg
+
+
+@contextlib.contextmanager
+def _named(source: str) -> Iterator[None]:
+    """A :class:`ConfigError` raised inside, named with ``source``, the values' file."""
     try:
-        return from_mapping(TrainConfig, data).validate()
+        yield
     except ConfigError as err:
         raise ConfigError(f"{source}: {err}") from None
 
 
-def load_train_config(path: str | Path) -> TrainConfig:
+def load_train_config(
+    path: str | Path,
+    flags: list[str] | None = None,
+    prog: str = "mecanum-train",
+    description: str = "",
+) -> TrainConfig:
     """Load a training config from TOML, or from a run directory's ``config.json``.
 
-    A bare name (``quick``) means ``configs/train/<name>.toml``.
+    A bare name (``quick``) means ``configs/train/<name>.toml``. ``flags``: command-line
+    flags over its fields (:func:`apply_flags`), its values checked once, after them.
     """
     p = find_config(path, TRAIN_CONFIG_DIR, "config", "built-in config")
     try:
@@ -312,14 +334,23 @@ def load_train_config(path: str | Path) -> TrainConfig:
         raise ConfigError(f"config file {str(p)!r}: not a text file (UTF-8)") from None
     except OSError as err:
         raise ConfigError(f"config file {str(p)!r}: unreadable: {err.strerror}") from None
-    return parse_train_config(data, str(p))
+    if flags is None:
+        return parse_train_config(data, str(p))
+    base = parse_train_config(data, str(p), validate=False)
+    return apply_flags(base, flags, prog, description, source=str(p))
 
 
 def apply_flags(
-    base: TrainConfig, flags: list[str], prog: str = "mecanum-train", description: str = ""
+    base: TrainConfig,
+    flags: list[str],
+    prog: str = "mecanum-train",
+    description: str = "",
+    source: str = "",
 ) -> TrainConfig:
     """``base`` with command-line flags over its fields (``--ppo.learning-rate 1e-3``),
-    parsed by tyro as ``mecanum-train`` parses them, then validated."""
+    parsed by tyro as ``mecanum-train`` parses them, then validated (``base`` itself where
+    they change nothing). ``source``: the file of a ``base`` not yet validated; an error
+    in a value of its own names the file, as :func:`parse_train_config` does."""
     import tyro
 
     cfg = tyro.cli(
@@ -330,7 +361,15 @@ def apply_flags(
         description=description,
         config=(tyro.conf.FlagConversionOff,),
     )
-    return cfg.validate()
+    if cfg == base:
+        cfg = base  # checked once, whichever layer asks first
+    try:
+        return cfg.validate()
+    except ConfigError:
+        if source:  # the file's own error first, named with the file
+            with _named(source):
+                base.validate()
+        raise
 
 
 def config_diff(a: Any, b: Any, where: str = "") -> list[str]:

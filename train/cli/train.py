@@ -169,8 +169,11 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError("--resume: give either --resume or --config/--run-dir, not both")
         if meta.resume:
             saved = check_input_dir(meta.resume, "--resume") / "config.json"
-            base = inputs.load_saved_config(saved.parent) if saved.exists() else TrainConfig()
-            cfg = apply_flags(base, rest, prog, description)
+            if saved.exists():  # its values checked once, after the flags
+                base = inputs.load_saved_config(saved.parent, validate=False)
+                cfg = apply_flags(base, rest, prog, description, source=str(saved))
+            else:  # Run.resume names the missing config.json
+                cfg = apply_flags(TrainConfig(), rest, prog, description)
             require_impl(cfg.env.physics_impl, "env.physics_impl")
             run = _hold(Run.resume(meta.resume, overrides=cfg, console=console))
             done = checkpoint.latest_epoch(run.dir)
@@ -184,8 +187,7 @@ def main(argv: list[str] | None = None) -> int:
                 )
                 return 0
         else:
-            base = load_train_config(meta.config or "quick")
-            cfg = apply_flags(base, rest, prog, description)
+            cfg = load_train_config(meta.config or "quick", rest, prog, description)
             if meta.distributed and not meta.run_dir:
                 raise ConfigError(
                     "--distributed: give --run-dir (a default name from the clock could "
@@ -254,7 +256,7 @@ def batch_main(argv: list[str] | None = None) -> int:
             )
         variants = []
         for name in meta.configs:
-            cfg = apply_flags(load_train_config(name), rest, prog, description)
+            cfg = load_train_config(name, rest, prog, description)
             if meta.seeds:
                 cfg = dataclasses.replace(
                     cfg, run=dataclasses.replace(cfg.run, seeds=tuple(meta.seeds))

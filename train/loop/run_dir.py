@@ -120,7 +120,8 @@ def resumed_config(run_dir: Path, overrides: TrainConfig | None) -> TrainConfig:
     :data:`RESUMABLE_CHANGES`, after a divergence also :data:`AFTER_DIVERGENCE`) and
     applied: config.json rewritten by process 0."""
     path = run_dir / "config.json"
-    saved = inputs.load_saved_config(run_dir)  # its robot: the run's copy, if it has one
+    # its robot: the run's copy, if it has one; its values checked where it is the config
+    saved = inputs.load_saved_config(run_dir, validate=overrides is None)
     cfg = saved
     if overrides is not None:
         allowed = RESUMABLE_CHANGES | (

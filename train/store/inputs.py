@@ -139,9 +139,11 @@ def as_given(data: dict[str, Any], saved: dict[str, Any]) -> dict[str, Any]:
     return {**data, "env": {**data["env"], "robot": robot}}
 
 
-def load_saved_config(run_dir: Path, warn: bool = True) -> Any:
+def load_saved_config(run_dir: Path, warn: bool = True, validate: bool = True) -> Any:
     """``run_dir/config.json`` as a TrainConfig whose ``env.robot`` is the run's copy (if
-    it has one), so that it loads after the original is gone. Errors name the file."""
+    it has one), so that it loads after the original is gone. Errors name the file.
+    ``validate=False``: its types checked, its values left to the caller
+    (``train.config.parse_train_config``)."""
     from train.config import parse_train_config
 
     path = run_dir / "config.json"
@@ -152,7 +154,7 @@ def load_saved_config(run_dir: Path, warn: bool = True) -> Any:
     except OSError as err:
         raise ConfigError(f"config file {str(path)!r}: unreadable: {err.strerror}") from None
     data = use_copies(data, run_dir, warn)
-    return parse_train_config(data, str(path))
+    return parse_train_config(data, str(path), validate)
 
 
 __all__ = [
