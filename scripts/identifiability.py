@@ -30,10 +30,10 @@ from rich.console import Console
 from rich.table import Table
 
 from mecanum_jax.config import ConfigError
+from mecanum_jax.control.spec import entry_slice, sensor_size
 from mecanum_jax.evaluation import metrics
 from mecanum_jax.kinematics import limits
 from mecanum_jax.task import MecanumEnv
-from mecanum_jax.task import observations as obs_
 from mecanum_jax.task.references import REFERENCES
 from train.config import load_train_config
 
@@ -62,7 +62,7 @@ def rollout(env: MecanumEnv, key: jax.Array, robots: int, steps: int) -> dict[st
     state, priv, cmd = (np.concatenate([p[j] for p in parts]) for j in range(3))
     c = env.constants
     scale = np.asarray(c.command_scale)
-    at = obs_.entry_start(env.privileged_layout, "true_twist")
+    at = entry_slice(env.privileged_layout, "true_twist").start
     error = priv[..., at : at + 3] * scale - cmd  # the twist after the step, SI
     load = np.asarray(limits.saturation(c.geometry, cmd, c.max_rates))
     since = metrics.steps_since_change(cmd)
@@ -76,7 +76,7 @@ def features(d: dict[str, np.ndarray], env: MecanumEnv, frames: int | None) -> n
     base = sum(size for name, size in env.layout if name != "sensor_history")
     if frames is None:
         return np.concatenate([d["state"][..., :base], d["params"]], axis=-1)
-    return d["state"][..., : base + frames * obs_.sensor_size(env.constants.n_wheels)]
+    return d["state"][..., : base + frames * sensor_size(env.constants.n_wheels)]
 
 
 def fit_mlp(x: np.ndarray, y: np.ndarray, steps: int, seed: int) -> Predictor:

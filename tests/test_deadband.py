@@ -12,6 +12,7 @@ import pytest
 from loops import constant
 
 from mecanum_jax.config import ConfigError, from_mapping
+from mecanum_jax.deploy.policy import NumpyPolicy
 from mecanum_jax.task import EnvConfig, MecanumEnv, RandomizationConfig
 from train.cli.export import task_meta
 
@@ -53,7 +54,10 @@ def test_numpy_onnx_and_environment_shrink_alike(env):
     session = ort.InferenceSession(
         to_onnx(policy).SerializeToString(), providers=["CPUExecutionProvider"]
     )
-    onnx_action, onnx_rates = session.run(["action", "wheel_setpoints"], {"observation": obs[None]})
+    onnx_action, onnx_rates = session.run(
+        ["action", "wheel_setpoints"],
+        {"observation": obs[None], "command_age": np.full((1, 1), 50.0, np.float32)},
+    )
     np.testing.assert_allclose(onnx_action[0], expected, atol=1e-6)
     rates = policy.wheel_setpoints(np.asarray([0.3, 0.0, 0.2]), expected, obs)
     np.testing.assert_allclose(onnx_rates[0], rates, rtol=1e-5, atol=1e-4)
@@ -65,8 +69,9 @@ def test_numpy_onnx_and_environment_shrink_alike(env):
 
 def test_no_deadband_passes_the_action_unchanged(env):
     """At 0, and in exports from before the field, the network's action passes bit for bit."""
-    older = constant(env, BIAS, action_filter=0)
-    del older.meta["residual_deadband"]
+    base = constant(env, BIAS, action_filter=0)
+    meta = {k: v for k, v in base.meta.items() if k != "residual_deadband"}
+    older = NumpyPolicy(base.layers, base.mean, base.std, meta)
     for policy in (constant(env, BIAS, action_filter=0, residual_deadband=0.0), older):
         obs = np.zeros(policy.observation_size, np.float32)
         obs[0] = 0.1

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from loops import network_free
 
-from mecanum_jax.deploy import loop, policy
-from mecanum_jax.deploy.loop import Controller, policy_state
+from mecanum_jax.deploy import policy
+from mecanum_jax.deploy.loop import Controller
 from mecanum_jax.deploy.plant import Plant, PlantParams, SensorChannel
 from mecanum_jax.sim.state import Sensors
 from mecanum_jax.task import MecanumEnv
@@ -95,7 +95,8 @@ def _lockstep(env, ctrl, commands, latency, seed=0):
             raw = shrunk + d * np.sign(shrunk)  # before the deadband (0 stays 0)
             state = env.step(state, jnp.asarray(raw))  # applies f·last + (1 − f)·shrunk
             set_err = max(set_err, np.abs(robot.setpoints[-1] - setpoints).max())
-            integral = max(integral, *(abs(v) for v in ctrl.values.values()))
+            kept = (ctrl.state.feedback_integral, ctrl.state.yaw_integral)
+            integral = max(integral, *(abs(float(v)) for v in kept))
         return obs_err, set_err, integral
     finally:
         env.robot = robot.robot
@@ -110,7 +111,7 @@ def test_the_loop_builds_the_environments_observations_tick_by_tick(shipped_task
     environment's; a loop that does not advance the integrator is caught."""
     env = MecanumEnv(shipped_task)
     assert env.config.action_filter > 0
-    assert "feedback_integral" in controller.states
+    assert controller.spec.feedback_base
     held = env.config.feedback.hold_steps(env.config.control_dt) + 4
     commands = np.array([[0.3, 0.0, 0.5], [0.0, -0.4, -1.5], [0.5, 0.2, 2.0]])
     commands = np.repeat(commands, held, 0)
@@ -120,9 +121,12 @@ def test_the_loop_builds_the_environments_observations_tick_by_tick(shipped_task
     assert integral > 0.01  # the integrator (observed, so compared above) is exercised
 
     class FrozenIntegrator(Controller):
-        @policy_state("feedback_integral", "feedback_integral")
-        def _feedback_integral(self, value, tracked, reading):
-            return value
+        def step(self, *args):
+            before = None if self.state is None else self.state.feedback_integral
+            out = super().step(*args)
+            if before is not None:
+                self.state = self.state._replace(feedback_integral=before)
+            return out
 
     wrong = FrozenIntegrator(controller.policy)
     obs_err, _, _ = _lockstep(env, wrong, commands.astype(np.float32), 1)
@@ -136,7 +140,7 @@ def test_the_loop_keeps_the_leaky_yaw_integral_with_the_tracked_command(shipped_
     task = dataclasses.replace(shipped_task, residual_base="analytic", yaw_integral_tau=1.0)
     env = MecanumEnv(task)
     ctrl = Controller(network_free(env))
-    assert "yaw_error_integral" in ctrl.states
+    assert ctrl.spec.yaw_integral_tau > 0
     commands = np.repeat(np.array([[0.3, 0.0, 0.5], [0.0, -0.4, -1.5], [0.5, 0.2, 2.0]]), 4, 0)
     obs_err, set_err, integral = _lockstep(env, ctrl, commands.astype(np.float32), 1)
     assert obs_err < 1e-5
@@ -145,8 +149,8 @@ def test_the_loop_keeps_the_leaky_yaw_integral_with_the_tracked_command(shipped_
 
     class NewCommandInIntegral(Controller):
         def step(self, command, *readings):
-            if self.tracked is not None:
-                self.tracked = np.asarray(command, np.float32)
+            if self.state is not None:  # as if the new command had been tracked already
+                self.state = self.state._replace(command=np.asarray(command, np.float32))
             return super().step(command, *readings)
 
     wrong = NewCommandInIntegral(ctrl.policy)
@@ -154,32 +158,14 @@ def test_the_loop_keeps_the_leaky_yaw_integral_with_the_tracked_command(shipped_
     assert obs_err > 1e-3
 
 
-def test_a_new_policy_state_is_one_method(controller):
-    """An export whose layout has a state the loop does not keep is refused, naming it;
-    a subclass with one marked method keeps it, updated before each observation."""
+def test_a_layout_entry_the_loop_does_not_keep_is_refused(controller):
+    """An export whose layout has a state the controller does not keep is refused, naming
+    it (a new state is a field of mecanum_jax.control.ControllerState and a step of it)."""
     meta = dict(controller.policy.meta)
     meta["observation_layout"] = [*meta["observation_layout"], ["wheel_error_integral", 1]]
     size = controller.policy.observation_size + 1
     with pytest.raises(policy.ExportError, match="'wheel_error_integral'"):
         Controller(policy.NumpyPolicy([], np.zeros(size), np.ones(size), meta))
-
-    class WithIntegral(policy.NumpyPolicy):
-        def observation(self, *args, wheel_integral=None, **kwargs):
-            return np.append(super().observation(*args, **kwargs), wheel_integral)
-
-    class LoopWithIntegral(Controller):
-        @policy_state("wheel_error_integral", "wheel_integral", initial=1.0)
-        def _wheel_integral(self, value, tracked, reading):
-            return value + float(np.sum(reading.wheel_rate)) * 0.02
-
-    ctrl = LoopWithIntegral(WithIntegral([], np.zeros(size), np.ones(size), meta))
-    readings = (np.ones(4), 0.1, np.array([0.0, 0.0, 9.81]))
-    for expected in (1.0, 1.08, 1.16):  # no update on the first tick after a reset
-        ctrl.step([0.2, 0.0, 0.0], *readings)
-        assert ctrl.observation[-1] == pytest.approx(expected)
-        assert "feedback_integral" in ctrl.values  # the existing state is kept too
-    ctrl.reset()
-    assert ctrl.values["wheel_error_integral"] == 1.0
 
 
 @pytest.mark.parametrize(
@@ -280,9 +266,12 @@ def test_plant_steps_as_the_mjx_robot(shipped_task):
 
 def test_the_copied_loop_runs_beside_the_export_without_jax(tmp_path):
     """What mecanum-export writes beside policy.npz runs on its own: NumPy only."""
+    from train.cli.export import robot_side_files
+
     shutil.copy(MODEL / "policy.npz", tmp_path)
-    shutil.copy(policy.__file__, tmp_path / "mecanum_policy.py")
-    shutil.copy(loop.__file__, tmp_path / "mecanum_loop.py")
+    for name, src in robot_side_files().items():
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        shutil.copy(src, tmp_path / name)
     script = (
         "import sys; from mecanum_loop import Controller\n"
         "c = Controller.load('policy.npz'); c.reset()\n"
@@ -367,7 +356,8 @@ def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
 
     class ForgetfulLoop(Controller):  # a loop that forgets the action it applied last
         def step(self, command, *readings):
-            self.last_action = np.zeros_like(self.last_action)
+            if self.state is not None:
+                self.state = self.state._replace(last_action=np.zeros_like(self.last_action))
             return super().step(command, *readings)
 
     wrong = ev.trace_parts(deploy_sim.play(plant, ForgetfulLoop(ctrl.policy), eps), jac, dt)

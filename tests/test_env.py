@@ -151,12 +151,15 @@ def test_reward_terms_on_known_errors():
     t = reward_terms(err, action, last, jnp.array([0.0, 40.0]), cfg)
     assert set(t) == set(REWARD_TERMS)
     # a perfect step earns the full tracking kernels and no penalty
-    assert [float(t[k][0]) for k in REWARD_TERMS] == [1.0, 1.0, 0.0, 0.0, 0.0, 0.0]
+    assert [float(t[k][0]) for k in REWARD_TERMS] == [1.0, 1.0] + [0.0] * 6
     np.testing.assert_allclose(t["tracking_lin"][1], np.exp(-1.0), rtol=1e-6)  # 0.25 / 0.25
     np.testing.assert_allclose(t["tracking_ang"][1], np.exp(-4.0), rtol=1e-6)
     np.testing.assert_allclose([t["error_lin"][1], t["error_ang"][1]], [-0.25, -4.0], rtol=1e-6)
     np.testing.assert_allclose(t["action_rate"][1], -2.0)
     np.testing.assert_allclose(t["energy"][1], -40.0)
+    path = jnp.array([[0.0, 0.0, 0.0], [0.3, -0.4, 0.5]])  # 0.5 m off, 0.5 rad turned
+    p = reward_terms(err, action, last, jnp.array([0.0, 40.0]), cfg, path)
+    np.testing.assert_allclose([p["path_lin"][1], p["path_ang"][1]], [-0.25, -0.25], rtol=1e-6)
 
 
 @pytest.mark.full  # shares that rollout

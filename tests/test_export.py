@@ -146,7 +146,8 @@ def test_exported_action_filter_matches_the_environment_in_numpy_and_onnx():
     session = ort.InferenceSession(
         to_onnx(policy).SerializeToString(), providers=["CPUExecutionProvider"]
     )
-    (action,) = session.run(["action"], {"observation": obs})
+    held = np.full((len(obs), 1), 50.0, np.float32)  # a command held long
+    (action,) = session.run(["action"], {"observation": obs, "command_age": held})
     np.testing.assert_allclose(action, expected, rtol=1e-5, atol=1e-6)
 
 
@@ -192,7 +193,10 @@ def test_onnx_export_matches_the_jax_policy_and_the_control_loop(full_run, tmp_p
         for k, shape in learner.env.observation_size.items()
     }
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    action, setpoints = session.run(["action", "wheel_setpoints"], {"observation": obs["state"]})
+    action, setpoints = session.run(
+        ["action", "wheel_setpoints"],
+        {"observation": obs["state"], "command_age": np.full((128, 1), 50.0, np.float32)},
+    )
     expected = np.asarray(act(obs))
     assert np.abs(expected).max() > 1e-3  # a non-trivial policy
     np.testing.assert_allclose(action, expected, rtol=1e-5, atol=1e-5)

@@ -3,6 +3,8 @@ policy observes the controller's integrator."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -12,7 +14,6 @@ from loops import network_free
 from mecanum_jax.config import ConfigError
 from mecanum_jax.deploy.loop import Controller
 from mecanum_jax.task import EnvConfig, FeedbackConfig, MecanumEnv, RandomizationConfig
-from mecanum_jax.task import references as refs
 
 FEEDBACK = jnp.asarray(2)  # index of "feedback" in REFERENCES
 POLICY = jnp.asarray(-1)  # no reference: the policy's action (the same compiled step)
@@ -100,16 +101,23 @@ def test_bad_residual_base_is_rejected(kwargs, message):
 
 
 def test_numpy_nearest_feasible_matches_the_library(env):
-    from mecanum_jax.deploy.policy import NearestFeasible
+    """The controller's nearest feasible twist, in NumPy and jitted JAX over a 500-row
+    batch, is the library's (kinematics.limits) on twists beyond the reach."""
+    from mecanum_jax.control import step as ctl
     from mecanum_jax.kinematics import limits
 
+    spec = env.control
     w = env.config.feedback.omega_weight
-    near = NearestFeasible(np.asarray(env.jacobian), np.asarray(env.max_rates), w)
     rng = np.random.default_rng(0)
     twists = (rng.normal(size=(500, 3)) * 1.5 * np.asarray(env.command_scale)).astype(np.float32)
     expected = limits.nearest_feasible(env.geometry, jnp.asarray(twists), env.max_rates, w)
     assert np.mean(np.any(np.abs(twists - np.asarray(expected)) > 1e-3, axis=1)) > 0.3
-    np.testing.assert_allclose(near(twists), expected, rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(
+        ctl.nearest_feasible(spec, twists, np), expected, rtol=1e-4, atol=1e-4
+    )
+    with jax.numpy_rank_promotion("allow"):
+        jitted = jax.jit(lambda t: ctl.nearest_feasible(spec, t, jnp))(jnp.asarray(twists))
+    np.testing.assert_allclose(jitted, expected, rtol=1e-4, atol=1e-4)
 
 
 @pytest.mark.parametrize(
@@ -126,37 +134,54 @@ def test_bad_feedback_settings_name_the_field(kwargs, message):
         EnvConfig(feedback=FeedbackConfig(**kwargs)).validate()
 
 
-def test_the_command_age_counts_steps_since_a_change_and_holds_the_integrator():
-    """``track_command`` on a stand-in environment (no physics): the age is 0 at a reset and
-    at a change, one more per step, unchanged by an imposed equal command; the integrator
-    holds while the age is below ``hold_s`` in control periods, then integrates."""
-    fb = FeedbackConfig(hold_s=0.06)  # 3 periods of 20 ms
-    a, b = jnp.asarray([0.3, 0.0, 0.0]), jnp.asarray([0.3, 0.0, 0.5])
-    info = refs.track_command(fb, DT, {"command": a, "feedback_integral": jnp.asarray(0.2)})
-    ages = [int(info["command_age"])]
-    for command, advance in [(a, True), (a, False), (a, True), (b, True), (b, True), (b, False)]:
-        info = {**refs.track_command(fb, DT, info, command, advance), "command": command}
-        ages.append(int(info["command_age"]))
-    assert ages == [0, 1, 1, 2, 0, 1, 1]
-    assert float(info["feedback_integral"]) == pytest.approx(0.2)  # carried: no reset
-    assert refs.track_command(FeedbackConfig(), DT, {"command": a}) == {
-        "command": a
-    }  # no rule: no state
+def _sensed(spec, commands, integral=0.2):
+    """The controller state after each command of ``commands`` (NumPy, at rest), starting
+    from ``integral`` in the ``feedback`` integrator; each state's integrator is then set
+    to 0.1, as if it had integrated."""
+    from mecanum_jax.control import step as ctl
+
+    frame = np.zeros(spec.n_wheels + 7, np.float32)
+    state = ctl.initial_state(spec, frame, commands[0], 1, np)
+    state = state._replace(feedback_integral=np.float32(integral))
+    out = [state]
+    for command in commands[1:]:
+        state = ctl.sense(spec, state, frame, command, 0, np)
+        out.append(state)
+        state = state._replace(feedback_integral=np.float32(0.1))
+    return out
 
 
-def test_the_integrator_restarts_at_each_command_change_with_reset():
-    """``feedback.reset``: the integrator is 0 after a change (stepped or imposed), kept
-    while the command stays, with or without the hold."""
-    for hold_s in (0.0, 0.06):
-        fb = FeedbackConfig(hold_s=hold_s, reset=True)
-        a, b = jnp.asarray([0.3, 0.0, 0.0]), jnp.asarray([0.3, 0.0, 0.5])
-        info = {"command": a, "feedback_integral": jnp.asarray(0.2), "command_age": 0}
-        values = []
-        for command, advance in [(a, True), (b, True), (b, True), (a, False)]:
-            info = {**refs.track_command(fb, DT, info, command, advance), "command": command}
-            values.append(float(info["feedback_integral"]))
-            info["feedback_integral"] = jnp.asarray(0.1)  # as if it had integrated
-        assert values == pytest.approx([0.2, 0.0, 0.1, 0.0])
+def test_the_command_age_counts_steps_since_a_change_and_holds_the_integrator(env):
+    """The controller's command age is 0 at a reset and at a change, one more per period;
+    the integrator holds while the age is below ``hold_s`` in control periods (3 here),
+    then integrates; without ``reset`` a change keeps it."""
+    from mecanum_jax.control import step as ctl
+
+    spec = dataclasses.replace(
+        env.control, feedback=dataclasses.replace(env.control.feedback, hold_steps=3)
+    )
+    a, b = np.asarray([0.3, 0.0, 0.0], np.float32), np.asarray([0.3, 0.0, 0.5], np.float32)
+    states = _sensed(spec, [a, a, a, b, b, b, b, b])
+    assert [int(s.command_age) for s in states] == [0, 1, 2, 0, 1, 2, 3, 4]
+    assert float(states[3].feedback_integral) == pytest.approx(0.1)  # carried: no reset
+    gyro, gains = np.zeros(1, np.float32), ctl.gains(spec, np)
+    for s in states[3:]:
+        age = np.asarray(s.command_age)[..., None]
+        integral = np.asarray([0.1], np.float32)
+        after = ctl.feedback_integral_step(spec, s.command, gyro, integral, gains, age, np)
+        held = float(after[0]) == pytest.approx(0.1)
+        assert held == (int(s.command_age) < 3), int(s.command_age)
+
+
+def test_the_integrator_restarts_at_each_command_change_with_reset(env):
+    """``feedback.reset``: the integrator is 0 after a change, kept while the command
+    stays, with or without the hold."""
+    a, b = np.asarray([0.3, 0.0, 0.0], np.float32), np.asarray([0.3, 0.0, 0.5], np.float32)
+    for hold in (0, 3):
+        fb = dataclasses.replace(env.control.feedback, hold_steps=hold, reset=True)
+        states = _sensed(dataclasses.replace(env.control, feedback=fb), [a, a, b, b, a])
+        values = [float(s.feedback_integral) for s in states]
+        assert values == pytest.approx([0.2, 0.2, 0.0, 0.1, 0.0])
 
 
 def _hold_env(hold_s: float, deadband: float = 0.0, reset: bool = False) -> MecanumEnv:
@@ -231,13 +256,13 @@ def test_environment_numpy_and_onnx_agree_step_by_step(hold_s, deadband, restart
         # ONNX: the action of a network-free graph is tanh of the first entries; feed the
         # graph's own action back through NumPy's loop for the setpoints
         onnx_action, onnx_setpoints, onnx_integral = session.run(
-            ["action", "wheel_setpoints", "feedback_integral"], {"observation": obs[None]}
+            ["action", "wheel_setpoints", "feedback_integral"],
+            {"observation": obs[None], "command_age": np.full((1, 1), age, np.float32)},
         )
         np.testing.assert_allclose(
             onnx_setpoints[0], policy.wheel_setpoints(command, onnx_action[0], obs), atol=2e-3
         )
-        onnx_next = before if age < hold_steps else float(onnx_integral[0, 0])
-        assert onnx_next == pytest.approx(integral, abs=1e-5)
+        assert float(onnx_integral[0, 0]) == pytest.approx(integral, abs=1e-5)
         state = nxt
     # the correction got through any deadband (with restart: grew again after the change)
     assert abs(integral) > (0.02 if restart else 0.05 + deadband)

@@ -13,9 +13,10 @@ import pytest
 from loops import network_free
 
 from mecanum_jax.config import ConfigError
+from mecanum_jax.control import ControllerState, policy_layout
+from mecanum_jax.control import step as ctl
 from mecanum_jax.deploy.loop import Controller
 from mecanum_jax.task import EnvConfig, MecanumEnv, RandomizationConfig
-from mecanum_jax.task import observations as obs_
 
 
 @pytest.mark.parametrize("value", [-1, 51])
@@ -28,12 +29,14 @@ def test_the_history_is_the_frames_before_the_observed_one_newest_first():
     """With a latency of 1 the observed frame is one period old; the history is the
     frames before it, each as delayed."""
     history = jnp.arange(6 * 2, dtype=jnp.float32).reshape(6, 2)  # frame k = [2k, 2k+1]
-    info = {"history": history, "latency": jnp.asarray(1, jnp.int32)}
-    np.testing.assert_array_equal(obs_.delayed(info), [2.0, 3.0])
-    np.testing.assert_array_equal(obs_.past_sensors(info, 3), [4, 5, 6, 7, 8, 9])
-    layout = obs_.policy_layout(4, 3, False, True, history=3)
+    state = ControllerState(*(None,) * 3, history, *(None,) * 4)
+    latency = jnp.asarray(1, jnp.int32)
+    np.testing.assert_array_equal(ctl.observed_frame(state, latency, jnp), [2.0, 3.0])
+    past = jnp.take(history, latency + 1 + jnp.arange(3), axis=0).reshape(-1)
+    np.testing.assert_array_equal(past, [4, 5, 6, 7, 8, 9])
+    layout = policy_layout(4, 3, False, True, history=3)
     assert layout[-2:] == (("feedback_integral", 1), ("sensor_history", 3 * 11))
-    assert obs_.policy_layout(4, 3, False, True)[-1] == ("feedback_integral", 1)
+    assert policy_layout(4, 3, False, True)[-1] == ("feedback_integral", 1)
 
 
 def _student_env(history: int) -> MecanumEnv:

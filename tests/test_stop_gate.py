@@ -74,7 +74,8 @@ def test_numpy_and_onnx_drop_the_correction_at_a_stop_only(env):
         obs = _observation(policy, np.asarray(command), last)
         np.testing.assert_allclose(policy.action(obs), expected, atol=1e-6)
         onnx_action, onnx_rates = session.run(
-            ["action", "wheel_setpoints"], {"observation": obs[None]}
+            ["action", "wheel_setpoints"],
+            {"observation": obs[None], "command_age": np.full((1, 1), 50.0, np.float32)},
         )[:2]
         np.testing.assert_allclose(onnx_action[0], expected, atol=1e-6)
         np.testing.assert_allclose(

@@ -70,10 +70,25 @@ class EnvConfig:
     deadband keeps the base's own setpoints there, as `feedback`'s deadband keeps its
     integrator from the gyro's noise.
 
+    residual_ramp_s = T > 0 ramps the applied correction in after each command change:
+    its gain grows from 0 to 1 over T s of the new command (the filter's memory with it),
+    so that through a transient the base acts alone, as `feedback` does, and the learned
+    correction only where a command is held (mecanum_jax.control.step.act).
+
     obs_history = H > 0 appends the H sensor frames before the observed one (encoders,
     gyro, accelerometer, odometry twist, as observed: noisy and as delayed as the current
     frame), newest first: the 0.5 to 1 s of history (25 to 50 frames at 20 ms) from which a
     student infers what a privileged teacher reads (friction, payload, motor gains).
+
+    path_tau = τ > 0 adds the path error the robot measures against the commanded path:
+    the position (x, y) and heading of the robot minus those of the command, in the
+    commanded frame, integrated from the wheel odometry and the gyro as observed, leaky
+    with τ (mecanum_jax.control.step.path_step); the critic sees the true one. It is what
+    a scripted sequence's drift measures, which the twist alone cannot show.
+
+    symmetric = true averages the policy over the robot's mirror group (left-right,
+    front-back, half turn; mecanum_jax.control.symmetry): a command a mirror leaves
+    unchanged gets a correction that mirror leaves unchanged, exactly.
     """
 
     robot: str = "o_rectangle"
@@ -106,9 +121,15 @@ class EnvConfig:
     """Low-pass factor of the actions, f in [0, 1): applied = f·previous + (1 − f)·new (0: off)."""
     residual_deadband: float = 0.0
     """Soft threshold of the network's action, in its units, in [0, 1) (0: off)."""
+    residual_ramp_s: float = 0.0
+    """Seconds over which the correction ramps in after a command change (>= 0; 0: off)."""
     obs_history: int = 0
     """Earlier sensor frames the policy observes, one control period apart (0 to
     MAX_OBS_HISTORY; 0: none)."""
+    path_tau: float = 0.0
+    """Time constant of the observed leaky path error, s (>= 0; 0: off)."""
+    symmetric: bool = False
+    """The policy is averaged over the robot's mirror group (exactly equivariant)."""
     commands: CommandConfig = CommandConfig()
     """How commands are drawn."""
     randomization: RandomizationConfig = RandomizationConfig()
@@ -179,7 +200,14 @@ class EnvConfig:
             lambda v: v >= 0,
             "must be >= 0 (0: the robot description's sim.iterations)",
         )
-        require(self, where, ("yaw_integral_tau",), lambda v: v >= 0, "must be >= 0 (0: off)")
+        require(
+            self,
+            where,
+            ("yaw_integral_tau", "path_tau", "residual_ramp_s"),
+            lambda v: v >= 0,
+            "must be >= 0 (0: off)",
+        )
+        require(self, where, ("symmetric",), lambda v: isinstance(v, bool), "must be true or false")
         in_unit = ("action_filter", "residual_deadband")
         require(self, where, in_unit, lambda v: 0 <= v < 1, "must be in [0, 1) (0: off)")
         require(

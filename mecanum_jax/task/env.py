@@ -35,8 +35,9 @@ import jax.numpy as jnp
 import numpy as np
 from brax.envs.base import Env, State, Wrapper
 
+from mecanum_jax.control import sensor_size
+from mecanum_jax.control import step as ctl
 from mecanum_jax.host import host_side
-from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.sim.batching import chunked_vmap, cpu_chunk
 from mecanum_jax.sim.physics import Robot
 from mecanum_jax.sim.state import RobotParams, Sensors, select
@@ -47,6 +48,12 @@ from mecanum_jax.task import randomization as rand
 from mecanum_jax.task import references as refs
 from mecanum_jax.task.config import EnvConfig
 from mecanum_jax.task.constants import robot_constants
+from mecanum_jax.task.controller import (
+    broadcasting,
+    control_state,
+    controller_spec,
+    with_control,
+)
 from mecanum_jax.task.observations import NoiseConfig
 from mecanum_jax.task.references import FeedbackConfig
 from mecanum_jax.task.reward import METRIC_NAMES, step_reward
@@ -76,20 +83,18 @@ class MecanumEnv(Env):
         n = self.n_wheels
         self.max_rate = float(np.max(np.asarray(self.max_rates)))
         self.max_latency = config.randomization.latency_steps[1]
-        self.twist_residual = config.residual and config.residual_space == "twist"
-        self._action_size = 3 if self.twist_residual else n
-        self.sensor_size = obs_.sensor_size(n)
+        # the robot-side controller, one description for the environment and its exports
+        self.control = spec = controller_spec(config, self.desc, c)
+        self.twist_residual = spec.twist_residual
+        self._action_size = spec.action_size
+        self.sensor_size = sensor_size(n)
         # the sensor frames kept: the latest latency_steps[1] + 1 and the observed history
         self.history_frames = self.max_latency + 1 + config.obs_history
-        self.feedback_base = config.residual and config.residual_base == "feedback"
-        self.layout = obs_.policy_layout(
-            n,
-            self._action_size,
-            config.yaw_integral_tau > 0,
-            self.feedback_base,
-            config.obs_history,
-        )
-        self.privileged_layout = obs_.privileged_layout(self.layout, n)
+        self.feedback_base = spec.feedback_base
+        self.layout = spec.layout
+        tau = config.path_tau
+        self.path_scale = jnp.asarray(tau * np.asarray(c.command_scale)) if tau > 0 else None
+        self.privileged_layout = obs_.privileged_layout(self.layout, n, config.path_tau > 0)
 
     # --- Brax interface ---------------------------------------------------------------------
 
@@ -113,6 +118,7 @@ class MecanumEnv(Env):
         params, latency = rand.sample_params(self.constants, k_params, self.config.randomization)
         return self.reset_to(rng, params, latency, self.noise_std())
 
+    @broadcasting
     def reset_to(
         self, rng: jax.Array, params: RobotParams, latency: jax.Array, noise_std: jax.Array
     ) -> State:
@@ -127,126 +133,112 @@ class MecanumEnv(Env):
         sim = self.robot.reset(params)
         sens = self.robot.sensors(sim)
         noise_std = jnp.asarray(noise_std, jnp.float32)
-        sensors = obs_.sensor_vector(c, sens, k_noise, noise_std)
         start = jnp.asarray(0, jnp.int32)
+        command = cmds.sample_command(c, k_cmd, commands)
+        first = obs_.sensor_vector(self.control, sens, k_noise, noise_std)
+        control = ctl.initial_state(self.control, first, command, self.history_frames, jnp)
         info = {
             "rng": rng,
             "params": params,
             "latency": jnp.asarray(latency, jnp.int32),
             "noise_std": noise_std,
-            "command": cmds.sample_command(c, k_cmd, commands),
             "next_resample": cmds.resample_time(k_time, start, commands, self.config.control_dt),
             "step": jnp.asarray(0, jnp.int32),
-            "last_action": jnp.zeros(self.action_size),
-            "history": jnp.broadcast_to(sensors, (self.history_frames, self.sensor_size)),
-            "yaw_integral": jnp.asarray(0.0),
-            "feedback_integral": jnp.asarray(0.0),
-            "feedback_gains": self.feedback_gains(),
+            "true_path_error": jnp.zeros(3),
             "truncation": jnp.asarray(0.0),
         }
-        info = refs.track_command(self.config.feedback, self.config.control_dt, info)
+        info = with_control(info, control._replace(feedback_gains=self.feedback_gains()))
         obs = self._observe(sens, info)
         metrics = {k: jnp.asarray(0.0) for k in self.metric_names}
         return State(sim, obs, jnp.asarray(0.0), jnp.asarray(0.0), metrics, info)
 
+    @broadcasting
     def step(self, state: State, action: jax.Array, reference: jax.Array | None = None) -> State:
         """One control step under ``action``; with ``reference`` (an index into
         :data:`REFERENCES`, may be traced; negative: none) that reference controller's
         setpoints replace the action's. The feedback controller's integrator is updated only
         when ``reference`` is given."""
         info = dict(state.info)
-        c, cfg = self.constants, self.config
-        action = jnp.clip(action, -1.0, 1.0)
-        if cfg.residual_deadband > 0:  # small corrections dropped (EnvConfig)
-            d = cfg.residual_deadband
-            action = jnp.sign(action) * jnp.maximum(jnp.abs(action) - d, 0.0)
-        if not cfg.residual_at_stop:  # the base alone stops (EnvConfig)
-            action = jnp.where(jnp.all(info["command"] == 0.0), 0.0, action)
-        if cfg.action_filter > 0:  # the applied action, low-passed (EnvConfig)
-            f = cfg.action_filter
-            action = f * info["last_action"] + (1.0 - f) * action
-        params: RobotParams = info["params"]
-        command = info["command"]
-        rates = self.wheel_setpoints(command, action, state.info)
+        c, cfg, spec = self.constants, self.config, self.control
+        before = control_state(state.info)
+        latency = info["latency"]
+        rates, after = ctl.act(spec, before, action, latency, jnp)
         if reference is not None:
-            chosen = refs.reference_rates(c, reference, state.info, cfg.feedback)
+            chosen = refs.reference_rates(c, reference, state.info, cfg.feedback, spec)
             rates = jnp.where(reference >= 0, chosen, rates)
-        if reference is not None or self.feedback_base:
-            # the feedback controller's integrator runs where it may act: a reference in
-            # evaluation, or the base of the policy's residual
-            info["feedback_integral"] = refs.feedback_integral(
-                c, state.info, cfg.feedback, cfg.control_dt
-            )
+            if not self.feedback_base:  # the feedback reference's integrator runs too
+                gyro = ctl.measured_yaw_rate(spec, before, latency, jnp)
+                integral = ctl.feedback_integral_step(
+                    spec, before.command, gyro, before.feedback_integral[None],
+                    before.feedback_gains, before.command_age[..., None], jnp,
+                )  # fmt: skip
+                after = after._replace(feedback_integral=integral[0])
+        action = after.last_action
+        params: RobotParams = info["params"]
+        command = before.command
         sim = self.robot.step(state.pipeline_state, rates, params, self.substeps)
         sens = self.robot.sensors(sim)
         target = command
         if cfg.reward.target == "feasible":  # what the evaluation scores (RewardConfig)
             target = self.feasible_target(command, params.radius_scale)
+        path = info["true_path_error"]
+        if cfg.path_tau > 0:  # against the command tracked in this step, the true twist
+            path = ctl.path_step(spec, path, sens.twist, command, jnp)
         reward, metrics = step_reward(
-            cfg.reward, sens, target, action, info["last_action"], params,
-            cfg.control_dt,
+            cfg.reward, sens, target, action, before.last_action, params,
+            cfg.control_dt, path,
         )  # fmt: skip
         metrics["unstable"] = sim.unstable.astype(jnp.float32)
         rng, k_noise, k_cmd, k_time = jax.random.split(info["rng"], 4)
         step = info["step"] + 1
         resample = step >= info["next_resample"]
         new_command = jnp.where(resample, cmds.sample_command(c, k_cmd, cfg.commands), command)
-        info = refs.track_command(cfg.feedback, cfg.control_dt, info, new_command)
-        info["command"] = new_command
         due = cmds.resample_time(k_time, step, cfg.commands, cfg.control_dt)
         info["next_resample"] = jnp.where(resample, due, info["next_resample"])
-        info.update(step=step, rng=rng, last_action=action)
-        sensors = obs_.sensor_vector(c, sens, k_noise, info["noise_std"])
-        info["history"] = jnp.concatenate([sensors[None], info["history"][:-1]], axis=0)
-        if cfg.yaw_integral_tau > 0:  # against the command tracked in this step
-            info["yaw_integral"] = obs_.yaw_integral(
-                c, info, command, cfg.yaw_integral_tau, cfg.control_dt
-            )
+        info.update(step=step, rng=rng, true_path_error=path)
+        frame = obs_.sensor_vector(spec, sens, k_noise, info["noise_std"])
+        info = with_control(info, ctl.sense(spec, after, frame, new_command, latency, jnp))
         obs = self._observe(sens, info)
         return state.replace(pipeline_state=sim, obs=obs, reward=reward, metrics=metrics, info=info)
 
+    @broadcasting
     def set_command(self, state: State, command: jax.Array) -> State:
         """Impose ``command`` from now on (scripted sequences): it replaces the current
         command, in the observations too, and the environment stops resampling."""
-        fb, dt = self.config.feedback, self.config.control_dt
-        info = refs.track_command(fb, dt, dict(state.info), command, advance=False)
+        info = dict(state.info)
+        changed = jnp.any(command != info["command"])
+        info["command_age"] = jnp.where(changed, 0, info["command_age"]).astype(jnp.int32)
+        if self.control.feedback.reset:  # the integrator restarts with a new command
+            info["feedback_integral"] = jnp.where(changed, 0.0, info["feedback_integral"])
         info["command"] = command
         info["next_resample"] = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
-        scaled = command / self.command_scale
-        obs = {k: v.at[:3].set(scaled) for k, v in state.obs.items()}  # command comes first
-        if self.config.feedback.reset and self.feedback_base:  # the integrator, restarted
-            at = obs_.entry_start(self.layout, "feedback_integral")
-            value = info["feedback_integral"] / self.command_scale[2]
-            obs = {k: v.at[at].set(value) for k, v in obs.items()}
+        policy = ctl.observe(self.control, control_state(info), info["latency"], jnp)
+        size = policy.shape[0]  # the policy's part comes first in both observations
+        obs = {k: v.at[:size].set(policy) for k, v in state.obs.items()}
         return state.replace(obs=obs, info=info)
 
+    @broadcasting
     def wheel_setpoints(
         self, command: jax.Array, action: jax.Array, info: dict[str, Any] | None = None
     ) -> jax.Array:
-        """Wheel-rate setpoints (rad/s) for an action in [-1, 1]^action_size under ``command``
-        (``info``: the state, for a residual on the ``feedback`` controller)."""
+        """Wheel-rate setpoints (rad/s) for an applied action in [-1, 1]^action_size under
+        ``command`` (``info``: the state, for a residual on the ``feedback`` controller)."""
+        spec = self.control
         if self.feedback_base:
             if info is None:
                 raise ValueError("wheel_setpoints: residual_base = 'feedback' needs the state")
-            base = refs.feedback_rates(
-                self.constants, dict(info, command=command), self.config.feedback
-            )
-        elif self.config.residual:
-            base = refs.baseline_rates(self.constants, command)
-        if self.twist_residual:
-            correction = action * (self.config.residual_scale * self.command_scale)
-            rates = base + kinematics.apply_rows(self.jacobian, correction)
-        elif self.config.residual:
-            rates = base + action * (self.config.residual_scale * self.max_rates)
+            s = control_state(info)
+            gyro = ctl.measured_yaw_rate(spec, s, info["latency"], jnp)
+            integral, gains = s.feedback_integral[..., None], s.feedback_gains
         else:
-            rates = action * self.max_rates
-        return jnp.clip(rates, -self.max_rates, self.max_rates)
+            gyro = integral = jnp.zeros(1)
+            gains = ctl.gains(spec, jnp)
+        return ctl.setpoints(spec, command, jnp.clip(action, -1.0, 1.0), gyro, integral, gains, jnp)
 
+    @broadcasting
     def _observe(self, sens: Sensors, info: dict[str, Any]) -> dict[str, jax.Array]:
-        cfg = self.config
-        return obs_.observe(
-            self.constants, sens, info, cfg.yaw_integral_tau, self.feedback_base, cfg.obs_history
-        )
+        policy = ctl.observe(self.control, control_state(info), info["latency"], jnp)
+        return obs_.observe(self.constants, sens, info, policy, self.path_scale)
 
     def noise_std(self, noise: NoiseConfig | None = None) -> jax.Array:
         """Sensor noise standard deviations (wheel rate, gyro, accel) of a noise config."""

@@ -19,10 +19,13 @@ import jax
 import jax.numpy as jnp
 
 from mecanum_jax.config import require
+from mecanum_jax.control import ControllerSpec
+from mecanum_jax.control import step as ctl
 from mecanum_jax.kinematics import limits
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.task.constants import RobotConstants
-from mecanum_jax.task.observations import command_from_obs, measured_yaw_rate
+from mecanum_jax.task.controller import broadcasting, control_state
+from mecanum_jax.task.observations import command_from_obs
 
 Policy = Callable[[Any, jax.Array], tuple[jax.Array, dict[str, Any]]]
 
@@ -114,81 +117,30 @@ def feasible_target(
     return limits.nearest_feasible(geom, command, robot.max_rates, omega_weight)
 
 
-def feedback_twist(
-    robot: RobotConstants, info: dict[str, Any], deadband: float
-) -> tuple[jax.Array, jax.Array]:
-    """The PI-corrected twist command, and the yaw-rate error it corrects."""
-    kp = info["feedback_gains"][0]
-    command = info["command"]
-    err = command[2] - measured_yaw_rate(robot, info)
-    u = kp * err + info["feedback_integral"]
-    if deadband > 0:
-        u = jnp.sign(u) * jnp.maximum(jnp.abs(u) - deadband, 0.0)
-    return command + jnp.asarray([0.0, 0.0, 1.0]) * u, err
-
-
-def feedback_integral(
-    robot: RobotConstants, info: dict[str, Any], fb: FeedbackConfig, dt: float
-) -> jax.Array:
-    """The feedback controller's integrator after this step of ``dt`` s (see
-    :class:`FeedbackConfig`)."""
-    _, ki, i_max = info["feedback_gains"]
-    twist, err = feedback_twist(robot, info, fb.deadband)
-    rates = kinematics.apply_rows(robot.jacobian, twist)
-    saturated = jnp.max(jnp.abs(rates) / robot.max_rates) > 1.0
-    u = twist[2] - info["command"][2]
-    hold = saturated & (err * u > 0)  # the error would wind it up further
-    steps = fb.hold_steps(dt)
-    if steps > 0:  # the command is younger than hold_s: a transient, not a bias
-        hold = hold | (info["command_age"] < steps)
-    grown = jnp.clip(info["feedback_integral"] + ki * err * dt, -i_max, i_max)
-    return jnp.where(hold, info["feedback_integral"], grown)
-
-
-def track_command(
-    fb: FeedbackConfig,
-    dt: float,
-    info: dict[str, Any],
-    command: jax.Array | None = None,
-    advance: bool = True,
-) -> dict[str, Any]:
-    """``info`` with what the feedback controller keeps of the tracked command: its age,
-    ``command_age`` in control periods since it changed (where the integrator holds after
-    changes, ``hold_s > 0``), and the integrator restarted at 0 where it changed (``reset``).
-    ``command=None``: a reset, age 0. Otherwise the age is 0 where ``command`` differs from
-    the one ``info`` tracked, else one more (``advance``: a step) or the same (a command
-    imposed between steps). ``info`` as it is when neither rule is on. ``dt``: the
-    control period, s."""
-    hold = fb.hold_steps(dt) > 0
-    if not (hold or fb.reset):
-        return info
-    if command is None:
-        return {**info, "command_age": jnp.asarray(0, jnp.int32)} if hold else info
-    changed = jnp.any(command != info["command"])
-    out = dict(info)
-    if hold:
-        kept = info["command_age"] + 1 if advance else info["command_age"]
-        out["command_age"] = jnp.where(changed, 0, kept).astype(jnp.int32)
-    if fb.reset:
-        out["feedback_integral"] = jnp.where(changed, 0.0, info["feedback_integral"])
-    return out
-
-
-def feedback_rates(robot: RobotConstants, info: dict[str, Any], fb: FeedbackConfig) -> jax.Array:
-    """The ``feedback`` reference's wheel-rate setpoints for the state's ``info``."""
-    return nearest_rates(robot, feedback_twist(robot, info, fb.deadband)[0], fb.omega_weight)
+@broadcasting
+def feedback_rates(spec: ControllerSpec, info: dict[str, Any]) -> jax.Array:
+    """The ``feedback`` reference's wheel-rate setpoints for the state's ``info`` (the
+    robot-side controller's, :func:`mecanum_jax.control.step.feedback_rates`)."""
+    s = control_state(info)
+    gyro = ctl.measured_yaw_rate(spec, s, info["latency"], jnp)
+    integral = s.feedback_integral[..., None]
+    return ctl.feedback_rates(spec, s.command, gyro, integral, s.feedback_gains, jnp)
 
 
 def reference_rates(
-    robot: RobotConstants, reference: int | jax.Array, info: dict[str, Any], fb: FeedbackConfig
+    robot: RobotConstants,
+    reference: int | jax.Array,
+    info: dict[str, Any],
+    fb: FeedbackConfig,
+    spec: ControllerSpec,
 ) -> jax.Array:
     """Wheel-rate setpoints of reference controller ``reference`` (an index into
     :data:`REFERENCES`; a Python int computes only that one) for the state's ``info``
-    (``fb``: the feedback controller's settings)."""
+    (``fb``: the feedback controller's settings; ``spec``: the controller it runs as)."""
     candidates = (
         lambda: baseline_rates(robot, info["command"]),
         lambda: nearest_rates(robot, info["command"], fb.omega_weight),
-        lambda: feedback_rates(robot, info, fb),
+        lambda: feedback_rates(spec, info),
     )
     if isinstance(reference, int):
         return candidates[reference]()
@@ -221,10 +173,7 @@ __all__ = [
     "baseline_policy",
     "baseline_rates",
     "feasible_target",
-    "feedback_integral",
     "feedback_rates",
-    "feedback_twist",
     "nearest_rates",
     "reference_rates",
-    "track_command",
 ]

@@ -37,6 +37,11 @@ class RewardConfig:
     """Scale of −|a_t − a_(t−1)|², actions in [-1, 1] (>= 0)."""
     energy: float = 0.0005
     """Scale of −Σ|τ·ω|, the wheels' mechanical power in W (>= 0)."""
+    path_lin: float = 0.0
+    """Scale of −|e_xy|², the true path error's position part, per m² (>= 0; needs
+    env.path_tau > 0, whose leak it shares)."""
+    path_ang: float = 0.0
+    """Scale of −e_θ², the true path error's heading part, per rad² (>= 0; as path_lin)."""
     target: str = "command"
     """What the twist error is measured against: "command", or "feasible", the nearest
     feasible twist of the robot as it is (the evaluation's steady-state target,
@@ -62,6 +67,8 @@ REWARD_TERMS = (
     "error_ang",
     "action_rate",
     "energy",
+    "path_lin",
+    "path_ang",
 )
 """The reward's terms, each scaled by the :class:`RewardConfig` field of the same name."""
 
@@ -72,12 +79,15 @@ def reward_terms(
     last_action: jax.Array,
     power: jax.Array,
     cfg: RewardConfig,
+    path_error: jax.Array | None = None,
 ) -> dict[str, jax.Array]:
     """The unscaled reward terms of one step (:data:`REWARD_TERMS`).
 
     ``twist_error`` is the true twist minus the command (vx, vy, ωz); ``power`` the wheels'
-    mechanical power Σ|τ·ω| in W. Tracking terms are in (0, 1], penalties are <= 0.
+    mechanical power Σ|τ·ω| in W; ``path_error`` the true path error (x, y, heading; None:
+    0). Tracking terms are in (0, 1], penalties are <= 0.
     """
+    path = jnp.zeros_like(twist_error) if path_error is None else path_error
     lin2 = twist_error[..., 0] ** 2 + twist_error[..., 1] ** 2
     ang2 = twist_error[..., 2] ** 2
     return {
@@ -87,6 +97,8 @@ def reward_terms(
         "error_ang": -ang2,
         "action_rate": -jnp.sum((action - last_action) ** 2, axis=-1),
         "energy": -power,
+        "path_lin": -(path[..., 0] ** 2 + path[..., 1] ** 2),
+        "path_ang": -(path[..., 2] ** 2),
     }
 
 
@@ -101,6 +113,7 @@ METRIC_NAMES = (
     "error/vy2",
     "error/wz2",
     "energy_j",
+    "path_m",
     "saturated",
     "unstable",
 )
@@ -115,13 +128,16 @@ def step_reward(
     last_action: jax.Array,
     params: RobotParams,
     control_dt: float,
+    path_error: jax.Array | None = None,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """The reward of one control step and its metrics (:data:`METRIC_NAMES`, less
     ``unstable``, which the physics reports); ``target``: the twist tracked, the command or
-    its nearest feasible twist (:attr:`RewardConfig.target`)."""
+    its nearest feasible twist (:attr:`RewardConfig.target`); ``path_error``: the true
+    path error (``path_m`` reports its position part's length, m)."""
     err = sens.twist - target
     power = jnp.sum(jnp.abs(sens.wheel_torque * sens.wheel_rate))
-    scaled = scaled_reward_terms(reward_terms(err, action, last_action, power, cfg), cfg)
+    terms = reward_terms(err, action, last_action, power, cfg, path_error)
+    scaled = scaled_reward_terms(terms, cfg)
     reward = sum(scaled.values(), jnp.asarray(0.0))
     saturated = jnp.mean(
         (jnp.abs(sens.wheel_torque) >= 0.99 * params.torque_limit).astype(jnp.float32)
@@ -132,6 +148,7 @@ def step_reward(
         "error/vy2": err[1] ** 2,
         "error/wz2": err[2] ** 2,
         "energy_j": power * control_dt,
+        "path_m": jnp.sqrt(-terms["path_lin"]),
         "saturated": saturated,
     }
     return reward, metrics

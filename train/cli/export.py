@@ -34,10 +34,8 @@ from mecanum_jax._checks import require_platform
 from mecanum_jax.config import ConfigError
 from mecanum_jax.deploy import policy as deploy
 from mecanum_jax.deploy.write import save
-from mecanum_jax.kinematics import model as kinematics
-from mecanum_jax.sim.description import fingerprint
-from mecanum_jax.sim.state import GRAVITY
 from mecanum_jax.task import MecanumEnv
+from mecanum_jax.task.controller import controller_meta
 from train.cli.paths import check_output, resolve_model
 from train.learner.policy import RestoredPolicy, package_model, restore_policy, split_target
 from train.loop.progress import print_error
@@ -130,17 +128,30 @@ def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) ->
     return 0
 
 
+def robot_side_files() -> dict[str, Path]:
+    """What the robot needs beside ``policy.npz``, by its name there: the NumPy policy, the
+    control loop and the controller package (``mecanum_control/``), from the library."""
+    from mecanum_jax import control
+
+    source = Path(deploy.__file__)
+    files = {"mecanum_policy.py": source, "mecanum_loop.py": source.with_name("loop.py")}
+    package = Path(control.__file__).parent
+    for src in sorted(package.glob("*.py")):
+        files[f"mecanum_control/{src.name}"] = src
+    return files
+
+
 def export_policy(restored: RestoredPolicy, path: Path) -> Path:
     """Write ``policy.npz`` (weights, normalizer, control-loop constants) and copy the
     NumPy inference module beside it as ``mecanum_policy.py``. Each file atomically; on an
     error, those it had written are removed again."""
-    source = Path(deploy.__file__)
-    modules = {"mecanum_policy.py": source, "mecanum_loop.py": source.with_name("loop.py")}
-    new = [p for p in (path, *map(path.with_name, modules)) if not p.exists()]
+    modules = robot_side_files()
+    new = [p for p in (path, *(path.parent / n for n in modules)) if not p.exists()]
     try:
         save(path, *_policy_arrays(restored))
         for name, src in modules.items():
-            atomic.copy_file(src, path.with_name(name))
+            (path.parent / name).parent.mkdir(exist_ok=True)
+            atomic.copy_file(src, path.parent / name)
     except BaseException:
         for p in new:
             p.unlink(missing_ok=True)
@@ -156,33 +167,9 @@ def export_onnx(restored: RestoredPolicy, path: Path) -> Path:
 
 
 def task_meta(env: MecanumEnv) -> dict[str, Any]:
-    """What an exported policy's control loop needs of ``env``'s task: the robot, the
-    observation layout, the residual and its base, the filter and integrators, limits and
-    kinematics, the control period."""
-    cfg = env.config
-    return {
-        "robot": env.desc.robot.name,
-        "robot_fingerprint": fingerprint(env.desc),
-        "wheels": list(env.geometry.names),
-        "action_size": env.action_size,
-        "observation_layout": [list(x) for x in env.layout],
-        "residual": cfg.residual,
-        "residual_scale": cfg.residual_scale,
-        "residual_space": cfg.residual_space,
-        "residual_base": cfg.residual_base,
-        "feedback": dataclasses.asdict(cfg.feedback),
-        "yaw_integral_tau": cfg.yaw_integral_tau,
-        "obs_history": cfg.obs_history,
-        "action_filter": cfg.action_filter,
-        "residual_at_stop": cfg.residual_at_stop,
-        "residual_deadband": cfg.residual_deadband,
-        "max_rates": np.asarray(env.max_rates).tolist(),
-        "command_scale": np.asarray(env.command_scale).tolist(),
-        "jacobian": np.asarray(kinematics.jacobian(env.geometry)).tolist(),
-        "forward_matrix": np.asarray(kinematics.forward_matrix(env.geometry)).tolist(),
-        "gravity": GRAVITY,
-        "control_dt": cfg.control_dt,
-    }
+    """What an exported policy's control loop needs of ``env``'s task
+    (:func:`mecanum_jax.task.controller.controller_meta`)."""
+    return controller_meta(env.config, env.desc, env.constants)
 
 
 def _policy_arrays(

@@ -8,6 +8,7 @@ imports the other.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Callable
@@ -59,7 +60,7 @@ def make_networks(env: MecanumEnv, cfg: TrainConfig) -> ppo_networks.PPONetworks
         running_statistics.normalize, max_abs_value=cfg.ppo.clip_observations or None
     )
     n = cfg.network
-    return ppo_networks.make_ppo_networks(
+    networks = ppo_networks.make_ppo_networks(
         env.observation_size,
         env.action_size,
         preprocess_observations_fn=normalize,
@@ -70,6 +71,35 @@ def make_networks(env: MecanumEnv, cfg: TrainConfig) -> ppo_networks.PPONetworks
         value_obs_key="privileged_state",
         init_noise_std=n.init_noise_std,
     )
+    if cfg.env.symmetric:
+        networks = symmetric_networks(networks, env)
+    return networks
+
+
+def symmetric_networks(
+    networks: ppo_networks.PPONetworks, env: MecanumEnv
+) -> ppo_networks.PPONetworks:
+    """``networks`` with the policy averaged over the robot's mirror group
+    (:func:`mecanum_jax.control.symmetry.symmetrize`): its mean is exactly equivariant and
+    its spread invariant, so the whole action distribution is."""
+    from brax.training.networks import FeedForwardNetwork
+
+    from mecanum_jax.control.symmetry import mirrors
+
+    policy, size = networks.policy_network, env.action_size
+    group = [(jnp.asarray(oi), jnp.asarray(os), jnp.asarray(ai), jnp.asarray(sg))
+             for (oi, os), (ai, sg) in mirrors(env.control)]  # fmt: skip
+
+    def apply(processor_params: Any, params: Any, obs: dict[str, jax.Array]) -> jax.Array:
+        total = policy.apply(processor_params, params, obs)
+        for oi, os, ai, sign in group:
+            mirrored = {**obs, "state": jnp.take(obs["state"], oi, axis=-1) * os}
+            out = policy.apply(processor_params, params, mirrored)
+            loc = jnp.take(out[..., :size], ai, axis=-1) * sign
+            total = total + jnp.concatenate([loc, jnp.take(out[..., size:], ai, axis=-1)], -1)
+        return total / 4.0
+
+    return dataclasses.replace(networks, policy_network=FeedForwardNetwork(policy.init, apply))
 
 
 def gradient_clip(cfg: TrainConfig) -> optax.GradientTransformation:

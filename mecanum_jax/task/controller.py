@@ -1,0 +1,110 @@
+"""The task's controller spec: what an environment's config says the robot-side
+controller is (:func:`controller_meta`, the export's metadata, and the
+:class:`~mecanum_jax.control.ControllerSpec` read from it), and the controller state kept
+in a Brax state's ``info`` (:func:`control_state`, :func:`with_control`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+import jax
+import numpy as np
+
+from mecanum_jax.control import ControllerSpec, ControllerState, policy_layout
+from mecanum_jax.control.state import FIELDS
+from mecanum_jax.kinematics import model as kinematics
+from mecanum_jax.sim.description import RobotDescription, fingerprint
+from mecanum_jax.sim.state import GRAVITY
+from mecanum_jax.task.constants import RobotConstants
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def controller_meta(
+    config: Any, desc: RobotDescription, constants: RobotConstants
+) -> dict[str, Any]:
+    """What an exported policy's control loop needs of a task: the robot, the observation
+    layout, the residual and its base, the filter and integrators, the limits and
+    kinematics, the control period (the export's ``meta``, less the network's part).
+    ``config``: the task's ``EnvConfig`` (not imported: it imports the reference
+    controllers, which import this module)."""
+    twist = config.residual and config.residual_space == "twist"
+    action_size = 3 if twist else constants.n_wheels
+    feedback_base = config.residual and config.residual_base == "feedback"
+    layout = policy_layout(
+        constants.n_wheels,
+        action_size,
+        config.yaw_integral_tau > 0,
+        feedback_base,
+        config.obs_history,
+        config.path_tau > 0,
+    )
+    geometry = constants.geometry
+    return {
+        "robot": desc.robot.name,
+        "robot_fingerprint": fingerprint(desc),
+        "wheels": list(geometry.names),
+        "action_size": action_size,
+        "observation_layout": [list(x) for x in layout],
+        "residual": config.residual,
+        "residual_scale": config.residual_scale,
+        "residual_space": config.residual_space,
+        "residual_base": config.residual_base,
+        "feedback": dataclasses.asdict(config.feedback),
+        "yaw_integral_tau": config.yaw_integral_tau,
+        "path_tau": config.path_tau,
+        "symmetric": config.symmetric,
+        "obs_history": config.obs_history,
+        "action_filter": config.action_filter,
+        "residual_at_stop": config.residual_at_stop,
+        "residual_deadband": config.residual_deadband,
+        "residual_ramp_s": config.residual_ramp_s,
+        "max_rates": np.asarray(constants.max_rates).tolist(),
+        "command_scale": np.asarray(constants.command_scale).tolist(),
+        "jacobian": np.asarray(kinematics.jacobian(geometry)).tolist(),
+        "forward_matrix": np.asarray(kinematics.forward_matrix(geometry)).tolist(),
+        "gravity": GRAVITY,
+        "control_dt": config.control_dt,
+    }
+
+
+def controller_spec(
+    config: Any, desc: RobotDescription, constants: RobotConstants
+) -> ControllerSpec:
+    """The controller a task's config describes (read back from its export metadata, so
+    the environment and every export share one description)."""
+    spec = ControllerSpec.from_meta(controller_meta(config, desc, constants))
+    if spec.symmetric:
+        from mecanum_jax.control.symmetry import mirrors
+
+        mirrors(spec)  # an asymmetric robot is refused here, naming the wheel
+    return spec
+
+
+def broadcasting(fn: F) -> F:
+    """``fn`` with JAX's rank promotion allowed: the controller's code broadcasts
+    per-robot values against its constant tables (the array API's broadcasting)."""
+
+    @functools.wraps(fn)
+    def wrapped(*args: Any, **kwargs: Any) -> Any:
+        with jax.numpy_rank_promotion("allow"):
+            return fn(*args, **kwargs)
+
+    return wrapped  # type: ignore[return-value]
+
+
+def control_state(info: dict[str, Any]) -> ControllerState:
+    """The controller state kept in a Brax state's ``info``."""
+    return ControllerState(**{k: info[k] for k in FIELDS})
+
+
+def with_control(info: dict[str, Any], state: ControllerState) -> dict[str, Any]:
+    """``info`` with the controller state ``state``."""
+    return {**info, **state._asdict()}
+
+
+__all__ = ["broadcasting", "control_state", "controller_meta", "controller_spec", "with_control"]
