@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from loops import network_free
 
+from mecanum_jax.control import step as ctl
 from mecanum_jax.deploy import policy
 from mecanum_jax.deploy.loop import Controller
 from mecanum_jax.deploy.plant import Plant, PlantParams, SensorChannel
@@ -91,7 +92,9 @@ def _lockstep(env, ctrl, commands, latency, seed=0):
             sensed = np.asarray(state.info["history"][latency])[: n + 4] * scale
             setpoints, action = ctrl.step(commands[t], sensed[:n], sensed[n], sensed[n + 1 :])
             obs_err = max(obs_err, np.abs(ctrl.observation - np.asarray(state.obs["state"])).max())
-            shrunk = (action - f * np.asarray(state.info["last_action"])) / (1 - f)
+            age = np.asarray([ctrl.command_age], np.float32)  # the ramp-in's gain, undone
+            gain = ctl.ramp_in(ctrl.spec, np.ones(1, np.float32), age, np)[0]
+            shrunk = (action / gain - f * np.asarray(state.info["last_action"])) / (1 - f)
             raw = shrunk + d * np.sign(shrunk)  # before the deadband (0 stays 0)
             state = env.step(state, jnp.asarray(raw))  # applies f·last + (1 − f)·shrunk
             set_err = max(set_err, np.abs(robot.setpoints[-1] - setpoints).max())
