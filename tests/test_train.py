@@ -189,13 +189,16 @@ def test_run_directory_is_never_overwritten(full_run, tiny):
     assert (run.dir / "metrics.jsonl").read_text() == before
 
 
-def test_resume_refuses_changed_config(full_run, tiny):
+def test_resume_refuses_changed_config(full_run, tiny, tmp_path):
     run, _ = full_run
     import dataclasses
+    import shutil
 
+    # a copy: resuming takes the run's lock, and other workers read the shared run meanwhile
+    mine = shutil.copytree(run.dir, tmp_path / "run", ignore=shutil.ignore_patterns(".lock"))
     changed = dataclasses.replace(tiny, ppo=dataclasses.replace(tiny.ppo, learning_rate=1.0))
     with pytest.raises(ConfigError, match=r"ppo\.learning_rate: cannot change when resuming"):
-        Run.resume(run.dir, overrides=changed)
+        Run.resume(mine, overrides=changed)
 
 
 def test_policy_loads_into_plain_inference_function(full_run, learner):
