@@ -15,6 +15,8 @@ from mecanum_jax.kinematics import limits, singularity
 from mecanum_jax.kinematics.modes import SIX_MODES
 from mecanum_jax.task import EnvConfig, MecanumEnv
 
+PATHS = ["figure_eight", "zigzag", "bursts", "stop_and_go", "square", "slalom", "spin_then_go"]
+
 
 def test_default_scenarios_are_the_issue_list(shipped):
     assert shipped.names == [
@@ -26,6 +28,7 @@ def test_default_scenarios_are_the_issue_list(shipped):
         "weak_motors",
         "sensor_noise",
         "singular_pass",
+        *PATHS,  # configs/eval/paths.toml, included
     ]
     for s in shipped.scenarios:
         assert s.description, s.name
@@ -209,3 +212,23 @@ def test_starts_are_single_translations_from_rest_at_the_named_speed():
         dx, dy = directions[where]
         assert (vx, vy, wz) == pytest.approx((dx * int(percent) / 100, dy * int(percent) / 100, 0))
         assert sc.seconds - seconds >= 1.5, sc.name
+
+
+def test_an_included_file_keeps_its_own_defaults_and_names_are_unique(tmp_path):
+    from mecanum_jax.evaluation.scenarios import load_scenarios
+
+    paths = load_scenarios("paths")
+    assert paths.names == PATHS
+    assert all(s.scripted for s in paths.scenarios)
+    by = {s.name: s for s in load_scenarios("default").scenarios}
+    assert by["zigzag"].seed == paths.scenarios[1].seed != by["nominal"].seed
+    (tmp_path / "a.toml").write_text(
+        'include = ["paths"]\n[scenarios.zigzag]\ndescription = "a second zigzag"\n'
+    )
+    with pytest.raises(ConfigError, match="scenario 'zigzag' twice"):
+        load_scenarios(tmp_path / "a.toml")
+    (tmp_path / "b.toml").write_text(
+        f'include = ["{tmp_path / "b.toml"}"]\n[scenarios.x]\ndescription = "x"\n'
+    )
+    with pytest.raises(ConfigError, match="includes itself"):
+        load_scenarios(tmp_path / "b.toml")

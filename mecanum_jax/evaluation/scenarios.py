@@ -310,17 +310,31 @@ def task_scenarios(task: EnvConfig, episodes: int, seconds: float, seed: int) ->
     return ScenarioSet("the training task", (randomized, nominal))
 
 
-def load_scenarios(path_or_name: str | Path = "default") -> ScenarioSet:
-    """A scenario file: a path, or the name of one in ``configs/eval/`` (``default``)."""
+def load_scenarios(
+    path_or_name: str | Path = "default", _seen: tuple[Path, ...] = ()
+) -> ScenarioSet:
+    """A scenario file: a path, or the name of one in ``configs/eval/`` (``default``).
+    ``include = ["paths", ...]`` appends the scenarios of other files (names or paths),
+    each under its own ``[defaults]``, after the file's own."""
     path = find_config(path_or_name, EVAL_DIR, "scenarios", "scenario file")
     data = load_toml(path)
-    _check_keys(data, f"{path}", ["defaults", "scenarios"])
+    _check_keys(data, f"{path}", ["defaults", "include", "scenarios"])
     defaults = from_mapping(Defaults, data.get("defaults", {}), "defaults")
     tables = data.get("scenarios")
     if not isinstance(tables, dict) or not tables:
         raise ConfigError(f"{path}: scenarios: expected at least one [scenarios.<name>] table")
-    scenarios = tuple(parse_scenario(name, t, defaults) for name, t in tables.items())
-    return ScenarioSet(str(path), scenarios)
+    scenarios = [parse_scenario(name, t, defaults) for name, t in tables.items()]
+    include = data.get("include", [])
+    if not isinstance(include, list) or not all(isinstance(x, str) for x in include):
+        raise ConfigError(f"{path}: include = {include!r}: expected a list of file names")
+    for other in include:
+        if Path(find_config(other, EVAL_DIR, "scenarios", "scenario file")) in (*_seen, path):
+            raise ConfigError(f"{path}: include = {include!r}: {other!r} includes itself")
+        for sc in load_scenarios(other, (*_seen, path)).scenarios:
+            if sc.name in {s.name for s in scenarios}:
+                raise ConfigError(f"{path}: include {other!r}: scenario {sc.name!r} twice")
+            scenarios.append(sc)
+    return ScenarioSet(str(path), tuple(scenarios))
 
 
 __all__ = [
