@@ -12,11 +12,18 @@ with constant indices, ``astype`` and indexing of the trailing axes with ``...``
 from __future__ import annotations
 
 import builtins
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
+import numpy.typing as npt
+
+if TYPE_CHECKING:
+    import onnx
 
 FLOAT, BOOL, INT32, INT64 = 1, 9, 6, 7  # onnx.TensorProto's element types
+
+Operand: TypeAlias = "Value | npt.ArrayLike"
+"""What the namespace takes as an array: a traced value, or a constant NumPy array or scalar."""
 
 
 class Graph:
@@ -27,15 +34,15 @@ class Graph:
         import onnx.numpy_helper as onh
 
         self._oh, self._onh = oh, onh
-        self.nodes: list[Any] = []
-        self.initializers: list[Any] = []
+        self.nodes: list[onnx.NodeProto] = []
+        self.initializers: list[onnx.TensorProto] = []
         self._count = 0
 
     def name(self, kind: str) -> str:
         self._count += 1
         return f"{kind.lower()}_{self._count}"
 
-    def const(self, value: Any, dtype: Any = np.float32) -> str:
+    def const(self, value: npt.ArrayLike, dtype: npt.DTypeLike = np.float32) -> str:
         name = self.name("const")
         self.initializers.append(self._onh.from_array(np.asarray(value, dtype), name))
         return name
@@ -54,60 +61,62 @@ class Value:
     def __init__(self, xp: Namespace, name: str, ndim: int, dtype: int = FLOAT):
         self.xp, self.name, self.ndim, self.dtype = xp, name, ndim, dtype
 
-    def _bin(self, kind: str, other: Any, swap: bool = False, dtype: int | None = None) -> Value:
+    def _bin(
+        self, kind: str, other: Operand, swap: bool = False, dtype: int | None = None
+    ) -> Value:
         o = self.xp.asarray(other)
         a, b = (o, self) if swap else (self, o)
         out = self.xp.g.op(kind, a.name, b.name)
         return Value(self.xp, out, max(a.ndim, b.ndim), self.dtype if dtype is None else dtype)
 
-    def __add__(self, o: Any) -> Value:
+    def __add__(self, o: Operand) -> Value:
         return self._bin("Add", o)
 
-    def __radd__(self, o: Any) -> Value:
+    def __radd__(self, o: Operand) -> Value:
         return self._bin("Add", o, True)
 
-    def __sub__(self, o: Any) -> Value:
+    def __sub__(self, o: Operand) -> Value:
         return self._bin("Sub", o)
 
-    def __rsub__(self, o: Any) -> Value:
+    def __rsub__(self, o: Operand) -> Value:
         return self._bin("Sub", o, True)
 
-    def __mul__(self, o: Any) -> Value:
+    def __mul__(self, o: Operand) -> Value:
         return self._bin("Mul", o)
 
-    def __rmul__(self, o: Any) -> Value:
+    def __rmul__(self, o: Operand) -> Value:
         return self._bin("Mul", o, True)
 
-    def __truediv__(self, o: Any) -> Value:
+    def __truediv__(self, o: Operand) -> Value:
         return self._bin("Div", o)
 
-    def __rtruediv__(self, o: Any) -> Value:
+    def __rtruediv__(self, o: Operand) -> Value:
         return self._bin("Div", o, True)
 
     def __neg__(self) -> Value:
         return self.xp._unary("Neg", self)
 
-    def __matmul__(self, o: Any) -> Value:
+    def __matmul__(self, o: Operand) -> Value:
         return self._bin("MatMul", o)
 
-    def __gt__(self, o: Any) -> Value:
+    def __gt__(self, o: Operand) -> Value:
         return self._bin("Greater", o, dtype=BOOL)
 
-    def __ge__(self, o: Any) -> Value:
+    def __ge__(self, o: Operand) -> Value:
         return self._bin("GreaterOrEqual", o, dtype=BOOL)
 
-    def __lt__(self, o: Any) -> Value:
+    def __lt__(self, o: Operand) -> Value:
         return self._bin("Less", o, dtype=BOOL)
 
-    def __le__(self, o: Any) -> Value:
+    def __le__(self, o: Operand) -> Value:
         return self._bin("LessOrEqual", o, dtype=BOOL)
 
-    def __eq__(self, o: Any) -> Value:  # type: ignore[override]
+    def __eq__(self, o: Operand) -> Value:  # type: ignore[override]
         return self._bin("Equal", o, dtype=BOOL)
 
     __hash__ = object.__hash__
 
-    def __getitem__(self, key: Any) -> Value:
+    def __getitem__(self, key: object) -> Value:
         items = key if isinstance(key, tuple) else (key,)
         if not items or items[0] is not Ellipsis:
             raise TypeError(f"onnx_xp: index {key!r}: only x[..., ...] is traced")
@@ -150,49 +159,54 @@ class Namespace:
     def input(self, name: str, ndim: int) -> Value:
         return Value(self, name, ndim)
 
-    def asarray(self, x: Any, dtype: Any = None) -> Value:
+    def asarray(self, x: Operand, dtype: int | None = None) -> Value:
         if isinstance(x, Value):
             return x
         a = np.asarray(x)
-        np_dtype = {INT32: np.int32, INT64: np.int64, BOOL: np.bool_}.get(dtype, np.float32)
+        np_dtypes: dict[int | None, type[np.generic]] = {
+            INT32: np.int32,
+            INT64: np.int64,
+            BOOL: np.bool_,
+        }
+        np_dtype = np_dtypes.get(dtype, np.float32)
         if a.dtype == np.bool_ and dtype is None:
             np_dtype = np.bool_
         kinds = {np.int32: INT32, np.int64: INT64, np.bool_: BOOL}
         kind = kinds.get(np_dtype, FLOAT)
         return Value(self, self.g.const(a, np_dtype), a.ndim, kind)
 
-    def _unary(self, kind: str, x: Any, **attrs: Any) -> Value:
+    def _unary(self, kind: str, x: Operand, **attrs: Any) -> Value:
         v = self.asarray(x)
         return Value(self, self.g.op(kind, v.name, **attrs), v.ndim, v.dtype)
 
-    def abs(self, x: Any) -> Value:
+    def abs(self, x: Operand) -> Value:
         return self._unary("Abs", x)
 
-    def sign(self, x: Any) -> Value:
+    def sign(self, x: Operand) -> Value:
         return self._unary("Sign", x)
 
-    def tanh(self, x: Any) -> Value:
+    def tanh(self, x: Operand) -> Value:
         return self._unary("Tanh", x)
 
-    def exp(self, x: Any) -> Value:
+    def exp(self, x: Operand) -> Value:
         return self._unary("Exp", x)
 
-    def cos(self, x: Any) -> Value:
+    def cos(self, x: Operand) -> Value:
         return self._unary("Cos", x)
 
-    def sin(self, x: Any) -> Value:
+    def sin(self, x: Operand) -> Value:
         return self._unary("Sin", x)
 
-    def maximum(self, a: Any, b: Any) -> Value:
+    def maximum(self, a: Operand, b: Operand) -> Value:
         return self.asarray(a)._bin("Max", b)
 
-    def minimum(self, a: Any, b: Any) -> Value:
+    def minimum(self, a: Operand, b: Operand) -> Value:
         return self.asarray(a)._bin("Min", b)
 
-    def clip(self, x: Any, lo: Any, hi: Any) -> Value:
+    def clip(self, x: Operand, lo: Operand, hi: Operand) -> Value:
         return self.minimum(self.maximum(x, lo), hi)
 
-    def where(self, cond: Value, a: Any, b: Any) -> Value:
+    def where(self, cond: Value, a: Operand, b: Operand) -> Value:
         va, vb = self.asarray(a), self.asarray(b)
         out = self.g.op("Where", cond.name, va.name, vb.name)
         return Value(self, out, max(cond.ndim, va.ndim, vb.ndim), va.dtype)
@@ -231,11 +245,11 @@ class Namespace:
     def arange(self, n: int) -> Value:
         return self.asarray(np.arange(n, dtype=np.int64), INT64)
 
-    def concat(self, parts: list[Any], axis: int = -1) -> Value:
+    def concat(self, parts: list[Operand], axis: int = -1) -> Value:
         vs = [self.asarray(p) for p in parts]
         return Value(self, self.g.op("Concat", *(v.name for v in vs), axis=axis), vs[0].ndim)
 
-    def take(self, x: Value, indices: Any, axis: int = -1) -> Value:
+    def take(self, x: Value, indices: npt.ArrayLike, axis: int = -1) -> Value:
         idx = np.asarray(indices, np.int64)
         out = self.g.op("Gather", x.name, self.g.const(idx, np.int64), axis=axis)
         return Value(self, out, x.ndim - 1 + idx.ndim, x.dtype)

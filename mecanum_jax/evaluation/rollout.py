@@ -28,16 +28,20 @@ the episode key only, not on the actions).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
 
 from mecanum_jax.evaluation import metrics
 from mecanum_jax.evaluation.episodes import EpisodeBatch
 from mecanum_jax.kinematics import odometry
 from mecanum_jax.task import REFERENCES, MecanumEnv
+
+if TYPE_CHECKING:
+    from brax.envs.base import State
 
 PolicyApply = Callable[[Any, dict[str, jax.Array]], jax.Array]
 METRICS = (
@@ -117,7 +121,9 @@ class Evaluator:
         (its wheels' actual radii, the rate limits), in the reference controllers' metric."""
         return jax.vmap(self.env.feasible_target)(batch.commands, batch.params.radius_scale)
 
-    def _rollout(self, params: Any, who: jax.Array, batch: EpisodeBatch, gains: jax.Array) -> Trace:
+    def _rollout(
+        self, params: object, who: jax.Array, batch: EpisodeBatch, gains: jax.Array
+    ) -> Trace:
         env = self.env
         state = jax.vmap(env.reset_to)(batch.keys, batch.params, batch.latency, batch.noise_std)
         info = dict(state.info)
@@ -125,7 +131,7 @@ class Evaluator:
         state = state.replace(info=info)
         start = jax.vmap(env.robot.sensors)(state.pipeline_state).pose
 
-        def step(s: Any, command: jax.Array) -> tuple[Any, Trace]:
+        def step(s: State, command: jax.Array) -> tuple[State, Trace]:
             s = jax.vmap(env.set_command)(s, command)
             action = jnp.zeros((command.shape[0], env.action_size))
             if self.apply is not None:
@@ -157,16 +163,16 @@ class Evaluator:
         trace = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), trace)
         return trace._replace(start=start, target=self._feasible_targets(batch))
 
-    def run(self, batch: EpisodeBatch, params: Any = None, who: str = "analytic") -> Trace:
+    def run(self, batch: EpisodeBatch, params: object = None, who: str = "analytic") -> Trace:
         """Play ``batch`` with ``who`` (``"policy"`` or a reference's name)."""
         return self.run_many([(batch, who)], params)[0]
 
     def run_many(
         self,
         jobs: Sequence[tuple[EpisodeBatch, str]],
-        params: Any = None,
+        params: object = None,
         progress: Callable[[int, int], None] | None = None,
-        feedback_gains: Any = None,
+        feedback_gains: npt.ArrayLike | None = None,
     ) -> list[Trace]:
         """Play every ``(batch, who)`` job; batches of equal length run together.
 
@@ -193,7 +199,9 @@ class Evaluator:
                 lo += e
         return [r for r in results if r is not None]
 
-    def trace_many(self, jobs: Sequence[tuple[EpisodeBatch, str]], params: Any = None) -> list[Any]:
+    def trace_many(
+        self, jobs: Sequence[tuple[EpisodeBatch, str]], params: object = None
+    ) -> list[jax.stages.Lowered]:
         """Trace and lower the programs :meth:`run_many` would run for ``jobs``, running
         nothing, and return them (``jax.stages.Lowered``, one per distinct chunk shape); a
         later :meth:`run_many` of the same shapes reuses the trace, and the compilation of
@@ -202,14 +210,14 @@ class Evaluator:
         numbers, so a start must trace its programs in the order of another to find the
         other's compiled programs."""
         gains = self._gains(None)
-        lowered: dict[Any, Any] = {}
+        lowered: dict[tuple[tuple[int, ...], ...], jax.stages.Lowered] = {}
         for _, part, flags, _ in self._chunks(jobs):
             key = tuple(np.shape(x) for x in jax.tree.leaves((part, flags)))
             if key not in lowered:
                 lowered[key] = self._run.lower(params, jnp.asarray(flags), part, gains)
         return list(lowered.values())
 
-    def _gains(self, feedback_gains: Any) -> jax.Array:
+    def _gains(self, feedback_gains: npt.ArrayLike | None) -> jax.Array:
         gains = self.env.feedback_gains() if feedback_gains is None else feedback_gains
         return jnp.asarray(gains, jnp.float32)
 
@@ -269,7 +277,7 @@ def _wrap(a: np.ndarray) -> np.ndarray:
 
 
 def trace_parts(
-    trace: Trace, jacobian: Any, dt: float, cfg: metrics.MetricConfig | None = None
+    trace: Trace, jacobian: npt.ArrayLike, dt: float, cfg: metrics.MetricConfig | None = None
 ) -> dict[str, metrics.Part]:
     """The per-episode metrics of a rollout (:func:`.metrics.episode_parts`), and the
     flicker of its actions where it has them (:func:`.metrics.flicker_part`)."""
@@ -296,7 +304,7 @@ def summarize(
     trace: Trace,
     dt: float,
     scripted: bool,
-    jacobian: Any,
+    jacobian: npt.ArrayLike,
     cfg: metrics.MetricConfig | None = None,
     parts: dict[str, metrics.Part] | None = None,
 ) -> dict[str, float | None]:

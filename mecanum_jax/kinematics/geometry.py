@@ -24,11 +24,12 @@ import dataclasses
 import math
 import warnings
 from collections.abc import Sequence
-from typing import Any, Literal
+from typing import Any, Literal, TypedDict, Unpack
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
 
 from mecanum_jax._checks import (
     InputError,
@@ -43,6 +44,13 @@ from mecanum_jax.precision import HIGHEST
 
 FOUR_WHEEL_NAMES = ("left_front", "left_back", "right_back", "right_front")
 DEFAULT_ROLLER_ANGLE = math.pi / 4
+
+
+class GeometryOptions(TypedDict, total=False):
+    """The keyword options the layout constructors pass on to :func:`make_geometry`."""
+
+    dtype: jax.typing.DTypeLike | None
+    warn_singular: bool
 
 
 class GeometryError(InputError):
@@ -80,7 +88,7 @@ class WheelGeometry:
         return int(self.radii.shape[-1])
 
     @property
-    def dtype(self) -> Any:
+    def dtype(self) -> np.dtype:
         return self.radii.dtype
 
     def replace(self, **changes: Any) -> WheelGeometry:
@@ -137,13 +145,13 @@ def validate(geometry: WheelGeometry) -> None:
 
 
 def make_geometry(
-    positions: Any,
-    drive_angles: Any,
-    roller_angles: Any,
-    radii: Any,
+    positions: npt.ArrayLike,
+    drive_angles: npt.ArrayLike,
+    roller_angles: npt.ArrayLike,
+    radii: npt.ArrayLike,
     names: Sequence[str] | None = None,
     *,
-    dtype: Any = None,
+    dtype: jax.typing.DTypeLike | None = None,
     warn_singular: bool = True,
 ) -> WheelGeometry:
     """The general constructor, from per-wheel arrays with exactly the module's meanings.
@@ -168,7 +176,7 @@ def make_geometry(
         raise GeometryError(f"positions: shape {tuple(pos.shape)} is invalid; expected (n, 2)")
     n = pos.shape[0]
 
-    def per_wheel(value: Any, field: str) -> jax.Array:
+    def per_wheel(value: npt.ArrayLike, field: str) -> jax.Array:
         arr = as_float_array(value, field).astype(dtype)
         if arr.ndim == 0:
             arr = jnp.full((n,), arr, dtype)
@@ -247,7 +255,7 @@ def _warn_if_singular(geometry: WheelGeometry) -> None:
         )
 
 
-def _require_positive(value: Any, field: str) -> float:
+def _require_positive(value: object, field: str) -> float:
     """``value`` as a float: a finite number (NumPy/JAX scalars too) > 0, else an error."""
     number = real_number(value, field, GeometryError)
     if number <= 0:
@@ -262,7 +270,7 @@ def four_wheel(
     half_track: float,
     roller_angle: float = DEFAULT_ROLLER_ANGLE,
     *,
-    dtype: Any = None,
+    dtype: jax.typing.DTypeLike | None = None,
     warn_singular: bool = True,
 ) -> WheelGeometry:
     """A standard 4-wheel chassis (seed 002), wheels in the seeds' order LF, LB, RB, RF.
@@ -294,7 +302,10 @@ def four_wheel(
 
 
 def o_square(
-    radius: float, half_size: float, roller_angle: float = DEFAULT_ROLLER_ANGLE, **kw: Any
+    radius: float,
+    half_size: float,
+    roller_angle: float = DEFAULT_ROLLER_ANGLE,
+    **kw: Unpack[GeometryOptions],
 ) -> WheelGeometry:
     """O-square: contact points on a square of side 2·half_size (seed 002's ideal layout)."""
     return four_wheel("O", radius, half_size, half_size, roller_angle, **kw)
@@ -305,14 +316,17 @@ def o_rectangle(
     half_wheelbase: float,
     half_track: float,
     roller_angle: float = DEFAULT_ROLLER_ANGLE,
-    **kw: Any,
+    **kw: Unpack[GeometryOptions],
 ) -> WheelGeometry:
     """O-rectangle: the most common layout (seed 002)."""
     return four_wheel("O", radius, half_wheelbase, half_track, roller_angle, **kw)
 
 
 def x_square(
-    radius: float, half_size: float, roller_angle: float = DEFAULT_ROLLER_ANGLE, **kw: Any
+    radius: float,
+    half_size: float,
+    roller_angle: float = DEFAULT_ROLLER_ANGLE,
+    **kw: Unpack[GeometryOptions],
 ) -> WheelGeometry:
     """X-square: singular, it cannot spin actively (seed 002); builds with a warning."""
     return four_wheel("X", radius, half_size, half_size, roller_angle, **kw)
@@ -323,7 +337,7 @@ def x_rectangle(
     half_wheelbase: float,
     half_track: float,
     roller_angle: float = DEFAULT_ROLLER_ANGLE,
-    **kw: Any,
+    **kw: Unpack[GeometryOptions],
 ) -> WheelGeometry:
     """X-rectangle: spins with the short lever arm |rx − ry| (seed 002)."""
     return four_wheel("X", radius, half_wheelbase, half_track, roller_angle, **kw)
@@ -335,7 +349,7 @@ def centripetal(
     n_wheels: int = 3,
     roller_angle: float = DEFAULT_ROLLER_ANGLE,
     first_wheel_angle: float = 0.0,
-    **kw: Any,
+    **kw: Unpack[GeometryOptions],
 ) -> WheelGeometry:
     """The centripetal layout of seed 003 §3.1: n wheels evenly spaced on a circle.
 

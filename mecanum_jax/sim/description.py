@@ -86,7 +86,9 @@ class RobotDescription:
     actuators: ActuatorSpec = ActuatorSpec()  # noqa: RUF009 (frozen)
     sim: SimSpec = SimSpec()  # noqa: RUF009 (frozen)
 
-    def build_geometry(self, dtype: object = None, warn_singular: bool = True) -> geo.WheelGeometry:
+    def build_geometry(
+        self, dtype: jax.typing.DTypeLike | None = None, warn_singular: bool = True
+    ) -> geo.WheelGeometry:
         """The :class:`~mecanum_jax.kinematics.geometry.WheelGeometry` this description defines."""
         return build_geometry(self.geometry, dtype=dtype, warn_singular=warn_singular)
 
@@ -114,7 +116,7 @@ def _check_geometry_keys(spec: GeometrySpec) -> None:
 
 
 def build_geometry(
-    spec: GeometrySpec, dtype: object = None, warn_singular: bool = True
+    spec: GeometrySpec, dtype: jax.typing.DTypeLike | None = None, warn_singular: bool = True
 ) -> geo.WheelGeometry:
     """Build and validate the geometry of a ``[geometry]`` table."""
     _check_geometry_keys(spec)
