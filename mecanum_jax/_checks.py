@@ -18,11 +18,12 @@ from __future__ import annotations
 
 import importlib.util
 import os
-from typing import Any
+from typing import SupportsFloat
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
 
 from mecanum_jax.config import ConfigError, python_number
 
@@ -31,13 +32,13 @@ class InputError(ValueError):
     """User data (an array, a file, an argument) is invalid. The message names the field."""
 
 
-def is_concrete(*xs: Any) -> bool:
+def is_concrete(*xs: object) -> bool:
     """True when no leaf of ``xs`` is a JAX tracer, so its values can be inspected."""
     leaves = jax.tree_util.tree_leaves(xs)
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in leaves)
 
 
-def as_float_array(x: Any, name: str) -> jax.Array:
+def as_float_array(x: npt.ArrayLike, name: str) -> jax.Array:
     """Convert to a floating JAX array; integers and bools become the default float."""
     try:
         arr = jnp.asarray(x)
@@ -50,7 +51,7 @@ def as_float_array(x: Any, name: str) -> jax.Array:
     return arr
 
 
-def real_number(value: Any, name: str, error: type[InputError] = InputError) -> float:
+def real_number(value: object, name: str, error: type[InputError] = InputError) -> float:
     """A finite real number (a Python int or float, or a NumPy/JAX 0-d scalar of one) as a
     float; anything else (a bool, a string, an array, NaN, infinity) raises naming ``name``."""
     number = python_number(value)
@@ -61,7 +62,7 @@ def real_number(value: Any, name: str, error: type[InputError] = InputError) -> 
     return float(number)
 
 
-def fmt(value: Any) -> str:
+def fmt(value: SupportsFloat) -> str:
     """A number for an error message: shortest readable form, no NumPy type prefix."""
     return f"{float(value):.7g}"
 
@@ -74,7 +75,7 @@ def check_last_axis(x: jax.Array, size: int, name: str, meaning: str) -> None:
         )
 
 
-def checked_twist(twist: Any, finite: bool = True) -> jax.Array:
+def checked_twist(twist: npt.ArrayLike, finite: bool = True) -> jax.Array:
     """Body twists (..., 3) as a float array; shape always checked, values when concrete."""
     t = as_float_array(twist, "twist")
     check_last_axis(t, 3, "twist", "vx, vy, wz")
@@ -83,7 +84,7 @@ def checked_twist(twist: Any, finite: bool = True) -> jax.Array:
     return t
 
 
-def check_finite(x: Any, name: str, error: type[InputError] = InputError) -> None:
+def check_finite(x: npt.ArrayLike, name: str, error: type[InputError] = InputError) -> None:
     """Raise naming the first non-finite entry of ``x`` (only for concrete values)."""
     if not is_concrete(x):
         return

@@ -68,7 +68,10 @@ class KinematicsBench:
 
 
 def _time(
-    fn: Callable[[], Any], repeats: int, min_time: float, block: Callable[[Any], Any] | None = None
+    fn: Callable[[], object],
+    repeats: int,
+    min_time: float,
+    block: Callable[[object], object] | None = None,
 ) -> tuple[float, float]:
     """Median seconds per call of ``fn``, and the repeats' spread (bench_report.median_spread).
 
@@ -93,11 +96,11 @@ def _time(
     return median_spread(samples)
 
 
-def _block(x: Any) -> Any:
+def _block(x: object) -> object:
     return jax.block_until_ready(x)
 
 
-def _call_and_block(call: Callable[[], Any]) -> Any:
+def _call_and_block(call: Callable[[], object]) -> object:
     return _block(call())
 
 
@@ -153,7 +156,7 @@ def _make_calls(
     jit_ops: dict[str, Callable[..., jax.Array]],
     J_np: np.ndarray,
     F_np: np.ndarray,
-) -> tuple[Callable[[], Any], Callable[[], Any]]:
+) -> tuple[Callable[[], object], Callable[[], object]]:
     """The JAX call and the NumPy reference call of one operation on fresh random data."""
     fn = jit_ops[op]
     if op == "odometry":
@@ -233,7 +236,7 @@ _copy = jax.jit(lambda x: x + jnp.float32(1))
 
 
 def _time_op(
-    args: KinematicsBench, op: str, size: int, call: Callable[[], Any], ref: Callable[[], Any]
+    args: KinematicsBench, op: str, size: int, call: Callable[[], object], ref: Callable[[], object]
 ) -> dict[str, Any]:
     """One row: the JAX call's throughput and latency, a copy of as many bytes (the
     bandwidth roofline) and, for small batches, NumPy."""

@@ -39,7 +39,7 @@ def _join(where: str, key: str) -> str:
     return f"{where}.{key}" if where else key
 
 
-def _convert(value: Any, tp: Any, where: str) -> Any:
+def _convert(value: object, tp: Any, where: str) -> object:
     origin = get_origin(tp)
     if tp is Any:
         return value
@@ -99,7 +99,7 @@ def _convert(value: Any, tp: Any, where: str) -> Any:
     raise TypeError(f"{where}: unsupported config field type {tp!r}")  # a bug in the schema
 
 
-def python_number(value: Any) -> Any:
+def python_number(value: object) -> object:
     """A NumPy or JAX scalar (a concrete 0-d array of bool, integer or float dtype) as the
     Python ``bool``/``int``/``float`` it holds; any other value unchanged. So
     ``np.float32(0.05)``, ``jnp.float32(0.05)`` and ``np.int64(3)`` pass wherever a number
@@ -116,13 +116,13 @@ def python_number(value: Any) -> Any:
         return value
 
 
-def invalid(path: str, value: Any, why: str) -> ConfigError:
+def invalid(path: str, value: object, why: str) -> ConfigError:
     """The error for a well-typed value out of its range: ``path = value: why``."""
     return ConfigError(f"{path} = {value!r}: {why}")
 
 
 def require(
-    section: Any, where: str, names: Iterable[str], ok: Callable[[Any], bool], why: str
+    section: object, where: str, names: Iterable[str], ok: Callable[[Any], bool], why: str
 ) -> None:
     """Raise :func:`invalid` for the first field of ``section`` among ``names`` failing ``ok``.
 
@@ -139,7 +139,7 @@ def validated_once(validate: Callable[Concatenate[S, P], S]) -> Callable[Concate
     that passed is returned at once on later calls (frozen, it cannot have changed), so the
     layers a config passes through may each ask for it. A copy (``dataclasses.replace``, a
     config read again) is another object, checked anew."""
-    passed: weakref.WeakValueDictionary[int, Any] = weakref.WeakValueDictionary()
+    passed: weakref.WeakValueDictionary[int, S] = weakref.WeakValueDictionary()
 
     @functools.wraps(validate)
     def once(self: S, *args: P.args, **kwargs: P.kwargs) -> S:
@@ -151,7 +151,7 @@ def validated_once(validate: Callable[Concatenate[S, P], S]) -> Callable[Concate
     return once
 
 
-def _short(value: Any, limit: int = 80) -> str:
+def _short(value: object, limit: int = 80) -> str:
     """A value for an error message, cut at ``limit``; a long table named by its keys."""
     text = repr(value)
     if len(text) > limit and isinstance(value, Mapping):
@@ -159,7 +159,7 @@ def _short(value: Any, limit: int = 80) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def from_mapping(cls: type[T], data: Any, where: str = "") -> T:
+def from_mapping(cls: type[T], data: object, where: str = "") -> T:
     """Build the frozen dataclass ``cls`` from a mapping, validating every key.
 
     Args:

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable
-from typing import Any, TypeVar
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, ParamSpec, Protocol, TypeVar
 
 import jax
 import numpy as np
@@ -21,12 +21,50 @@ from mecanum_jax.sim.description import RobotDescription, fingerprint
 from mecanum_jax.sim.state import GRAVITY
 from mecanum_jax.task.constants import RobotConstants
 
-F = TypeVar("F", bound=Callable[..., Any])
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+class ControllerConfig(Protocol):
+    """What :func:`controller_meta` reads of a task's ``EnvConfig`` (not imported: it
+    imports the reference controllers, which import this module)."""
+
+    @property
+    def residual(self) -> bool: ...
+    @property
+    def residual_scale(self) -> float: ...
+    @property
+    def residual_space(self) -> str: ...
+    @property
+    def residual_base(self) -> str: ...
+    @property
+    def feedback(self) -> DataclassInstance: ...
+    @property
+    def yaw_integral_tau(self) -> float: ...
+    @property
+    def path_tau(self) -> float: ...
+    @property
+    def symmetric(self) -> bool: ...
+    @property
+    def obs_history(self) -> int: ...
+    @property
+    def action_filter(self) -> float: ...
+    @property
+    def residual_at_stop(self) -> bool: ...
+    @property
+    def residual_deadband(self) -> float: ...
+    @property
+    def residual_ramp_s(self) -> float: ...
+    @property
+    def control_dt(self) -> float: ...
 
 
 def controller_meta(
-    config: Any, desc: RobotDescription, constants: RobotConstants
-) -> dict[str, Any]:
+    config: ControllerConfig, desc: RobotDescription, constants: RobotConstants
+) -> dict[str, object]:
     """What an exported policy's control loop needs of a task: the robot, the observation
     layout, the residual and its base, the filter and integrators, the limits and
     kinematics, the control period (the export's ``meta``, less the network's part).
@@ -73,7 +111,7 @@ def controller_meta(
 
 
 def controller_spec(
-    config: Any, desc: RobotDescription, constants: RobotConstants
+    config: ControllerConfig, desc: RobotDescription, constants: RobotConstants
 ) -> ControllerSpec:
     """The controller a task's config describes (read back from its export metadata, so
     the environment and every export share one description)."""
@@ -85,24 +123,24 @@ def controller_spec(
     return spec
 
 
-def broadcasting(fn: F) -> F:
+def broadcasting(fn: Callable[P, R]) -> Callable[P, R]:
     """``fn`` with JAX's rank promotion allowed: the controller's code broadcasts
     per-robot values against its constant tables (the array API's broadcasting)."""
 
     @functools.wraps(fn)
-    def wrapped(*args: Any, **kwargs: Any) -> Any:
+    def wrapped(*args: P.args, **kwargs: P.kwargs) -> R:
         with jax.numpy_rank_promotion("allow"):
             return fn(*args, **kwargs)
 
-    return wrapped  # type: ignore[return-value]
+    return wrapped
 
 
-def control_state(info: dict[str, Any]) -> ControllerState:
+def control_state(info: Mapping[str, object]) -> ControllerState:
     """The controller state kept in a Brax state's ``info``."""
     return ControllerState(**{k: info[k] for k in FIELDS})
 
 
-def with_control(info: dict[str, Any], state: ControllerState) -> dict[str, Any]:
+def with_control(info: Mapping[str, object], state: ControllerState) -> dict[str, object]:
     """``info`` with the controller state ``state``."""
     return {**info, **state._asdict()}
 
