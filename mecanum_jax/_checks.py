@@ -18,14 +18,16 @@ from __future__ import annotations
 
 import importlib.util
 import os
-from typing import SupportsFloat
+from typing import TYPE_CHECKING, SupportsFloat
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import numpy.typing as npt
 
 from mecanum_jax.config import ConfigError, python_number
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
 
 class InputError(ValueError):

@@ -15,9 +15,9 @@ import builtins
 from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
-import numpy.typing as npt
 
 if TYPE_CHECKING:
+    import numpy.typing as npt
     import onnx
 
 FLOAT, BOOL, INT32, INT64 = 1, 9, 6, 7  # onnx.TensorProto's element types

@@ -33,7 +33,6 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-import numpy.typing as npt
 
 from mecanum_jax.evaluation import metrics
 from mecanum_jax.evaluation.episodes import EpisodeBatch
@@ -41,6 +40,7 @@ from mecanum_jax.kinematics import odometry
 from mecanum_jax.task import REFERENCES, MecanumEnv
 
 if TYPE_CHECKING:
+    import numpy.typing as npt
     from brax.envs.base import State
 
 PolicyApply = Callable[[Any, dict[str, jax.Array]], jax.Array]

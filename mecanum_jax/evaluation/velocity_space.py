@@ -24,13 +24,23 @@ import dataclasses
 import functools
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, TypeAlias
 
 import jax.numpy as jnp
 import numpy as np
 
 from mecanum_jax.kinematics import drive_description, drive_geometry, drives, efficiency, limits
 from mecanum_jax.sim.description import RobotDescription, resolve_description
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    import jax
+
+    from mecanum_jax.kinematics.geometry import WheelGeometry
+
+Speed: TypeAlias = "Callable[[jax.Array], jax.Array]"
+"""A feasible set's radius: ``speed(directions (N, 3)) -> (N,)``."""
 
 N_DIRECTIONS = 3600
 
@@ -52,7 +62,7 @@ class Space:
     force_efficiency_sideways: float
 
 
-def _area(radius: Any) -> float:
+def _area(radius: jax.typing.ArrayLike) -> float:
     """The area inside the radius ρ (N,) at :data:`N_DIRECTIONS` evenly spaced angles: the
     shoelace sum ``½ Σ ρ_i ρ_(i+1) sin Δθ`` (→ ``½∮ρ² dθ``; 0 for a segment)."""
     rho = np.asarray(radius, float)
@@ -67,7 +77,7 @@ def _plane(axes: tuple[int, int]) -> np.ndarray:
     return d
 
 
-def boundary(speed: Any, axes: tuple[int, int]) -> np.ndarray:
+def boundary(speed: Speed, axes: tuple[int, int]) -> np.ndarray:
     """The set's boundary (N, 2) in the plane of ``axes``, from ``speed(directions)``."""
     d = _plane(axes)
     rho = np.asarray(speed(jnp.asarray(d)), float)
@@ -104,7 +114,7 @@ def _drive_wheels(g: drive_geometry.Drive, heading: float) -> tuple[np.ndarray, 
     return turned, corners
 
 
-def _space(name: str, drive: str, speed: Any, volume: float, eff: list[float]) -> Space:
+def _space(name: str, drive: str, speed: Speed, volume: float, eff: list[float]) -> Space:
     """A :class:`Space` from ``speed(directions (N, 3)) -> (N,)``, the set's radius."""
     tops = [float(x) for x in speed(jnp.asarray(np.eye(3)))]
     return Space(
@@ -122,7 +132,7 @@ def _space(name: str, drive: str, speed: Any, volume: float, eff: list[float]) -
     )
 
 
-def _mecanum_speed(desc: RobotDescription) -> tuple[Any, Any, Any]:
+def _mecanum_speed(desc: RobotDescription) -> tuple[WheelGeometry, jax.Array, Speed]:
     """A mecanum robot's float64 geometry, its wheel-rate limits, and its feasible set's
     radius ``speed(directions (N, 3)) -> (N,)``."""
     g = desc.build_geometry(jnp.float64)
@@ -130,7 +140,9 @@ def _mecanum_speed(desc: RobotDescription) -> tuple[Any, Any, Any]:
     return g, rates, functools.partial(limits.max_speed, g, max_rates=rates)
 
 
-def _drive_speed(desc: drive_description.DriveDescription, max_rate: float) -> tuple[Any, Any]:
+def _drive_speed(
+    desc: drive_description.DriveDescription, max_rate: float
+) -> tuple[drive_geometry.Drive, Speed]:
     """A drive's float64 geometry, and its feasible set's radius at ``max_rate`` (rad/s)."""
     g = desc.build(jnp.float64)
     return g, functools.partial(drives.max_speed, g, max_rate=max_rate)
@@ -185,7 +197,7 @@ def plot(mecanum: str, others: tuple[str, ...], out: Path) -> Path:
 
     desc, other_descs, max_rate = _load(mecanum, others)
     g, rates, speed = _mecanum_speed(desc)
-    sets: dict[str, Any] = {desc.robot.name: speed}
+    sets: dict[str, Speed] = {desc.robot.name: speed}
     for other in other_descs:
         sets[other.robot.name] = _drive_speed(other, max_rate)[1]
     fig = plt.figure(figsize=(15, 5))

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, cast
+from typing import TYPE_CHECKING, cast
 
 import jax.numpy as jnp
 
@@ -21,6 +21,9 @@ from mecanum_jax.kinematics.drive_geometry import (
     synchronous,
     tricycle,
 )
+
+if TYPE_CHECKING:
+    import jax
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,7 +64,7 @@ class DriveDescription:
     geometry: DriveGeometrySpec
     motors: DriveMotorSpec
 
-    def build(self, dtype: Any = jnp.float32) -> Drive:
+    def build(self, dtype: jax.typing.DTypeLike = jnp.float32) -> Drive:
         """The geometry pytree; errors name the missing or invalid field."""
         g, kind = self.geometry, self.robot.drive
         needs = {

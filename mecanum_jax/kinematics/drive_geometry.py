@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Literal
 
 import jax
 import jax.numpy as jnp
 
 from mecanum_jax._checks import InputError, as_float_array, check_finite, fmt, is_concrete
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
 DriveName = Literal["differential", "tricycle", "synchronous", "ackermann"]
 DRIVES: tuple[DriveName, ...] = ("differential", "tricycle", "synchronous", "ackermann")
@@ -86,7 +89,7 @@ for _cls in (Differential, Tricycle, Synchronous, Ackermann):
 # --- constructors ---------------------------------------------------------------------------
 
 
-def _length(value: Any, field: str, dtype: Any) -> jax.Array:
+def _length(value: npt.ArrayLike, field: str, dtype: jax.typing.DTypeLike) -> jax.Array:
     x = as_float_array(value, field).astype(dtype)
     if x.ndim != 0:
         raise DriveError(f"{field}: shape {tuple(x.shape)} is invalid; expected a scalar")
@@ -107,14 +110,19 @@ def _steer_limit(value: float, field: str, below_quarter: bool) -> float:
     return float(value)
 
 
-def differential(wheel_radius: float, track: float, dtype: Any = jnp.float32) -> Differential:
+def differential(
+    wheel_radius: float, track: float, dtype: jax.typing.DTypeLike = jnp.float32
+) -> Differential:
     return Differential(
         _length(wheel_radius, "wheel_radius", dtype), _length(track, "track", dtype)
     )
 
 
 def tricycle(
-    wheel_radius: float, wheelbase: float, max_steer: float = math.pi / 2, dtype: Any = jnp.float32
+    wheel_radius: float,
+    wheelbase: float,
+    max_steer: float = math.pi / 2,
+    dtype: jax.typing.DTypeLike = jnp.float32,
 ) -> Tricycle:
     return Tricycle(
         _length(wheel_radius, "wheel_radius", dtype),
@@ -123,7 +131,7 @@ def tricycle(
     )
 
 
-def synchronous(wheel_radius: float, dtype: Any = jnp.float32) -> Synchronous:
+def synchronous(wheel_radius: float, dtype: jax.typing.DTypeLike = jnp.float32) -> Synchronous:
     return Synchronous(_length(wheel_radius, "wheel_radius", dtype))
 
 
@@ -132,7 +140,7 @@ def ackermann(
     wheelbase: float,
     track: float,
     max_steer: float = math.radians(35.0),
-    dtype: Any = jnp.float32,
+    dtype: jax.typing.DTypeLike = jnp.float32,
 ) -> Ackermann:
     return Ackermann(
         _length(wheel_radius, "wheel_radius", dtype),

@@ -34,7 +34,7 @@ The drives' geometries and their checked constructors are in
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -60,6 +60,9 @@ from mecanum_jax.kinematics.drive_geometry import (
 )
 from mecanum_jax.kinematics.model import ICR
 from mecanum_jax.kinematics.model import icr as twist_icr
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
 TOLERANCE = 1e-6
 """Relative size of a twist component a drive is allowed to miss before it is flagged."""
@@ -155,7 +158,7 @@ def inverse(geometry: Drive, twist: jax.typing.ArrayLike, strict: bool = True) -
     return _inverse(geometry, t)
 
 
-def _checked_actuators(g: Drive, actuators: Any) -> jax.Array:
+def _checked_actuators(g: Drive, actuators: npt.ArrayLike) -> jax.Array:
     names = ACTUATORS[g.name]
     a = as_float_array(actuators, "actuators")
     check_last_axis(a, len(names), "actuators", ", ".join(names))

@@ -24,12 +24,11 @@ import dataclasses
 import math
 import warnings
 from collections.abc import Sequence
-from typing import Any, Literal, TypedDict, Unpack
+from typing import TYPE_CHECKING, Any, Literal, TypedDict, Unpack
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import numpy.typing as npt
 
 from mecanum_jax._checks import (
     InputError,
@@ -41,6 +40,9 @@ from mecanum_jax._checks import (
 )
 from mecanum_jax.config import python_number
 from mecanum_jax.precision import HIGHEST
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
 FOUR_WHEEL_NAMES = ("left_front", "left_back", "right_back", "right_front")
 DEFAULT_ROLLER_ANGLE = math.pi / 4
