@@ -330,11 +330,12 @@ def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
     """The same 8 nominal episodes (5 s) through mecanum-eval (MJX) and through the NumPy
     loop on C MuJoCo's fast model: the loop's pooled ss v and ss ωz lie inside the
     evaluation's 95% bootstrap interval, and each episode's within 2% of that interval's
-    width, but for at most one episode (a loop that forgets the last action, which the
-    filter and the observation need, misses it in several). MJX and C MuJoCo agree to
-    about 1e-5 m/s until a contact or saturation event falls on the other side of its
-    threshold: the episodes follow each other to 1e-6 in ss ωz, and one of them, at 4.5
-    rad/s, branched at step 155 of 250 when both sides ran MJX's JAX implementation."""
+    width, but for at most one episode (a loop that forgets the `feedback` integrator,
+    which the base's yaw correction and the observation need, misses it in several). MJX
+    and C MuJoCo agree to about 1e-5 m/s until a contact or saturation event falls on the
+    other side of its threshold: the episodes follow each other to 1e-6 in ss ωz, and one
+    of them, at 4.5 rad/s, branched at step 155 of 250 when both sides ran MJX's JAX
+    implementation."""
     from mecanum_jax.evaluation import metrics, scenarios
     from mecanum_jax.evaluation import rollout as ev
     from train.cli import eval_target
@@ -357,10 +358,10 @@ def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
     plant = Plant(dataclasses.replace(cfg.env, physics_impl="jax").description(), "fast")
     deployed = ev.trace_parts(deploy_sim.play(plant, ctrl, eps), jac, dt)
 
-    class ForgetfulLoop(Controller):  # a loop that forgets the action it applied last
+    class ForgetfulLoop(Controller):  # a loop that forgets the feedback integrator
         def step(self, command, *readings):
             if self.state is not None:
-                self.state = self.state._replace(last_action=np.zeros_like(self.last_action))
+                self.state = self.state._replace(feedback_integral=np.float32(0.0))
             return super().step(command, *readings)
 
     wrong = ev.trace_parts(deploy_sim.play(plant, ForgetfulLoop(ctrl.policy), eps), jac, dt)
@@ -374,6 +375,6 @@ def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
         tolerance = 0.02 * (hi - lo)
         gap = np.abs(per_episode(deployed[key]) - per_episode(evaluated[key]))
         assert (gap > tolerance).sum() <= 1, (key, gap, tolerance)
-        if key == "ss_wz":  # the check can fail: a forgotten last action shows in ωz
+        if key == "ss_wz":  # the check can fail: a forgotten integrator shows in ωz
             wrong_gap = np.abs(per_episode(wrong[key]) - per_episode(evaluated[key]))
             assert (wrong_gap > tolerance).sum() >= 2, (wrong_gap, tolerance)

@@ -26,11 +26,13 @@ def test_reference_rates_select_the_named_controller():
     s = env.set_command(env.reset(jax.random.PRNGKey(0)), jnp.asarray([0.3, 0.1, 0.5]))
     fb = env.config.feedback
     traced = [
-        np.asarray(references.reference_rates(env.constants, jnp.asarray(i), s.info, fb))
+        np.asarray(
+            references.reference_rates(env.constants, jnp.asarray(i), s.info, fb, env.control)
+        )
         for i in range(3)
     ]
     for i in range(len(REFERENCES)):
-        one = references.reference_rates(env.constants, i, s.info, fb)
+        one = references.reference_rates(env.constants, i, s.info, fb, env.control)
         np.testing.assert_allclose(traced[i], one, atol=1e-5)
     base = references.baseline_rates(env.constants, s.info["command"])
     np.testing.assert_allclose(traced[0], base, atol=1e-5)
@@ -101,10 +103,10 @@ def test_shipped_model_loads_evaluates_and_exports(tmp_path):
         with jax.numpy_rank_promotion("allow"):
             raw = restored.apply(params, s.obs)
         obs = np.asarray(s.obs["state"])
-        got = np.stack([policy.action(o) for o in obs])
+        age = np.asarray(s.info["command_age"]) if "command_age" in s.info else None
+        got = policy.action(obs, age)
         command = np.asarray(s.info["command"])
         setpoints = policy.wheel_setpoints(command, got, obs)
-        age = np.asarray(s.info["command_age"]) if "command_age" in s.info else None
         integral = policy.feedback_integral_step(obs, age) if policy.feedback_base else None
         before = s
         s = step(s, raw)

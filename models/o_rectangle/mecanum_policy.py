@@ -140,13 +140,25 @@ class NumpyPolicy:
             integral = gyro * 0.0
         return command, last, gyro, integral
 
-    def action(self, obs: Any) -> np.ndarray:
+    def action(self, obs: Any, command_age: Any = None) -> np.ndarray:
         """The applied action (..., action_size) for policy observations: the network's,
         soft-thresholded, 0 at a stop command where trained so, low-passed with the last
-        action the observation carries (:func:`mecanum_jax.control.step.shape_action`)."""
+        action the observation carries (:func:`mecanum_jax.control.step.shape_action`),
+        and ramped in by the command's age (..., control periods since it changed) where
+        the policy was trained with ``residual_ramp_s``, which then needs it."""
         x = self._checked(obs)
         command, last, _, _ = self.decoded(x)
-        return ctl.shape_action(self.spec, self.network(x), command, last, np)
+        action = ctl.shape_action(self.spec, self.network(x), command, last, np)
+        if self.spec.residual_ramp_s <= 0:
+            return action
+        if command_age is None:
+            raise ValueError(
+                f"command_age = None: this policy's correction ramps in over "
+                f"{self.spec.residual_ramp_s} s after a command change (residual_ramp_s), "
+                f"so its action needs the command's age"
+            )
+        age = np.asarray(command_age, np.float32)[..., None]
+        return ctl.ramp_in(self.spec, action, age, np).astype(np.float32)
 
     def feedback_twist(self, obs: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The ``feedback`` controller's PI-corrected twist (..., 3) for observations, with

@@ -124,7 +124,8 @@ def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) ->
         return 0
     path = export_policy(restored, Path(args.out))
     modules = [path.with_name(m) for m in ("mecanum_policy.py", "mecanum_loop.py")]
-    console.log(f"wrote {path}, {modules[0]} and {modules[1]}")
+    package = path.with_name("mecanum_control")
+    console.log(f"wrote {path}, {modules[0]}, {modules[1]} and {package}/")
     return 0
 
 

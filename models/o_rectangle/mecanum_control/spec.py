@@ -5,8 +5,8 @@ arrays: the observation layout, the residual (its space, base, scale, deadband a
 rule), the action filter, the ``feedback`` controller's gains, the integrators the policy
 observes, the limits and kinematics of the nominal robot, and the control period. It is
 built from an export's metadata (:meth:`ControllerSpec.from_meta`), which the training
-environment writes from its config (``mecanum_jax.task.control``), so the environment and
-every export read one and the same description.
+environment writes from its config (``mecanum_jax.task.controller``), so the environment
+and every export read one and the same description.
 
 This module depends on NumPy and the standard library only: it is copied beside exports.
 """
