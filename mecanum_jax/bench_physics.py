@@ -13,7 +13,7 @@ import itertools
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
@@ -24,6 +24,9 @@ from rich.table import Table
 from mecanum_jax.bench_report import header, median_spread, warn_spread, write_json
 from mecanum_jax.config import ConfigError
 from mecanum_jax.kinematics import model as kinematics
+
+if TYPE_CHECKING:
+    from mecanum_jax.sim.physics import Robot  # MJX import is slow: for type checking only
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,7 +56,7 @@ class PhysicsBench:
 
 
 def time_physics(
-    robot: Any, sizes: Sequence[int], steps: int, repeats: int
+    robot: Robot, sizes: Sequence[int], steps: int, repeats: int
 ) -> list[dict[str, Any]]:
     """Time ``robot`` (a :class:`physics.Robot`): one jitted, vmapped call of ``steps``
     physics steps per batch size, median of ``repeats`` after a compiling call."""

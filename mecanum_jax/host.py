@@ -20,14 +20,15 @@ from __future__ import annotations
 import contextlib
 import functools
 from collections.abc import Callable, Iterator
-from typing import Any, TypeVar
+from typing import ParamSpec, TypeVar
 
 import jax
 
-F = TypeVar("F", bound=Callable[..., Any])
+P = ParamSpec("P")
+R = TypeVar("R")
 
 
-def host_device() -> Any | None:
+def host_device() -> jax.Device | None:
     """This process's first CPU device, or ``None`` where JAX has no CPU backend."""
     try:
         return jax.local_devices(backend="cpu")[0]
@@ -46,15 +47,15 @@ def on_host() -> Iterator[None]:
         yield
 
 
-def host_side(fn: F) -> F:
+def host_side(fn: Callable[P, R]) -> Callable[P, R]:
     """``fn`` run under :func:`on_host`."""
 
     @functools.wraps(fn)
-    def wrapped(*args: Any, **kwargs: Any) -> Any:
+    def wrapped(*args: P.args, **kwargs: P.kwargs) -> R:
         with on_host():
             return fn(*args, **kwargs)
 
-    return wrapped  # type: ignore[return-value]
+    return wrapped
 
 
 __all__ = ["host_device", "host_side", "on_host"]

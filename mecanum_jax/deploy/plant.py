@@ -28,13 +28,18 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import mujoco
 import numpy as np
 
 from mecanum_jax.sim import mjcf
 from mecanum_jax.sim.description import RobotDescription
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    from mecanum_jax.sim.state import RobotParams  # imports JAX: for type checking only
 
 GRAVITY = 9.81  # as mecanum_jax.sim.state.GRAVITY (that module imports JAX)
 CHORD_RANGE = 2.0  # as mecanum_jax.sim.servo.CHORD_WARP_RANGE
@@ -70,9 +75,9 @@ class PlantParams:
         )
 
     @classmethod
-    def of(cls, params: Any, i: int) -> PlantParams:
+    def of(cls, params: RobotParams, i: int) -> PlantParams:
         """Robot ``i`` of a batch of ``RobotParams`` (an evaluation scenario's)."""
-        get: dict[str, Any] = {
+        get: dict[str, np.ndarray] = {
             f.name: np.asarray(getattr(params, f.name))[i] for f in dataclasses.fields(cls)
         }
         values: dict[str, Any] = {
@@ -126,7 +131,7 @@ class Plant:
         self.unstable = 0
         return self.measure()
 
-    def step(self, setpoints: Any, seconds: float) -> Measurement:
+    def step(self, setpoints: npt.ArrayLike, seconds: float) -> Measurement:
         """Hold wheel-rate setpoints (n,) rad/s for ``seconds`` (whole physics steps)."""
         substeps = max(1, round(seconds / self.dt))
         command = np.asarray(setpoints, float)
@@ -206,7 +211,7 @@ class SensorChannel:
     deviations: wheel rate, gyro, accel) and ``latency`` control periods old, kept as the
     training environment keeps them (its reset fills the history with the first reading)."""
 
-    def __init__(self, noise_std: Any = (0.0, 0.0, 0.0), latency: int = 0, seed: int = 0):
+    def __init__(self, noise_std: npt.ArrayLike = (0.0, 0.0, 0.0), latency: int = 0, seed: int = 0):
         self.noise_std = np.asarray(noise_std, float)
         if self.noise_std.shape != (3,) or not np.all(self.noise_std >= 0):
             raise ValueError(f"noise_std = {noise_std!r}: three standard deviations >= 0")

@@ -31,7 +31,7 @@ import dataclasses
 import math
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, TypedDict, Unpack
 
 import tyro
 
@@ -46,6 +46,15 @@ JOINT_PARAMETERS = (
     "front_right_wheel_command_joint_name",
 )
 LEVER_ARM = "sum_of_robot_center_projection_on_X_Y_axis"
+
+
+class DescriptionOptions(TypedDict, total=False):
+    """The keyword options of :func:`description_toml` that :func:`convert_file` passes on."""
+
+    half_track: float | None
+    max_motor_rpm: float
+    gear_ratio: float
+    signs: tuple[int, ...]
 
 
 def controller_parameters(data: dict[str, Any], controller: str | None = None) -> dict[str, Any]:
@@ -170,7 +179,9 @@ def to_controller_parameters(
     }
 
 
-def convert_file(path: str | Path, name: str, controller: str | None = None, **kwargs: Any) -> str:
+def convert_file(
+    path: str | Path, name: str, controller: str | None = None, **kwargs: Unpack[DescriptionOptions]
+) -> str:
     """:func:`description_toml` of a ROS 2 parameter file (YAML)."""
     import yaml
 

@@ -24,7 +24,7 @@ parameters.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 # isort: split
 import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
@@ -50,6 +50,9 @@ from mecanum_jax.sim.servo import (
 from mecanum_jax.sim.state import GRAVITY, RobotParams, Sensors, SimState
 from mecanum_jax.sim.warp_cache import leave_the_persistent_cache
 from mecanum_jax.sim.warp_streams import pin_external_streams
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
 MAX_ABS_QVEL = 2.0e3  # rad/s or m/s: beyond this a state counts as unstable
 TIPPED_UP_Z = 0.7  # a chassis whose up axis has a world z below this (tilt > 45.6°) has tipped
@@ -141,7 +144,7 @@ class Robot:
 
     # --- parameters -------------------------------------------------------------------
 
-    def nominal_params(self, **overrides: Any) -> RobotParams:
+    def nominal_params(self, **overrides: npt.ArrayLike) -> RobotParams:
         """The description's nominal parameters, with any field overridden (scalars broadcast)."""
         n = self.n_wheels
         a = self.desc.actuators
@@ -227,7 +230,7 @@ class Robot:
 
     # --- simulation -------------------------------------------------------------------
 
-    def reset(self, params: RobotParams, pose: Any = (0.0, 0.0, 0.0)) -> SimState:
+    def reset(self, params: RobotParams, pose: npt.ArrayLike = (0.0, 0.0, 0.0)) -> SimState:
         """A robot at rest at world ``pose`` (x, y, yaw), wheels on the floor."""
         p = jnp.asarray(pose, jnp.float32)
         f = self.index.free_qpos

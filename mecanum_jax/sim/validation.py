@@ -29,7 +29,7 @@ import time
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
@@ -53,6 +53,11 @@ from mecanum_jax.sim.mjcf import Fidelity
 from mecanum_jax.sim.state import RobotParams, SimState, stack_params
 from mecanum_jax.sim.validation_report import fmt_vector, summary, to_markdown
 
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    from mecanum_jax.kinematics.geometry import WheelGeometry
+
 RECORD_EVERY = 10  # physics steps between samples (50 Hz at 2 ms)
 CHUNK = 16  # robots per vmapped rollout
 
@@ -65,7 +70,7 @@ class Case:
     group: str
     rates: tuple[float, ...]
     twist: tuple[float, float, float] | None = None  # the command, when it is a twist
-    params: tuple[tuple[str, Any], ...] = ()
+    params: tuple[tuple[str, npt.ArrayLike], ...] = ()
 
 
 def simulate(
@@ -129,7 +134,7 @@ def tracking_cases(desc: RobotDescription, n_random: int, seed: int = 0) -> list
     return cases
 
 
-def _rates(geom: Any, twist: Sequence[float]) -> tuple[float, ...]:
+def _rates(geom: WheelGeometry, twist: Sequence[float]) -> tuple[float, ...]:
     return tuple(
         float(v) for v in np.asarray(kinematics.inverse(geom, np.asarray(twist, np.float32)))
     )

@@ -16,7 +16,6 @@ payload, wheel radius, torque limit, servo gains, setpoint slew) applies to both
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 import jax
 
@@ -27,7 +26,7 @@ from mecanum_jax.sim.mjcf import FIDELITIES, Fidelity
 from mecanum_jax.task.config import EnvConfig
 
 
-def check_fidelity(value: Any, field: str) -> Fidelity:
+def check_fidelity(value: object, field: str) -> Fidelity:
     """``value`` if it names a fidelity; else a :class:`ConfigError` naming ``field``."""
     if value not in FIDELITIES:
         raise invalid(field, value, f"expected one of {list(FIDELITIES)}")
@@ -43,7 +42,7 @@ def simulated_description(config: EnvConfig, fidelity: Fidelity) -> RobotDescrip
     return dataclasses.replace(own, sim=dataclasses.replace(own.sim, impl=task.sim.impl))
 
 
-def model(config: EnvConfig, fidelity: Any) -> tuple[RobotDescription, Fidelity]:
+def model(config: EnvConfig, fidelity: object) -> tuple[RobotDescription, Fidelity]:
     """The description and the checked fidelity a :class:`~mecanum_jax.sim.physics.Robot`
     of ``config``'s task at ``fidelity`` is built from."""
     checked = check_fidelity(fidelity, "fidelity")
@@ -102,7 +101,7 @@ def eval_batch(fidelity: Fidelity, requested: int | None, field: str, gpu_defaul
     return requested
 
 
-def check_task(config: EnvConfig, fidelity: Any, field: str) -> None:
+def check_task(config: EnvConfig, fidelity: object, field: str) -> None:
     """Everything about running ``config``'s task in ``fidelity`` that can be checked
     before a model is compiled (the value, then the timestep); raises :class:`ConfigError`."""
     fidelity = check_fidelity(fidelity, field)

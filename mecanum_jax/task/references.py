@@ -27,7 +27,7 @@ from mecanum_jax.task.constants import RobotConstants
 from mecanum_jax.task.controller import broadcasting, control_state
 from mecanum_jax.task.observations import command_from_obs
 
-Policy = Callable[[Any, jax.Array], tuple[jax.Array, dict[str, Any]]]
+Policy = Callable[[dict[str, jax.Array], jax.Array], tuple[jax.Array, dict[str, jax.Array]]]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,7 +155,7 @@ def baseline_policy(robot: RobotConstants, residual: bool, action_size: int) -> 
     outputs the desaturated nominal inverse model's wheel rates divided by the rate limits.
     """
 
-    def policy(obs: dict[str, jax.Array], key: jax.Array) -> tuple[jax.Array, dict[str, Any]]:
+    def policy(obs: dict[str, jax.Array], key: jax.Array) -> tuple[jax.Array, dict[str, jax.Array]]:
         del key
         command = command_from_obs(robot, obs)
         if residual:
