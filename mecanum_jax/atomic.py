@@ -167,7 +167,7 @@ def write_text(path: str | Path, text: str) -> Path:
     return Path(path)
 
 
-def write_json(path: str | Path, data: Any, indent: int | None = 2) -> Path:
+def write_json(path: str | Path, data: object, indent: int | None = 2) -> Path:
     """``data`` as JSON (and a final newline), atomically."""
     return write_text(path, json.dumps(data, indent=indent) + "\n")
 

@@ -8,13 +8,16 @@ import json
 import statistics
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 from rich.console import Console
 
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
-def header(benchmark: str, args: Any) -> dict[str, Any]:
+
+def header(benchmark: str, args: DataclassInstance) -> dict[str, Any]:
     """What every benchmark's JSON starts with: the date, the device and the arguments."""
     device = jax.devices()[0]
     return {

@@ -23,16 +23,19 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from mecanum_jax import atomic
 from mecanum_jax.deploy.onnx_xp import Namespace
 from mecanum_jax.deploy.policy import NumpyPolicy, outputs
 
+if TYPE_CHECKING:
+    import onnx
+
 OPSET = 18
 
 
-def to_onnx(policy: NumpyPolicy) -> Any:
+def to_onnx(policy: NumpyPolicy) -> onnx.ModelProto:
     """The policy and its control loop as an ``onnx.ModelProto`` (see the module's doc)."""
     import onnx
     import onnx.helper as oh

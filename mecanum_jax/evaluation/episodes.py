@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 import weakref
 import zlib
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, NamedTuple, TypeAlias, TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -29,6 +29,18 @@ from mecanum_jax.sim.state import RobotParams
 from mecanum_jax.task import CommandConfig, EnvConfig, MecanumEnv
 from mecanum_jax.task.commands import command_schedule
 from mecanum_jax.task.randomization import sample_params
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from mecanum_jax.task.randomization import RandomizationConfig
+
+C = TypeVar("C")
+Samplers: TypeAlias = (
+    "tuple[Callable[[jax.Array, RandomizationConfig], tuple[RobotParams, jax.Array]],"
+    " Callable[[jax.Array, CommandConfig], jax.Array]]"
+)
+"""Batched ``(keys, config) -> (params, latency)`` and ``(keys, config) -> commands``."""
 
 
 class EpisodeBatch(NamedTuple):
@@ -136,12 +148,10 @@ def prepare(env: MecanumEnv, scenario: Scenario) -> EpisodeBatch:
     return EpisodeBatch(jax.random.split(k_run, E), params, latency, noise, commands)
 
 
-_SAMPLERS: weakref.WeakKeyDictionary[MecanumEnv, dict[int, tuple[Any, Any]]] = (
-    weakref.WeakKeyDictionary()
-)
+_SAMPLERS: weakref.WeakKeyDictionary[MecanumEnv, dict[int, Samplers]] = weakref.WeakKeyDictionary()
 
 
-def _samplers(env: MecanumEnv, steps: int) -> tuple[Any, Any]:
+def _samplers(env: MecanumEnv, steps: int) -> Samplers:
     """Compiled (parameters, command schedule) samplers of ``env``, taking the scenario's
     configs as traced values: compiled once per environment and episode length."""
     cache = _SAMPLERS.setdefault(env, {})
@@ -156,7 +166,7 @@ def _samplers(env: MecanumEnv, steps: int) -> tuple[Any, Any]:
     return cache[steps]
 
 
-def _as_arrays(config: Any) -> Any:
+def _as_arrays(config: C) -> C:
     """A config dataclass (a pytree) with its numbers as float32/int32 arrays."""
     return jax.tree.map(jnp.asarray, config)
 

@@ -5,12 +5,15 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from mecanum_jax.evaluation.rollout import Trace, intended_poses, relative_poses
 from mecanum_jax.task import REFERENCES
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 _COLORS = {
     "policy": "tab:blue",
@@ -133,7 +136,7 @@ def _policy_order(who: str) -> int:
     return order.index(who) if who in order else len(order)
 
 
-def _save(fig: Any, out: Path) -> Path:
+def _save(fig: Figure, out: Path) -> Path:
     import matplotlib.pyplot as plt
 
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -14,7 +14,7 @@ which would add ``kp·dt`` to the wheel's inertia (docs/physics_model.md).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Literal
 
 import jax
 import jax.numpy as jnp
@@ -99,7 +99,7 @@ def chord_servo(
     )
 
 
-def axle_inverse_inertia(m: Any, axle_dof: np.ndarray) -> np.ndarray:
+def axle_inverse_inertia(m: mujoco.MjModel, axle_dof: np.ndarray) -> np.ndarray:
     """``(M⁻¹)[a, a]`` per axle at the reset pose: how fast a torque spins the free wheel."""
     d = mujoco.MjData(m)
     mujoco.mj_forward(m, d)
