@@ -144,7 +144,7 @@ _SCENARIO_KEYS = (
 )
 
 
-def _check_keys(table: Any, where: str, allowed: list[str]) -> dict[str, Any]:
+def _check_keys(table: object, where: str, allowed: list[str]) -> dict[str, Any]:
     if not isinstance(table, dict):
         raise ConfigError(f"{where} = {table!r}: expected a table of keys")
     for key in table:
@@ -156,7 +156,7 @@ def _check_keys(table: Any, where: str, allowed: list[str]) -> dict[str, Any]:
     return table
 
 
-def parse_scenario(name: str, table: Any, defaults: Defaults) -> Scenario:
+def parse_scenario(name: str, table: object, defaults: Defaults) -> Scenario:
     """One ``[scenarios.<name>]`` table, validated (errors name the field and value)."""
     where = f"scenarios.{name}"
     if not _NAME.match(name):
