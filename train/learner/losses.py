@@ -25,12 +25,15 @@ correction on spins. Its weight is :class:`AnchorConfig`; reported as ``anchor``
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, Any, ParamSpec, TypeVar
 
 import jax
 import jax.numpy as jnp
+from brax.training import types
+from brax.training.acme import running_statistics
 from brax.training.agents.ppo import losses as ppo_losses
+from brax.training.agents.ppo.networks import PPONetworks
 
 from mecanum_jax.precision import matmul_precision_scope
 from mecanum_jax.task.anchor import exact_components
@@ -38,6 +41,10 @@ from train.loss_config import AnchorConfig, SmoothnessConfig
 
 if TYPE_CHECKING:
     from mecanum_jax.task.env import MecanumEnv
+
+P = ParamSpec("P")
+R = TypeVar("R")
+Obs = Mapping[str, jax.Array]
 
 
 def anchor_loss(action: jax.Array, mask: jax.Array) -> jax.Array:
@@ -69,9 +76,9 @@ def state_extras(
 
 
 def smoothness_loss(
-    mean_action: Callable[[Any], jax.Array],
-    observation: Any,
-    next_observation: Any,
+    mean_action: Callable[[Obs], jax.Array],
+    observation: Obs,
+    next_observation: Obs,
     key: jax.Array,
     cfg: SmoothnessConfig,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
@@ -96,14 +103,14 @@ def smoothness_loss(
 
 
 def ppo_loss_with_terms(
-    params: Any,
-    normalizer_params: Any,
-    data: Any,
+    params: ppo_losses.PPONetworkParams,
+    normalizer_params: running_statistics.RunningStatisticsState,
+    data: types.Transition,
     rng: jax.Array,
-    ppo_network: Any,
+    ppo_network: PPONetworks,
     smoothness: SmoothnessConfig,
     anchor_weight: float = 0.0,
-    **ppo_kwargs: Any,
+    **ppo_kwargs: float,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """Brax's ``compute_ppo_loss`` plus :func:`smoothness_loss`, and with ``anchor_weight``
     > 0 that times :func:`anchor_loss` on the mask ``data.extras["state_extras"]["anchor"]`` (same
@@ -115,7 +122,7 @@ def ppo_loss_with_terms(
     )
     dist = ppo_network.parametric_action_distribution
 
-    def mean_action(obs: Any) -> jax.Array:
+    def mean_action(obs: Obs) -> jax.Array:
         return dist.mode(ppo_network.policy_network.apply(normalizer_params, params.policy, obs))
 
     extra, terms = smoothness_loss(
@@ -129,7 +136,7 @@ def ppo_loss_with_terms(
     return loss + extra, {**metrics, **terms, "total_loss": loss + extra}
 
 
-def at_precision(fn: Callable[..., Any], name: str) -> Callable[..., Any]:
+def at_precision(fn: Callable[P, R], name: str) -> Callable[P, R]:
     """``fn`` (the loss and its gradient) traced with matrix products at precision ``name``
     (``ppo.update_precision``; ``"run"``: ``fn`` itself, at the run's precision). Only the
     update's forward and backward passes change: the rollouts, the evaluation and the
@@ -138,7 +145,7 @@ def at_precision(fn: Callable[..., Any], name: str) -> Callable[..., Any]:
         return fn
 
     @functools.wraps(fn)
-    def traced_at(*args: Any, **kwargs: Any) -> Any:
+    def traced_at(*args: P.args, **kwargs: P.kwargs) -> R:
         with matmul_precision_scope(name, "ppo.update_precision"):
             return fn(*args, **kwargs)
 

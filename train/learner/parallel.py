@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jax.stages import Wrapped
 
 if TYPE_CHECKING:
     from train.config import TrainConfig
@@ -37,15 +38,15 @@ MESH_AXIS = "d"
 """The device mesh's axis under ``run.parallel = "sharded"`` or ``"split"``."""
 
 
-def _several_gpus(devices: Sequence[Any]) -> bool:
+def _several_gpus(devices: Sequence[jax.Device]) -> bool:
     return len(devices) > 1 and all(d.platform == "gpu" for d in devices)
 
 
-def _warp_on_gpus(cfg: TrainConfig, devices: Sequence[Any]) -> bool:
+def _warp_on_gpus(cfg: TrainConfig, devices: Sequence[jax.Device]) -> bool:
     return cfg.env.description().sim.impl == "warp" and _several_gpus(devices)
 
 
-def devices_for(cfg: TrainConfig) -> list[Any]:
+def devices_for(cfg: TrainConfig) -> list[jax.Device]:
     """The local devices a run trains on: ``run.max_devices`` of them (0: all), except that
     a Warp run on the ``"sharded"`` path left at 0 on several GPUs takes the first only,
     and says so on stderr: the others would only repeat its physics (see the module)."""
@@ -63,7 +64,7 @@ def devices_for(cfg: TrainConfig) -> list[Any]:
     return local
 
 
-def choose(cfg: TrainConfig, devices: Sequence[Any], processes: int) -> str:
+def choose(cfg: TrainConfig, devices: Sequence[jax.Device], processes: int) -> str:
     """``run.parallel``, with ``"auto"`` resolved: ``"split"`` for a Warp run on several
     GPUs of one process, ``"sharded"`` for any other run on several GPUs or processes,
     else ``"pmap"``."""
@@ -74,7 +75,7 @@ def choose(cfg: TrainConfig, devices: Sequence[Any], processes: int) -> str:
     return "sharded" if _several_gpus(devices) or processes > 1 else "pmap"
 
 
-def mesh_sharding(parallel: str, devices: Sequence[Any]) -> NamedSharding | None:
+def mesh_sharding(parallel: str, devices: Sequence[jax.Device]) -> NamedSharding | None:
     """The sharding of the ``(D, ...)`` states over a mesh of ``devices`` (``None``: pmap)."""
     if parallel == "pmap":
         return None
@@ -84,9 +85,9 @@ def mesh_sharding(parallel: str, devices: Sequence[Any]) -> NamedSharding | None
 def spread(
     fn: Callable[..., Any],
     parallel: str,
-    devices: Sequence[Any],
+    devices: Sequence[jax.Device],
     sharding: NamedSharding | None,
-) -> Any:
+) -> Wrapped:
     """``fn`` of one seed's states as one program over seeds and devices (see the module)."""
     if sharding is None:
         return jax.pmap(jax.vmap(fn), axis_name=AXIS, devices=devices)

@@ -12,7 +12,8 @@ the velocity and for the yaw rate (:data:`BEAT_METRICS`).
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, Any
 
 import jax
 import numpy as np
@@ -25,16 +26,23 @@ from mecanum_jax.task import fidelity as fid
 from mecanum_jax.task.env import MecanumEnv
 from train.config import TrainConfig
 
+if TYPE_CHECKING:
+    from brax.training.agents.ppo.networks import PPONetworks
+    from brax.training.types import PolicyParams
+    from jax.stages import Lowered, Wrapped
+
 BEAT_SCENARIO = "randomized"
 BEAT_METRICS = ("ss_lin", "ss_wz")
 N_BOOT = 1000
 """Bootstrap resamples of the logged ratios' intervals."""
+Comparison = dict[str, dict[str, dict[str, float | str]]]
+"""Per scenario, per metric, a ratio's fields (``compare.ratios``)."""
 
 
-def deterministic_apply(networks: Any) -> evaluation.PolicyApply:
+def deterministic_apply(networks: PPONetworks) -> evaluation.PolicyApply:
     """``apply((normalizer, policy params), obs) -> action``: the policy's mode."""
 
-    def apply(params: Any, obs: dict[str, jax.Array]) -> jax.Array:
+    def apply(params: PolicyParams, obs: dict[str, jax.Array]) -> jax.Array:
         logits = networks.policy_network.apply(params[0], params[1], obs)
         return networks.parametric_action_distribution.mode(logits)
 
@@ -52,7 +60,7 @@ class Result:
 class PeriodicEvaluation:
     """The held-out evaluation a training run repeats (see the module docstring)."""
 
-    def __init__(self, cfg: TrainConfig, env: MecanumEnv, networks: Any, on_gpu: bool):
+    def __init__(self, cfg: TrainConfig, env: MecanumEnv, networks: PPONetworks, on_gpu: bool):
         r = cfg.run
         seconds = r.eval_episode_length * cfg.env.control_dt
         self.scenarios = scenarios.task_scenarios(cfg.env, r.num_eval_envs, seconds, r.eval_seed)
@@ -71,7 +79,7 @@ class PeriodicEvaluation:
         self._jacobian = np.asarray(kinematics.jacobian(self.env.geometry))
         self._batches: dict[str, episodes.EpisodeBatch] | None = None
 
-    def store_programs(self, wrap: Any) -> None:
+    def store_programs(self, wrap: Callable[[Wrapped], Any]) -> None:
         """Run the rollout through ``wrap(jitted rollout)`` (train/loop/warm_start.py)."""
         self.evaluator._run = wrap(self.evaluator._run)
 
@@ -83,7 +91,7 @@ class PeriodicEvaluation:
             }
         return self._batches
 
-    def play(self, who: str, params: Any = None) -> Result:
+    def play(self, who: str, params: object = None) -> Result:
         """``who`` (``"policy"`` with ``params = (normalizer, policy params)``, or a
         reference's name) on every scenario."""
         batches = self.batches()
@@ -95,19 +103,19 @@ class PeriodicEvaluation:
             values[name] = evaluation.summarize(trace, dt, False, self._jacobian, parts=parts[name])
         return Result(values, parts)
 
-    def trace(self, who: str, params: Any = None) -> list[Any]:
+    def trace(self, who: str, params: object = None) -> list[Lowered]:
         """Trace and lower what :meth:`play` would run, running nothing; the lowered
         programs (``Evaluator.trace_many``)."""
         return self.evaluator.trace_many([(b, who) for b in self.batches().values()], params)
 
-    def policies(self, params: Any, n_seeds: int) -> list[Result]:
+    def policies(self, params: PolicyParams, n_seeds: int) -> list[Result]:
         """Each seed's deterministic policy; ``params`` has a leading seed axis."""
         return [
             self.play("policy", jax.tree.map(lambda x, i=i: x[i], params)) for i in range(n_seeds)
         ]
 
 
-def compare(policy: Result, baseline: Result) -> dict[str, dict[str, Any]]:
+def compare(policy: Result, baseline: Result) -> Comparison:
     """Per scenario, policy / baseline ratios of
     :data:`~mecanum_jax.evaluation.compare.TRAINING_COMPARED` with paired intervals."""
     return {
@@ -116,7 +124,7 @@ def compare(policy: Result, baseline: Result) -> dict[str, dict[str, Any]]:
     }
 
 
-def beats(comparison: dict[str, dict[str, Any]]) -> bool:
+def beats(comparison: Mapping[str, Mapping[str, Mapping[str, float | str]]]) -> bool:
     """Whether the interval of every :data:`BEAT_METRICS` ratio on :data:`BEAT_SCENARIO`
     lies entirely below 1 (a tie or an undefined ratio is no win)."""
     scenario = comparison.get(BEAT_SCENARIO, {})

@@ -13,9 +13,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 
@@ -25,6 +25,15 @@ from train.store import inputs
 from train.store.checkpoint import CHECKPOINT_DIR, checkpoint_path, read_checked, unpack_train
 from train.store.leaves import CheckpointError
 
+if TYPE_CHECKING:
+    from brax.training.acme.running_statistics import RunningStatisticsState
+    from brax.training.agents.ppo.networks import PPONetworks
+    from brax.training.types import Params, PolicyParams
+    from jax.typing import ArrayLike
+
+    from mecanum_jax.task.env import MecanumEnv
+    from train.config import TrainConfig
+
 
 @dataclasses.dataclass(frozen=True)
 class RestoredPolicy:
@@ -33,13 +42,13 @@ class RestoredPolicy:
     run_dir: Path
     epoch: int
     seed: int
-    cfg: Any  # train.config.TrainConfig
-    networks: Any  # brax PPONetworks
-    normalizer: Any  # running statistics (host arrays)
-    params: Any  # policy network parameters (host arrays)
+    cfg: TrainConfig
+    networks: PPONetworks
+    normalizer: RunningStatisticsState  # (host arrays)
+    params: Params  # policy network parameters (host arrays)
     meta: dict[str, Any]
 
-    def apply(self, params: Any, obs: dict[str, Any]) -> jax.Array:
+    def apply(self, params: PolicyParams, obs: dict[str, jax.Array]) -> jax.Array:
         """The deterministic action for ``params = (normalizer, policy params)``."""
         from train.learner.periodic import deterministic_apply
 
@@ -147,8 +156,8 @@ def _provenance(run_dir: Path) -> dict[str, Any]:
 def package_model(
     restored: RestoredPolicy,
     out: Path,
-    provenance: dict[str, Any],
-    fill: Callable[[Path], Any] | None = None,
+    provenance: Mapping[str, object],
+    fill: Callable[[Path], object] | None = None,
 ) -> Path:
     """A self-contained model directory from one checkpoint of a run: ``config.json``,
     ``checkpoints/<epoch>/`` with the training state and metadata but not the environment
@@ -164,7 +173,7 @@ def package_model(
     return out
 
 
-def _pack(restored: RestoredPolicy, tmp: Path, provenance: dict[str, Any]) -> None:
+def _pack(restored: RestoredPolicy, tmp: Path, provenance: Mapping[str, object]) -> None:
     src = checkpoint_path(restored.run_dir, restored.epoch)
     dst = tmp / CHECKPOINT_DIR / str(restored.epoch)
     for item in ("train", "meta"):
@@ -191,7 +200,7 @@ def _pack(restored: RestoredPolicy, tmp: Path, provenance: dict[str, Any]) -> No
     (tmp / PROVENANCE).write_text(json.dumps(record, indent=2) + "\n")
 
 
-def check_compatible(meta: dict[str, Any], env: Any, what: str) -> None:
+def check_compatible(meta: dict[str, Any], env: MecanumEnv, what: str) -> None:
     """Refuse a checkpoint whose robot or observation layout differs from ``env``'s."""
     from mecanum_jax.sim.description import fingerprint
 
@@ -218,7 +227,7 @@ def check_compatible(meta: dict[str, Any], env: Any, what: str) -> None:
 
 def load_policy(
     run_dir: str | Path, seed: int | None = None, epoch: int | None = None
-) -> tuple[Callable[[dict[str, Any]], jax.Array], dict[str, Any]]:
+) -> tuple[Callable[[Mapping[str, ArrayLike]], jax.Array], dict[str, Any]]:
     """A deterministic ``policy(obs) -> action`` from a run's checkpoint.
 
     Args:
@@ -237,7 +246,7 @@ def load_policy(
 
     @jax.jit
     @allow_rank_promotion
-    def act(obs: dict[str, Any]) -> jax.Array:
+    def act(obs: dict[str, jax.Array]) -> jax.Array:
         return restored.apply(params, obs)
 
     meta = dict(restored.meta, epoch=restored.epoch, seed=restored.seed, policy_params=params)

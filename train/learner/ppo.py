@@ -22,8 +22,8 @@ environment state ``(D, S, E/D, ...)``, where S is the number of seeds and E ``n
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Mapping
+from typing import Any, TypeVar
 
 # isort: split
 import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
@@ -33,11 +33,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+from brax.envs.base import State
 from brax.training import gradients, types
 from brax.training.acme import running_statistics
 from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
 from jax.sharding import NamedSharding
+from jax.stages import Compiled, Lowered, Wrapped
+from jax.typing import ArrayLike
 
 from mecanum_jax.host import host_side
 from mecanum_jax.task.env import MecanumEnv, TrainingEnv
@@ -45,6 +48,7 @@ from train.config import TrainConfig
 from train.learner import losses, parallel
 from train.learner.parallel import AXIS
 from train.learner.periodic import PeriodicEvaluation, Result
+from train.learner.shapes import Epoch, Host, Metrics, PackedEnv, Placed, Updated
 from train.learner.split_epoch import SplitEpoch
 from train.learner.state import (
     TrainingState,
@@ -57,12 +61,18 @@ from train.learner.state import (
 )
 from train.store import leaves
 
+Carry = tuple[State, jax.Array]  # a rollout's scan carry: environment state, key
+Rollout = tuple[State, types.Transition, Metrics]
+Rollouts = tuple[State, types.Transition, jax.Array, Metrics]  # Learner.iteration_rollouts
+Sgd = tuple[optax.OptState, ppo_losses.PPONetworkParams, jax.Array]  # an SGD scan's carry
+Tree = TypeVar("Tree")
+
 
 class Learner:
     """The compiled pieces of a run: init, the per-epoch training program, evaluation."""
 
     @host_side  # its constants and set-up on the CPU (mecanum_jax.host)
-    def __init__(self, cfg: TrainConfig, devices: list[Any] | None = None):
+    def __init__(self, cfg: TrainConfig, devices: list[jax.Device] | None = None):
         self.cfg = cfg.validate()
         self.devices = devices or parallel.devices_for(cfg)
         self.n_devices = len(self.devices)
@@ -77,7 +87,7 @@ class Learner:
         self.networks = make_networks(self.env, cfg)
         self.make_policy = ppo_networks.make_inference_fn(self.networks)
         self.optimizer = make_optimizer(cfg)
-        loss: Any = ppo_losses.compute_ppo_loss
+        loss: Callable[..., tuple[jax.Array, types.Metrics]] = ppo_losses.compute_ppo_loss
         if p.smoothness.enabled or p.anchor.enabled:  # losses.py's terms
             loss = functools.partial(
                 losses.ppo_loss_with_terms,
@@ -96,7 +106,7 @@ class Learner:
         )
         grad = gradients.loss_and_pgrad(loss_fn, pmap_axis_name=AXIS, has_aux=True)
         self._loss_and_grad = losses.at_precision(grad, p.update_precision)
-        self._compiled_epoch: Any = None
+        self._compiled_epoch: Compiled | None = None
         self.parallel = parallel.choose(cfg, self.devices, self.n_processes)
         if self.parallel == "pmap":
             self._identity = jax.pmap(lambda *x: x, axis_name=AXIS, devices=self.devices)
@@ -120,7 +130,7 @@ class Learner:
 
     # --- state ------------------------------------------------------------------------------
 
-    def init(self, host: tuple[Any, Any] | None = None, reset: Any = None) -> tuple[Any, Any]:
+    def init(self, host: Host | None = None, reset: Compiled | None = None) -> Placed:
         """Fresh training and environment state, laid out ``(D, S, ...)``; ``host``:
         :meth:`init_training`'s, if made, ``reset``: the reset compiled (train.loop.aot)."""
         state, env_keys = self.init_training() if host is None else host
@@ -128,7 +138,7 @@ class Learner:
         return self.place(state, self.pack_env(env_state))
 
     @host_side
-    def init_training(self) -> tuple[TrainingState, np.ndarray]:
+    def init_training(self) -> Host:
         """Fresh host training state ``(D, S, ...)`` and environment keys ``(D, S, E/D, 2)``."""
         seeds = self.cfg.run.seeds
         D, E = self.n_devices, self.envs_per_device
@@ -155,12 +165,12 @@ class Learner:
 
     # --- training ---------------------------------------------------------------------------
 
-    def program(self, fn: Callable[..., Any]) -> Any:
+    def program(self, fn: Callable[..., Any]) -> Wrapped:
         """``fn`` of one seed's states as the epoch runs: vmapped over seeds, then spread over
         the devices as ``run.parallel`` says (train/learner/parallel.py)."""
         return parallel.spread(fn, self.parallel, self.devices, self._sharding)
 
-    def epoch(self, ts: TrainingState, env_state: Any) -> tuple[TrainingState, Any, Any]:
+    def epoch(self, ts: TrainingState, env_state: PackedEnv) -> Epoch:
         """One compiled epoch on all devices and seeds: ``(state, env_state, metrics)``.
 
         Pass states from :meth:`init`, :meth:`place` or a previous epoch: they share one
@@ -170,25 +180,27 @@ class Learner:
             return self._compiled_epoch(ts, env_state)
         return self._parallel_epoch(ts, env_state)
 
-    def compile_epoch(self, ts: TrainingState, env_state: Any, lowered: Any = None) -> None:
+    def compile_epoch(
+        self, ts: TrainingState, env_state: PackedEnv, lowered: Lowered | None = None
+    ) -> None:
         """Compile :meth:`epoch` for these states (or their ``ShapeDtypeStruct``s) now,
         ahead of its first call (train.loop.aot); ``lowered``: :meth:`lower_epoch`'s, if done."""
         lowered = self.lower_epoch(ts, env_state) if lowered is None else lowered
         self._compiled_epoch = lowered.compile()
 
-    def lower_epoch(self, ts: TrainingState, env_state: Any) -> Any:
+    def lower_epoch(self, ts: TrainingState, env_state: PackedEnv) -> Lowered:
         """:meth:`epoch` traced and lowered for these states, compiled by nothing yet."""
         if self.parallel == "split":
             raise ValueError("run.parallel = 'split' compiles its programs on first use")
         return self._parallel_epoch.lower(ts, env_state)
 
     @property
-    def reset_program(self) -> Any:
+    def reset_program(self) -> Wrapped:
         """The jitted reset of every seed's robots, ``(S, E/D, 2)`` keys in."""
         return self._reset
 
     @property
-    def env_template(self) -> Any:
+    def env_template(self) -> State:
         """One device's environment state as the reset makes it, as shapes (E robots)."""
         return self._env_template
 
@@ -197,18 +209,18 @@ class Learner:
         """The device mesh's sharding of the ``sharded`` path (``None``: ``pmap``)."""
         return self._sharding
 
-    def pack_env(self, env_state: Any) -> Any:
+    def pack_env(self, env_state: State) -> PackedEnv:
         """The environment state as it crosses device programs and is checkpointed: its
         zero-size leaves (MJX has several) and batch-wide buffers (``leaves.batch_wide``)
         left out of a flat dict (:func:`train.store.leaves.prune`)."""
         return leaves.prune(env_state, self._shared_at)
 
-    def unpack_env(self, packed: Any) -> Any:
+    def unpack_env(self, packed: PackedEnv) -> State:
         """Inverse of :meth:`pack_env` for one seed's per-device batch (inside the program)."""
         fresh = {i: jnp.asarray(v) for i, v in self._shared.items()}
         return leaves.graft(self._env_template, packed, fresh)
 
-    def place(self, ts: TrainingState, env_state: Any) -> tuple[TrainingState, Any]:
+    def place(self, ts: TrainingState, env_state: Mapping[str, ArrayLike]) -> Placed:
         """Put host ``(D, ...)`` states on the devices exactly as :meth:`epoch` returns them
         (same shardings, no weak types), so fresh and restored runs hit the compiled epoch."""
         ts, env_state = strip_weak_types(ts), strip_weak_types(env_state)
@@ -216,7 +228,7 @@ class Learner:
             return self._identity(ts, env_state)
         sharding = self._sharding
 
-        def put(x: Any) -> jax.Array:
+        def put(x: ArrayLike) -> jax.Array:
             x = np.asarray(x)
             if self.n_processes == 1:
                 return jax.device_put(x, sharding)
@@ -225,10 +237,10 @@ class Learner:
 
         return jax.tree.map(put, ts), jax.tree.map(put, env_state)
 
-    def _unroll(self, policy: Any, env_state: Any, key: jax.Array) -> tuple[Any, Any, Any]:
+    def _unroll(self, policy: types.Policy, env_state: State, key: jax.Array) -> Rollout:
         env = self.train_env
 
-        def step(carry: tuple[Any, jax.Array], _: None) -> tuple[Any, Any]:
+        def step(carry: Carry, _: None) -> tuple[Carry, tuple[types.Transition, Metrics]]:
             s, k = carry
             k, k_act = jax.random.split(k)
             actions, extras = policy(s.obs, k_act)
@@ -254,14 +266,14 @@ class Learner:
         return env_state, data, metrics
 
     def _iteration(
-        self, carry: tuple[TrainingState, Any], _: None
-    ) -> tuple[tuple[TrainingState, Any], dict[str, jax.Array]]:
+        self, carry: tuple[TrainingState, State], _: None
+    ) -> tuple[tuple[TrainingState, State], Metrics]:
         ts, env_state = carry
         env_state, data, keys, env_metrics = self.iteration_rollouts(ts, env_state)
         ts, metrics = self.iteration_update(ts, data, keys, env_metrics)
         return (ts, env_state), metrics
 
-    def iteration_rollouts(self, ts: TrainingState, env_state: Any) -> tuple[Any, ...]:
+    def iteration_rollouts(self, ts: TrainingState, env_state: State) -> Rollouts:
         """An iteration's first half, one seed: ``(env_state, data, keys, env metrics)``,
         ``keys`` the next loop key and the update's, stacked."""
         key, k_unroll, k_sgd = jax.random.split(ts.key, 3)
@@ -272,8 +284,8 @@ class Learner:
         return env_state, data, jnp.stack([key, k_sgd]), metrics
 
     def iteration_update(
-        self, ts: TrainingState, data: Any, keys: jax.Array, env_metrics: dict[str, jax.Array]
-    ) -> tuple[TrainingState, dict[str, jax.Array]]:
+        self, ts: TrainingState, data: types.Transition, keys: jax.Array, env_metrics: Metrics
+    ) -> Updated:
         """An iteration's second half, one seed: the update of :meth:`update` (averaged
         across devices), the next loop key, and the iteration's metrics."""
         ts, loss_metrics = self.update(ts, data, keys[1])
@@ -281,10 +293,10 @@ class Learner:
         metrics = {f"loss/{k}": jnp.mean(v) for k, v in loss_metrics.items()}
         return ts, metrics | env_metrics
 
-    def collect(self, policy: Any, env_state: Any, key: jax.Array) -> tuple[Any, Any, Any]:
+    def collect(self, policy: types.Policy, env_state: State, key: jax.Array) -> Rollout:
         """One iteration's rollouts: ``(env_state, data (unrolls·E, T, ...), metrics)``."""
 
-        def unroll(c: Any, _: None) -> tuple[Any, Any]:
+        def unroll(c: Carry, _: None) -> tuple[Carry, tuple[types.Transition, Metrics]]:
             s, k = c
             k, k_now = jax.random.split(k)
             s, data, metrics = self._unroll(policy, s, k_now)
@@ -298,14 +310,14 @@ class Learner:
         data = jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), data)
         return env_state, data, env_metrics
 
-    def update(self, ts: TrainingState, data: Any, key: jax.Array) -> tuple[TrainingState, Any]:
+    def update(self, ts: TrainingState, data: types.Transition, key: jax.Array) -> Updated:
         """Normalizer update and SGD passes over ``data``: ``(state, loss metrics)``, same key."""
         p = self.cfg.ppo
         normalizer = running_statistics.update(
             ts.normalizer_params, data.observation, pmap_axis_name=AXIS
         )
 
-        def minibatch(c: Any, batch: Any) -> tuple[Any, Any]:
+        def minibatch(c: Sgd, batch: types.Transition) -> tuple[Sgd, Metrics]:
             opt_state, params, k = c
             k, k_loss = jax.random.split(k)
             (_, metrics), grads = self._loss_and_grad(params, normalizer, batch, k_loss)
@@ -313,7 +325,7 @@ class Learner:
             params = optax.apply_updates(params, updates)
             return (opt_state, params, k), metrics
 
-        def sgd(c: Any, _: None) -> tuple[Any, Any]:
+        def sgd(c: Sgd, _: None) -> tuple[Sgd, Metrics]:
             opt_state, params, k = c
             k, k_perm, k_grad = jax.random.split(k, 3)
 
@@ -321,7 +333,7 @@ class Learner:
                 x = jax.random.permutation(k_perm, x)
                 return x.reshape((p.num_minibatches, -1, *x.shape[1:]))
 
-            (opt_state, params, _), metrics = jax.lax.scan(
+            (opt_state, params, _grad_key), metrics = jax.lax.scan(
                 minibatch, (opt_state, params, k_grad), jax.tree.map(shuffle, data)
             )
             return (opt_state, params, k), metrics
@@ -332,7 +344,7 @@ class Learner:
         return TrainingState(opt_state, params, normalizer, ts.key), loss_metrics
 
     @allow_rank_promotion
-    def _epoch(self, ts: TrainingState, packed: Any) -> tuple[TrainingState, Any, Any]:
+    def _epoch(self, ts: TrainingState, packed: PackedEnv) -> Epoch:
         env_state = self.unpack_env(packed)
         (ts, env_state), metrics = jax.lax.scan(
             self._iteration, (ts, env_state), None, length=self.cfg.run.epoch_iterations
@@ -352,20 +364,20 @@ class Learner:
         return self.evaluation.play("analytic", jax.tree.map(lambda x: x[0], params))
 
 
-def strip_weak_types(tree: Any) -> Any:
+def strip_weak_types(tree: Tree) -> Tree:
     """Arrays with concrete (non-weak) dtypes, so jit signatures do not flip between calls."""
 
-    def strip(x: Any) -> Any:
+    def strip(x: ArrayLike) -> jax.Array:
         x = jnp.asarray(x)
         return jnp.astype(x, x.dtype) if x.weak_type else x
 
     return jax.tree.map(strip, tree)
 
 
-def first_device(tree: Any) -> Any:
+def first_device(tree: object) -> Any:
     """The device-0 copy of a ``(D, ...)`` tree, as host numpy arrays."""
 
-    def first(x: Any) -> np.ndarray:
+    def first(x: ArrayLike) -> np.ndarray:
         if isinstance(x, jax.Array):
             return np.asarray(x.addressable_shards[0].data)[0]
         return np.asarray(x)[0]
@@ -373,10 +385,10 @@ def first_device(tree: Any) -> Any:
     return jax.tree.map(first, tree)
 
 
-def to_host(tree: Any) -> Any:
+def to_host(tree: object) -> Any:
     """Host numpy copies; of an array spread over processes, this process's devices' part."""
 
-    def host(x: Any) -> np.ndarray:
+    def host(x: ArrayLike) -> np.ndarray:
         if isinstance(x, jax.Array) and not x.is_fully_addressable:
             shards = sorted(x.addressable_shards, key=lambda s: s.index[0].start or 0)
             return np.concatenate([np.asarray(s.data) for s in shards])

@@ -25,23 +25,53 @@ and one thread would run the devices' rollouts one after the other.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 import jax
 import jax.numpy as jnp
+from brax.envs.base import State
+from brax.training.types import Transition
 from jax.sharding import NamedSharding
+from jax.stages import Wrapped
 
+from train.config import TrainConfig
 from train.learner.parallel import AXIS
+from train.learner.shapes import Epoch, Metrics, PackedEnv, Updated
 from train.learner.state import TrainingState, allow_rank_promotion, epoch_metrics
 
+Tree = TypeVar("Tree")
+Rollouts = tuple[PackedEnv, Transition, jax.Array, Metrics]
+"""A device's rollout: ``(packed env state, data, keys, env metrics)``."""
 
-def slices(tree: Any, devices: Sequence[Any]) -> list[Any]:
+
+class SplitLearner(Protocol):
+    """What the split epoch uses of its :class:`train.learner.ppo.Learner` (which builds
+    it, so it is not imported here)."""
+
+    cfg: TrainConfig
+    devices: list[jax.Device]
+    n_processes: int
+
+    @property
+    def sharding(self) -> NamedSharding | None: ...
+    def program(self, fn: Callable[..., Any]) -> Wrapped: ...
+    def pack_env(self, env_state: State) -> PackedEnv: ...
+    def unpack_env(self, packed: PackedEnv) -> State: ...
+    def iteration_rollouts(
+        self, ts: TrainingState, env_state: State
+    ) -> tuple[State, Transition, jax.Array, Metrics]: ...
+    def iteration_update(
+        self, ts: TrainingState, data: Transition, keys: jax.Array, env_metrics: Metrics
+    ) -> Updated: ...
+
+
+def slices(tree: Tree, devices: Sequence[jax.Device]) -> list[Tree]:
     """Device ``d``'s ``(1, ...)`` slice of each mesh-sharded leaf of ``tree``, for each of
     ``devices``: the arrays the device already holds, not copies."""
 
-    def on(device: Any) -> Any:
+    def on(device: jax.Device) -> Tree:
         def part(x: jax.Array) -> jax.Array:
             for shard in x.addressable_shards:
                 if shard.device == device:
@@ -53,7 +83,7 @@ def slices(tree: Any, devices: Sequence[Any]) -> list[Any]:
     return [on(d) for d in devices]
 
 
-def joined(trees: Sequence[Any], sharding: NamedSharding) -> Any:
+def joined(trees: Sequence[Tree], sharding: NamedSharding) -> Tree:
     """Inverse of :func:`slices`: one mesh-sharded array per leaf, from each device's
     ``(1, ...)`` slices (no copy)."""
 
@@ -68,7 +98,7 @@ class SplitEpoch:
     """The ``"split"`` epoch of ``learner`` (see the module): callable as
     ``(state, packed env state) -> (state, packed env state, metrics)``."""
 
-    def __init__(self, learner: Any):  # a train.learner.ppo.Learner (which builds this)
+    def __init__(self, learner: SplitLearner):
         if learner.n_processes > 1:
             raise ValueError(
                 "run.parallel = 'split': one process only (its devices are the mesh); "
@@ -91,7 +121,7 @@ class SplitEpoch:
         ]
         self._loaded = False
 
-    def _rollouts(self, states: list[Any], env: list[Any]) -> list[tuple[Any, ...]]:
+    def _rollouts(self, states: list[TrainingState], env: list[PackedEnv]) -> list[Rollouts]:
         """Every device's rollout, each from its own thread; the first time one after the
         other: a GPU program's first run loads it and MuJoCo Warp captures its CUDA graphs,
         and a stream another thread synchronizes meanwhile fails
@@ -106,7 +136,7 @@ class SplitEpoch:
         return [first, *(job.result() for job in jobs)]
 
     @allow_rank_promotion
-    def _rollout_one(self, ts: TrainingState, packed: Any) -> tuple[Any, ...]:
+    def _rollout_one(self, ts: TrainingState, packed: PackedEnv) -> Rollouts:
         """One seed's rollouts of one iteration on one device: the one-program epoch's
         :meth:`~train.learner.ppo.Learner.iteration_rollouts` (same keys)."""
         learner = self.learner
@@ -114,18 +144,16 @@ class SplitEpoch:
         return learner.pack_env(env_state), *rest
 
     @allow_rank_promotion
-    def _update_one(self, *args: Any) -> tuple[TrainingState, dict[str, jax.Array]]:
+    def _update_one(self, *args: Any) -> Updated:
         """One seed's update on one device, averaged across devices (``AXIS``)."""
         return self.learner.iteration_update(*args)
 
-    def _finish_one(
-        self, ts: TrainingState, per_iteration: tuple[dict[str, jax.Array], ...]
-    ) -> dict[str, jax.Array]:
+    def _finish_one(self, ts: TrainingState, per_iteration: tuple[Metrics, ...]) -> Metrics:
         """The epoch's metrics as the one-program epoch reports them."""
         stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *per_iteration)
         return epoch_metrics(ts, stacked, AXIS)
 
-    def __call__(self, ts: TrainingState, packed: Any) -> tuple[TrainingState, Any, Any]:
+    def __call__(self, ts: TrainingState, packed: PackedEnv) -> Epoch:
         env = slices(packed, self.devices)
         per_iteration = []
         for _ in range(self.iterations):

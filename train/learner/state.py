@@ -12,7 +12,7 @@ import dataclasses
 import functools
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import ParamSpec, TypeVar
 
 import flax
 import jax
@@ -22,21 +22,25 @@ import optax
 from brax.training.acme import running_statistics, specs
 from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
+from brax.training.types import Params
 from flax import linen
+from jax.typing import ArrayLike
 
 from mecanum_jax.task.env import MecanumEnv
 from train.config import TrainConfig
 
 # Domain tags: training and evaluation rng streams never meet, whatever the seeds are.
 TRAIN_STREAM = 0x7A1
+P = ParamSpec("P")
+R = TypeVar("R")
 
 
-def allow_rank_promotion(fn: Callable[..., Any]) -> Callable[..., Any]:
+def allow_rank_promotion(fn: Callable[P, R]) -> Callable[P, R]:
     """Trace ``fn`` with implicit rank promotion allowed: Brax's normalizer and
     distributions rely on it (the project's own code does not)."""
 
     @functools.wraps(fn)
-    def wrapped(*args: Any, **kwargs: Any) -> Any:
+    def wrapped(*args: P.args, **kwargs: P.kwargs) -> R:
         with jax.numpy_rank_promotion("allow"):
             return fn(*args, **kwargs)
 
@@ -47,7 +51,7 @@ def allow_rank_promotion(fn: Callable[..., Any]) -> Callable[..., Any]:
 class TrainingState:
     """Everything the learner updates; one seed's (leaves gain S and D axes when batched)."""
 
-    optimizer_state: Any
+    optimizer_state: optax.OptState
     params: ppo_losses.PPONetworkParams
     normalizer_params: running_statistics.RunningStatisticsState
     key: jax.Array
@@ -90,7 +94,11 @@ def symmetric_networks(
     group = [(jnp.asarray(oi), jnp.asarray(os), jnp.asarray(ai), jnp.asarray(sg))
              for (oi, os), (ai, sg) in mirrors(env.control)]  # fmt: skip
 
-    def apply(processor_params: Any, params: Any, obs: dict[str, jax.Array]) -> jax.Array:
+    def apply(
+        processor_params: running_statistics.RunningStatisticsState,
+        params: Params,
+        obs: dict[str, jax.Array],
+    ) -> jax.Array:
         total = policy.apply(processor_params, params, obs)
         for oi, os, ai, sign in group:
             mirrored = {**obs, "state": jnp.take(obs["state"], oi, axis=-1) * os}
@@ -133,7 +141,7 @@ def _labels(params: ppo_losses.PPONetworkParams) -> ppo_losses.PPONetworkParams:
 
 def initial_policy(
     networks: ppo_networks.PPONetworks, key: jax.Array, action_size: int, cfg: TrainConfig
-) -> Any:
+) -> Params:
     """Brax's policy initialisation, with the exploration noise ``init_noise_std``.
 
     Brax's tanh-normal policy MLP outputs the action means ``[0, a)`` and the scales
@@ -185,7 +193,9 @@ def fresh_state(
     return state, k_env
 
 
-_FRESH: dict[Any, Any] = {}
+FreshProgram = Callable[[ArrayLike], tuple[TrainingState, jax.Array]]
+"""A seed in, :func:`fresh_state`'s state and environment key out (compiled)."""
+_FRESH: dict[tuple[TrainConfig, tuple[tuple[str, tuple[int, ...]], ...], int], FreshProgram] = {}
 
 
 def fresh_state_program(
@@ -193,7 +203,7 @@ def fresh_state_program(
     env: MecanumEnv,
     networks: ppo_networks.PPONetworks,
     optimizer: optax.GradientTransformation,
-) -> Any:
+) -> FreshProgram:
     """:func:`fresh_state` of a seed as one jitted program (not some 60 eager operations,
     each a program of its own: at a warm start on a GPU each was read back from the
     compilation cache one by one), bit-identical to it. Kept per config and environment
@@ -216,7 +226,7 @@ def state_template(cfg: TrainConfig, env: MecanumEnv, devices: int) -> TrainingS
     return jax.tree.map(lambda x: np.zeros((*lead, *x.shape), x.dtype), one)
 
 
-def all_finite(tree: Any) -> jax.Array:
+def all_finite(tree: object) -> jax.Array:
     """Whether every floating-point leaf of ``tree`` is finite (a traced bool)."""
     leaves = [
         x for x in jax.tree.leaves(tree) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)
@@ -224,7 +234,9 @@ def all_finite(tree: Any) -> jax.Array:
     return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
 
 
-def epoch_metrics(ts: TrainingState, metrics: Any, axis: str) -> dict[str, jax.Array]:
+def epoch_metrics(
+    ts: TrainingState, metrics: dict[str, jax.Array], axis: str
+) -> dict[str, jax.Array]:
     """An epoch's metrics from its iterations' (leading axis of each leaf): the mean over
     iterations and over the devices of ``axis``, and ``finite``, 1.0 where every device's
     parameters and normalizer are finite."""

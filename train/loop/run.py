@@ -297,8 +297,8 @@ class Run:
         completed epoch; a non-finite loss or parameter saves it and stops the run."""
         t_epoch = time.time()
         try:
-            new_state, new_env, metrics = loop.learner.epoch(loop.state, loop.env_state)
-            metrics = {k: v[0] for k, v in to_host(metrics).items()}  # (S,)
+            new_state, new_env, on_devices = loop.learner.epoch(loop.state, loop.env_state)
+            metrics: dict[str, np.ndarray] = {k: v[0] for k, v in to_host(on_devices).items()}
         except KeyboardInterrupt:
             self.console.log(f"interrupted: saving epoch {loop.epoch}")
             loop.save()
