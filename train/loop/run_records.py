@@ -6,9 +6,9 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import numpy as np
@@ -16,12 +16,20 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from mecanum_jax import atomic
-from train.learner.periodic import Result
+from train.learner.periodic import Comparison, Result
 from train.loop.progress import TrainLines, evaluation_text, wants_lines
 from train.loop.progress import count as _si
 
+if TYPE_CHECKING:
+    from train.config import TrainConfig
 
-def jsonable(x: Any) -> Any:
+Evals = Mapping[str, Mapping[str, np.ndarray]]
+"""Per scenario and metric, the seeds' values (:func:`stacked`)."""
+Values = Mapping[str, Mapping[str, float | None]]
+"""Per scenario, one controller's metrics (``Result.values``)."""
+
+
+def jsonable(x: object) -> object:
     """``x`` with numpy values as Python ones and non-finite floats as strings."""
     if isinstance(x, dict):
         return {k: jsonable(v) for k, v in x.items()}
@@ -34,7 +42,7 @@ def jsonable(x: Any) -> Any:
     return x
 
 
-def write_json(path: Path, data: Any) -> None:
+def write_json(path: Path, data: object) -> None:
     """Write atomically (:mod:`mecanum_jax.atomic`): a crash or a full disk never leaves a
     half-written file that looks complete, nor a temporary one."""
     atomic.write_json(path, jsonable(data))
@@ -60,7 +68,7 @@ def keep_rows(path: Path, epoch: int) -> int:
     return len(lines) - len(kept)
 
 
-def machine_record(cfg: Any, physics_impl: str) -> dict[str, Any]:
+def machine_record(cfg: TrainConfig, physics_impl: str) -> dict[str, Any]:
     """Where and when a benchmark ran: device, platform, jax, date, config, physics."""
     return {
         "device": jax.devices()[0].device_kind,
@@ -90,17 +98,17 @@ def stacked(results: list[Result]) -> dict[str, dict[str, np.ndarray]]:
     }
 
 
-def _per_seed(evals: dict[str, Any], i: int) -> dict[str, dict[str, float]]:
+def _per_seed(evals: Evals, i: int) -> dict[str, dict[str, float]]:
     return {name: {k: float(v[i]) for k, v in res.items()} for name, res in evals.items()}
 
 
 def seed_rows(
     seeds: Sequence[int],
     metrics: dict[str, np.ndarray],
-    evals: dict[str, Any],
-    baseline: dict[str, Any],
+    evals: Evals,
+    baseline: Values,
     sps: float | None = None,
-    comps: list[dict[str, Any]] | None = None,
+    comps: list[Comparison] | None = None,
 ) -> list[dict[str, Any]]:
     """One metrics.jsonl row per seed: training metrics, and the evaluation if one ran."""
     rows = []
@@ -119,14 +127,14 @@ def seed_rows(
 
 
 def summary(
-    cfg: Any,  # train.config.TrainConfig
+    cfg: TrainConfig,
     run_dir: Path,
     epoch: int,
     walltime: float,
-    evals: dict[str, Any],
-    comps: list[dict[str, Any]],
-    baseline: dict[str, Any],
-    beat_at: dict[str, Any],
+    evals: Evals,
+    comps: list[Comparison],
+    baseline: Values,
+    beat_at: Mapping[str, object],
     t_start: float,
     devices: int | None,
 ) -> dict[str, Any]:
@@ -154,7 +162,7 @@ def summary(
     }
 
 
-def shown(policy: dict[str, np.ndarray], baseline: dict[str, Any]) -> str:
+def shown(policy: Mapping[str, np.ndarray], baseline: Mapping[str, float | None]) -> str:
     """The progress line's figures: steady-state error of the policy / the baseline."""
 
     def pair(key: str) -> str:
@@ -165,9 +173,9 @@ def shown(policy: dict[str, np.ndarray], baseline: dict[str, Any]) -> str:
     return f"ss v {pair('ss_lin')} ω {pair('ss_wz')}"
 
 
-def flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+def flatten(d: Mapping[str, object], prefix: str = "") -> dict[str, object]:
     """A nested dict as ``{"a/b/c": value}``."""
-    out: dict[str, Any] = {}
+    out: dict[str, object] = {}
     for k, v in d.items():
         key = f"{prefix}/{k}" if prefix else k
         if isinstance(v, dict):
@@ -233,7 +241,7 @@ class TrainProgress:
         done: int,
         sps: float,
         results: list[Result],
-        comparisons: list[dict[str, Any]],
+        comparisons: list[Comparison],
         info: str,
         final: bool = False,
     ) -> None:

@@ -31,15 +31,21 @@ import json
 import os
 import pickle
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import numpy as np
+from jax.stages import Compiled, Lowered, Wrapped
+from jax.tree_util import PyTreeDef
 
 import mecanum_jax
 import train
+
+if TYPE_CHECKING:
+    from train.config import TrainConfig
+    from train.learner.ppo import Learner
 
 MAGIC = b"mecanum-jax executable 1\n"
 SUFFIX = ".jaxexe"
@@ -53,6 +59,11 @@ JAX_FLAGS = (
     "jax_default_prng_impl",
 )
 Log = Callable[[str], None]
+Key = dict[str, object]
+"""A program's key: JSON-ready values (:func:`run_key`, plus the program's own)."""
+Aval = tuple[tuple[int, ...], str, bool, object]
+"""An argument's shape, dtype, weak type and sharding (:func:`_aval`)."""
+Signature = tuple[PyTreeDef, tuple[Aval, ...]]
 
 
 def _version(package: str) -> str | None:
@@ -73,11 +84,11 @@ def code_hash() -> str:
     return h.hexdigest()
 
 
-def _digest(obj: Any) -> str:
+def _digest(obj: object) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=repr).encode()).hexdigest()
 
 
-def run_key(cfg: Any, devices: list[Any]) -> dict[str, Any]:
+def run_key(cfg: TrainConfig, devices: Sequence[jax.Device]) -> Key:
     """What a run's programs depend on, as JSON-ready values (see the module docstring)."""
     return {
         "config": _digest(cfg.to_dict()),
@@ -94,17 +105,17 @@ def run_key(cfg: Any, devices: list[Any]) -> dict[str, Any]:
 class Store:
     """Compiled programs in a directory, each file keyed, checksummed and checked on load."""
 
-    def __init__(self, directory: Path, key: dict[str, Any], log: Log):
+    def __init__(self, directory: Path, key: Key, log: Log):
         self.directory = directory
         self.key = key
         self.log = log
         self.loaded: list[str] = []
         self.written: list[str] = []
 
-    def path(self, full_key: dict[str, Any]) -> Path:
+    def path(self, full_key: Key) -> Path:
         return self.directory / f"{_digest(full_key)[:40]}{SUFFIX}"
 
-    def load(self, name: str, full_key: dict[str, Any], read_back: bool = False) -> Any | None:
+    def load(self, name: str, full_key: Key, read_back: bool = False) -> Compiled | None:
         """The program stored under ``full_key``, or ``None`` (absent, stale or corrupt:
         logged, and the file removed); ``read_back``: just written, not counted as loaded."""
         path = self.path(full_key)
@@ -125,7 +136,7 @@ class Store:
             self.loaded.append(name)
         return compiled
 
-    def save(self, name: str, full_key: dict[str, Any], compiled: Any) -> None:
+    def save(self, name: str, full_key: Key, compiled: Any) -> None:
         """Write ``compiled`` (atomically); a program that cannot be serialized is logged."""
         from jax.experimental import serialize_executable
 
@@ -143,7 +154,9 @@ class Store:
         self.written.append(name)
 
 
-def _deserialize(serialized: bytes, in_tree: Any, out_tree: Any, device_ids: list[int]) -> Any:
+def _deserialize(
+    serialized: bytes, in_tree: PyTreeDef, out_tree: PyTreeDef, device_ids: list[int]
+) -> Compiled:
     """The executable, loaded onto the devices it was compiled for."""
     from jax.experimental import serialize_executable
 
@@ -154,13 +167,13 @@ def _deserialize(serialized: bytes, in_tree: Any, out_tree: Any, device_ids: lis
     )
 
 
-def _frame(key: dict[str, Any], payload: bytes) -> bytes:
+def _frame(key: Key, payload: bytes) -> bytes:
     header = json.dumps(key, sort_keys=True, default=repr).encode()
     body = len(header).to_bytes(8, "little") + header + payload
     return MAGIC + hashlib.sha256(body).digest() + body
 
 
-def _unframe(blob: bytes) -> tuple[Any, bytes]:
+def _unframe(blob: bytes) -> tuple[object, bytes]:
     if not blob.startswith(MAGIC):
         raise ValueError("not a stored program")
     digest, body = blob[len(MAGIC) : len(MAGIC) + 32], blob[len(MAGIC) + 32 :]
@@ -175,14 +188,14 @@ class Stored:
     called, it runs the program for its arguments' signature, loaded, or compiled (and
     written) on first use; :meth:`lower` is the function's own."""
 
-    def __init__(self, fn: Any, name: str, store: Store):
+    def __init__(self, fn: Wrapped, name: str, store: Store):
         self.fn = fn
         self.name = name
         self.store = store
-        self._programs: dict[Any, Any] = {}
+        self._programs: dict[Signature, Compiled] = {}
         self._lock = threading.Lock()  # (the baseline's evaluation runs in a thread)
 
-    def lower(self, *args: Any) -> Any:
+    def lower(self, *args: Any) -> Lowered:
         return self.fn.lower(*args)
 
     def __call__(self, *args: Any) -> Any:
@@ -196,7 +209,7 @@ class Stored:
                 return out
         return program(*args)
 
-    def _first_call(self, args: tuple[Any, ...], sig: Any) -> tuple[Any, Any]:
+    def _first_call(self, args: tuple[Any, ...], sig: Signature) -> tuple[Compiled, Any]:
         """The program for ``sig`` and its first outputs. The program is the stored one,
         loaded, or written now and read back, so a cold start runs what a warm one will;
         its first run is waited for, and one that fails (XLA:CPU of jaxlib 0.10.2 wrote an
@@ -217,14 +230,14 @@ class Stored:
             return compiled, compiled(*args)
 
 
-def _aval(x: Any) -> tuple[Any, ...]:
+def _aval(x: Any) -> Aval:
     weak = bool(getattr(x, "weak_type", False))
     sharding = x.sharding if isinstance(x, jax.Array) and x.committed else None
     dtype = x.dtype if hasattr(x, "dtype") else np.result_type(x)
     return (np.shape(x), str(dtype), weak, sharding)
 
 
-def why_not(learner: Any, environ: Any = os.environ) -> str | None:
+def why_not(learner: Learner, environ: Mapping[str, str] = os.environ) -> str | None:
     """Why the store cannot serve ``learner`` (``None``: it can)."""
     from train.loop import compilation_cache
 
@@ -265,7 +278,7 @@ def attach(learner: Any, log: Log = print) -> Any:
     return learner
 
 
-def store_of(learner: Any) -> Store | None:
+def store_of(learner: object) -> Store | None:
     """The store :func:`attach` gave ``learner`` (``None``: none)."""
     return getattr(learner, "warm_store", None)
 

@@ -23,9 +23,10 @@ import contextlib
 import shutil
 import sys
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from types import ModuleType
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import jax
 
@@ -34,6 +35,9 @@ from train.store.leaves import CheckpointError, corruption, pack, unpack
 
 if TYPE_CHECKING:
     import orbax.checkpoint as ocp
+
+Train = TypeVar("Train")
+Env = TypeVar("Env")
 
 CHECKPOINT_DIR = "checkpoints"
 
@@ -46,7 +50,7 @@ def quiet_closed_loop_noise() -> None:
         return
     previous = sys.unraisablehook
 
-    def hook(unraisable: Any) -> None:
+    def hook(unraisable: sys.UnraisableHookArgs) -> None:
         exc = unraisable.exc_value
         if isinstance(exc, RuntimeError) and str(exc) == "Event loop is closed":
             return
@@ -56,7 +60,7 @@ def quiet_closed_loop_noise() -> None:
     sys.unraisablehook = hook
 
 
-def _orbax() -> Any:
+def _orbax() -> ModuleType:
     """orbax.checkpoint, imported on first use: about 0.6 s that a run's start need not
     wait for (its first checkpoint comes epochs later; docs/benchmarks.md)."""
     import orbax.checkpoint
@@ -84,7 +88,7 @@ def manager(run_dir: Path, max_to_keep: int = 3, create: bool = True) -> ocp.Che
 
 
 def save(
-    mgr: ocp.CheckpointManager, epoch: int, train: Any, env: Any, meta: dict[str, Any]
+    mgr: ocp.CheckpointManager, epoch: int, train: object, env: object, meta: dict[str, Any]
 ) -> None:
     """Save host (numpy) trees; blocks until written so a crash cannot leave it half done.
     orbax writes ``<epoch>.orbax-checkpoint-tmp`` and renames it when complete; a save that
@@ -214,11 +218,11 @@ def read_checked(run_dir: Path, epoch: int | None, items: tuple[str, ...]) -> tu
 
 def restore(
     run_dir: Path,
-    train_like: Any,
-    env_like: Any,
+    train_like: Train,
+    env_like: Env,
     epoch: int | None = None,
     log: Callable[[str], None] | None = None,
-) -> tuple[Any, Any, dict[str, Any]]:
+) -> tuple[Train, Env, dict[str, Any]]:
     """Restore the full state of ``epoch`` into trees shaped like the given.
 
     Without ``epoch``: the newest checkpoint that reads cleanly. A newer one that is
@@ -261,14 +265,14 @@ def read_meta(run_dir: Path, epoch: int | None = None) -> tuple[int, dict[str, A
     return epoch, dict(out["meta"])
 
 
-def read_train(run_dir: Path, epoch: int, train_like: Any) -> Any:
+def read_train(run_dir: Path, epoch: int, train_like: Train) -> Train:
     """The training state of checkpoint ``epoch``, shaped like ``train_like`` (matched by
     leaf name; by index in the leaf-index format); a mismatch names the checkpoint."""
     _, saved = read_checked(run_dir, epoch, ("train",))
     return unpack_train(run_dir, epoch, train_like, saved)
 
 
-def unpack_train(run_dir: Path, epoch: int, train_like: Any, saved: dict[str, Any]) -> Any:
+def unpack_train(run_dir: Path, epoch: int, train_like: Train, saved: Mapping[str, Any]) -> Train:
     try:
         return unpack(train_like, saved["train"])
     except CheckpointError as err:

@@ -31,12 +31,15 @@ import math
 import re
 import zlib
 from collections.abc import Collection, Mapping
-from typing import Any
+from typing import Any, TypeVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import ArrayLike
 
+Tree = TypeVar("Tree")
+"""A pytree, and what is rebuilt in its shape."""
 CHECKSUMS = "crc32"
 """The entry of a packed tree that holds its leaves' checksums (a leaf's name begins with
 ``.`` or ``[``, so none is called this)."""
@@ -49,7 +52,7 @@ class CheckpointError(ValueError):
     """A checkpoint is missing, corrupt, or does not match what is being loaded."""
 
 
-def named_leaves(tree: Any) -> list[tuple[str, Any]]:
+def named_leaves(tree: object) -> list[tuple[str, Any]]:
     """``(name, leaf)`` pairs in ``jax.tree.leaves`` order; the name is the leaf's path."""
     pairs, _ = jax.tree_util.tree_flatten_with_path(tree)
     return [(jax.tree_util.keystr(path) or "<root>", x) for path, x in pairs]
@@ -59,7 +62,7 @@ def _crc(x: np.ndarray) -> int:
     return zlib.crc32(np.ascontiguousarray(x).reshape(-1).view(np.uint8).data)
 
 
-def pack(tree: Any) -> dict[str, np.ndarray]:
+def pack(tree: object) -> dict[str, np.ndarray]:
     """A pytree as a flat ``{leaf name: numpy array}`` dict without its zero-size leaves,
     plus the :data:`CHECKSUMS` entry.
 
@@ -80,12 +83,12 @@ def with_checksums(flat: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     return out
 
 
-def is_index_format(flat: Mapping[str, Any]) -> bool:
+def is_index_format(flat: Mapping[str, object]) -> bool:
     """Whether ``flat`` was packed by an earlier version, by leaf index."""
     return bool(flat) and all(INDEX_KEY.fullmatch(k) for k in flat)
 
 
-def unpack(template: Any, flat: Mapping[str, Any]) -> Any:
+def unpack(template: Tree, flat: Mapping[str, ArrayLike]) -> Tree:
     """Inverse of :func:`pack`: a tree shaped like ``template`` (arrays or shape structs),
     with numpy leaves, matched by name (by index for the leaf-index format). Raises
     :class:`CheckpointError` naming every missing, unexpected or misshaped leaf. Whether
@@ -119,7 +122,7 @@ def unpack(template: Any, flat: Mapping[str, Any]) -> Any:
     return jax.tree.unflatten(jax.tree.structure(template), out)
 
 
-def corruption(flat: Mapping[str, Any]) -> str:
+def corruption(flat: Mapping[str, ArrayLike]) -> str:
     """Why the leaves of a packed tree do not hold the data they were saved with (``""``
     when they do, or when the tree carries no checksums): damage found after decoding."""
     if CHECKSUMS not in flat or is_index_format(flat):
@@ -135,7 +138,7 @@ def _listed(what: str, names: list[str]) -> str:
     return f"{len(names)} {what}: {', '.join(names[:_SHOWN])}{more}"
 
 
-def _checksum_problem(saved: Mapping[str, Any], sums: np.ndarray) -> str:
+def _checksum_problem(saved: Mapping[str, ArrayLike], sums: np.ndarray) -> str:
     """Which leaves do not hold the data saved under their names, and whose they hold."""
     names = sorted(saved)
     if sums.shape != (len(names),):
@@ -151,7 +154,7 @@ def _checksum_problem(saved: Mapping[str, Any], sums: np.ndarray) -> str:
     return _listed("not holding the data saved under their names (swapped or corrupt)", bad)
 
 
-def _unpack_by_index(template: Any, flat: Mapping[str, Any]) -> Any:
+def _unpack_by_index(template: Tree, flat: Mapping[str, ArrayLike]) -> Tree:
     """The leaf-index format: leaf ``i`` of the template from key ``f"{i:05d}"``."""
     named = named_leaves(template)
     out, used = [], set()
@@ -179,7 +182,7 @@ def _unpack_by_index(template: Any, flat: Mapping[str, Any]) -> Any:
     return jax.tree.unflatten(jax.tree.structure(template), out)
 
 
-def prune(tree: Any, drop: Collection[int] = ()) -> dict[str, Any]:
+def prune(tree: object, drop: Collection[int] = ()) -> dict[str, Any]:
     """``tree``'s leaves as a flat ``{f"{i:05d}": leaf}`` dict, less its zero-size leaves
     and those at ``jax.tree.leaves`` positions ``drop``. A plain dict crosses device
     programs where the tree's own nodes may not: MuJoCo Warp's data types batch their
@@ -188,7 +191,7 @@ def prune(tree: Any, drop: Collection[int] = ()) -> dict[str, Any]:
     return {f"{i:05d}": x for i, x in enumerate(leaves) if i not in drop and math.prod(np.shape(x))}
 
 
-def graft(template: Any, pruned: Mapping[str, Any], fill: Mapping[int, Any]) -> Any:
+def graft(template: Tree, pruned: Mapping[str, jax.Array], fill: Mapping[int, jax.Array]) -> Tree:
     """Inverse of :func:`prune` (inside a compiled program too): the leaves at positions
     ``fill`` from it, zero-size ones as zeros shaped like the template's."""
     leaves, treedef = jax.tree.flatten(template)
@@ -203,7 +206,7 @@ def graft(template: Any, pruned: Mapping[str, Any], fill: Mapping[int, Any]) -> 
     return jax.tree.unflatten(treedef, out)
 
 
-def batch_wide(template: Any, robots: int) -> frozenset[int]:
+def batch_wide(template: object, robots: int) -> frozenset[int]:
     """The ``jax.tree.leaves`` positions of ``template``'s non-empty leaves without the
     robot axis (``robots`` first): MuJoCo Warp's contact buffers and their sizes, none under
     MJX's JAX. Scratch space each physics step refills, kept out of the learner's
@@ -214,7 +217,7 @@ def batch_wide(template: Any, robots: int) -> frozenset[int]:
     )
 
 
-def fresh_batch_wide(template: Any, at: Collection[int]) -> dict[int, np.ndarray]:
+def fresh_batch_wide(template: object, at: Collection[int]) -> dict[int, np.ndarray]:
     """The leaves at ``at`` of ``template`` (arrays or shapes) as every program starts
     them: zeros. MuJoCo Warp's batch-wide leaves are its contact buffers and their counters
     (``nacon``, ``ncollision``), which each physics step zeroes and refills, and which a
