@@ -129,3 +129,23 @@ def test_an_asymmetric_robot_is_refused_for_a_symmetric_policy():
     )
     with pytest.raises(AsymmetricRobotError, match="not mirror-symmetric"):
         mirrors(spec)
+
+
+def test_a_rank_deficient_layout_observes_finite_odometry():
+    """x_square's Jacobian has rank 2: its controller reads the task's pseudo-inverse
+    forward model, so the odometry it observes is finite (NaN made the first epoch of a
+    training run diverge)."""
+    import warnings
+
+    from mecanum_jax.control import step as ctl
+    from mecanum_jax.task import EnvConfig, MecanumEnv
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the layout's SingularLayoutWarning
+        env = MecanumEnv(EnvConfig(robot="x_square"))
+    spec = env.control
+    assert np.all(np.isfinite(spec.forward_matrix))
+    np.testing.assert_allclose(spec.forward_matrix, np.asarray(env.constants.forward_matrix))
+    rates = np.asarray([3.0, -1.0, 2.0, 0.5], np.float32)
+    frame = ctl.frame(spec, rates, np.zeros(1, np.float32), np.zeros(3, np.float32), np)
+    assert np.all(np.isfinite(frame))

@@ -16,7 +16,6 @@ import numpy as np
 
 from mecanum_jax.control import ControllerSpec, ControllerState, policy_layout
 from mecanum_jax.control.state import FIELDS
-from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.sim.description import RobotDescription, fingerprint
 from mecanum_jax.sim.state import GRAVITY
 from mecanum_jax.task.constants import RobotConstants
@@ -103,8 +102,9 @@ def controller_meta(
         "residual_ramp_s": config.residual_ramp_s,
         "max_rates": np.asarray(constants.max_rates).tolist(),
         "command_scale": np.asarray(constants.command_scale).tolist(),
-        "jacobian": np.asarray(kinematics.jacobian(geometry)).tolist(),
-        "forward_matrix": np.asarray(kinematics.forward_matrix(geometry)).tolist(),
+        "jacobian": np.asarray(constants.jacobian).tolist(),
+        # the pseudo-inverse for a rank-deficient layout (x_square), as the task observes it
+        "forward_matrix": np.asarray(constants.forward_matrix).tolist(),
         "gravity": GRAVITY,
         "control_dt": config.control_dt,
     }
