@@ -3,6 +3,7 @@ from it gives the numbers of the one compiled, and a stale or corrupt entry is n
 
 import dataclasses
 import json
+import os
 import subprocess
 import sys
 from types import SimpleNamespace
@@ -111,19 +112,21 @@ def test_the_key_holds_the_config_the_versions_the_devices_and_the_code(tiny):
 
 
 def test_it_is_off_where_it_cannot_serve(monkeypatch):
-    impl = SimpleNamespace(env=SimpleNamespace(robot=SimpleNamespace(impl="jax")))
-    learner = SimpleNamespace(n_processes=1, parallel="pmap", **vars(impl))
-    assert warm_start.why_not(learner, {}) in (None, "the persistent compilation cache is off")
-    assert "MECANUM_WARM_START" in warm_start.why_not(learner, {warm_start.ENV_VAR: "off"})
+    def learner(impl="jax", parallel="pmap", processes=1, devices=1):
+        robot = SimpleNamespace(robot=SimpleNamespace(impl=impl))
+        cpus = jax.devices("cpu")[:1] * devices  # why_not reads their count and platform
+        return SimpleNamespace(
+            n_processes=processes, parallel=parallel, env=robot, n_devices=devices, devices=cpus
+        )
+
+    assert warm_start.why_not(learner(), {}) in (None, "the persistent compilation cache is off")
+    assert "MECANUM_WARM_START" in warm_start.why_not(learner(), {warm_start.ENV_VAR: "off"})
     monkeypatch.setattr("train.loop.compilation_cache.in_force", lambda: "/tmp")
-    assert "Warp" in warm_start.why_not(
-        SimpleNamespace(
-            n_processes=1, parallel="pmap", env=SimpleNamespace(robot=SimpleNamespace(impl="warp"))
-        ),
-        {},
-    )
-    assert "split" in warm_start.why_not(SimpleNamespace(n_processes=1, parallel="split"), {})
-    assert "processes" in warm_start.why_not(SimpleNamespace(n_processes=2), {})
+    assert warm_start.why_not(learner(), {}) is None
+    assert "Warp" in warm_start.why_not(learner(impl="warp"), {})
+    assert "split" in warm_start.why_not(learner(parallel="split"), {})
+    assert "processes" in warm_start.why_not(learner(processes=2), {})
+    assert "several CPU devices" in warm_start.why_not(learner(devices=2), {})
 
 
 @pytest.mark.full
@@ -135,7 +138,12 @@ def test_a_warm_start_of_the_tiny_run_matches_a_cold_one_bit_for_bit(tmp_path):
         out = tmp_path / f"{name}.json"
         cmd = [sys.executable, "-m", "train.tools.coldstart", "--config", "tiny", "--to-end"]
         cmd += ["--compilation-cache", str(tmp_path / "cache"), "--json-out", str(out)]
-        subprocess.run(cmd, check=True, capture_output=True, text=True)
+        # one CPU device, as a user's CPU has (the store is off over several CPU devices)
+        flags = os.environ.get("XLA_FLAGS", "").replace(
+            "--xla_force_host_platform_device_count=2", ""
+        )
+        env = {**os.environ, "XLA_FLAGS": flags}
+        subprocess.run(cmd, check=True, capture_output=True, text=True, env=env)
         return json.loads(out.read_text())
 
     cold, warm = start("cold"), start("warm")
@@ -155,7 +163,6 @@ TRAINER_MODULES = (
     "train.learner.ppo",
     "train.learner.losses",
     "train.learner.split_epoch",
-    "train.learner.distill",
     "train.learner.parallel",
     "train.loop.run",
     "train.loop.aot",

@@ -18,9 +18,9 @@ if its checksum, its stored key and its deserialization all pass; else it is com
 again and rewritten, with a log line.
 
 Off (:func:`why_not`), with a log line, where the store cannot serve: no persistent
-cache, several processes, ``run.parallel = "split"``, MJX's Warp implementation (Warp
-registers its FFI calls when they are traced, so an executable loaded untraced would call
-unregistered targets), or ``MECANUM_WARM_START=off``.
+cache, several processes, several CPU devices, ``run.parallel = "split"``, MJX's Warp
+implementation (Warp registers its FFI calls when they are traced, so an executable loaded
+untraced would call unregistered targets), or ``MECANUM_WARM_START=off``.
 """
 
 from __future__ import annotations
@@ -247,6 +247,11 @@ def why_not(learner: Learner, environ: Mapping[str, str] = os.environ) -> str | 
         return "the persistent compilation cache is off"
     if learner.n_processes > 1:
         return "several processes"
+    if learner.n_devices > 1 and learner.devices[0].platform == "cpu":
+        # XLA:CPU re-serializes a cache hit without all its functions: a stored program
+        # that then fails on one device leaves the other waiting in a collective, and XLA
+        # aborts the process after 40 s (seen in the full tier, jaxlib 0.10.2)
+        return "several CPU devices"
     if learner.parallel == "split":
         return "run.parallel = 'split' compiles per GPU on first use"
     if learner.env.robot.impl == "warp":
