@@ -123,9 +123,10 @@ def controller_spec(
     return spec
 
 
-def broadcasting(fn: Callable[P, R]) -> Callable[P, R]:
-    """``fn`` with JAX's rank promotion allowed: the controller's code broadcasts
-    per-robot values against its constant tables (the array API's broadcasting)."""
+def allow_rank_promotion(fn: Callable[P, R]) -> Callable[P, R]:
+    """``fn`` traced with JAX's implicit rank promotion allowed: the controller's code
+    broadcasts per-robot values against its constant tables (the array API's
+    broadcasting), and Brax's normalizer and distributions rely on it too."""
 
     @functools.wraps(fn)
     def wrapped(*args: P.args, **kwargs: P.kwargs) -> R:
@@ -145,4 +146,10 @@ def with_control(info: Mapping[str, object], state: ControllerState) -> dict[str
     return {**info, **state._asdict()}
 
 
-__all__ = ["broadcasting", "control_state", "controller_meta", "controller_spec", "with_control"]
+__all__ = [
+    "allow_rank_promotion",
+    "control_state",
+    "controller_meta",
+    "controller_spec",
+    "with_control",
+]

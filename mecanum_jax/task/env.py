@@ -49,7 +49,7 @@ from mecanum_jax.task import references as refs
 from mecanum_jax.task.config import EnvConfig
 from mecanum_jax.task.constants import robot_constants
 from mecanum_jax.task.controller import (
-    broadcasting,
+    allow_rank_promotion,
     control_state,
     controller_spec,
     with_control,
@@ -118,7 +118,7 @@ class MecanumEnv(Env):
         params, latency = rand.sample_params(self.constants, k_params, self.config.randomization)
         return self.reset_to(rng, params, latency, self.noise_std())
 
-    @broadcasting
+    @allow_rank_promotion
     def reset_to(
         self, rng: jax.Array, params: RobotParams, latency: jax.Array, noise_std: jax.Array
     ) -> State:
@@ -152,7 +152,7 @@ class MecanumEnv(Env):
         metrics = {k: jnp.asarray(0.0) for k in self.metric_names}
         return State(sim, obs, jnp.asarray(0.0), jnp.asarray(0.0), metrics, info)
 
-    @broadcasting
+    @allow_rank_promotion
     def step(self, state: State, action: jax.Array, reference: jax.Array | None = None) -> State:
         """One control step under ``action``; with ``reference`` (an index into
         :data:`REFERENCES`, may be traced; negative: none) that reference controller's
@@ -201,7 +201,7 @@ class MecanumEnv(Env):
         obs = self._observe(sens, info)
         return state.replace(pipeline_state=sim, obs=obs, reward=reward, metrics=metrics, info=info)
 
-    @broadcasting
+    @allow_rank_promotion
     def set_command(self, state: State, command: jax.Array) -> State:
         """Impose ``command`` from now on (scripted sequences): it replaces the current
         command, in the observations too, and the environment stops resampling."""
@@ -217,7 +217,7 @@ class MecanumEnv(Env):
         obs = {k: v.at[:size].set(policy) for k, v in state.obs.items()}
         return state.replace(obs=obs, info=info)
 
-    @broadcasting
+    @allow_rank_promotion
     def wheel_setpoints(
         self, command: jax.Array, action: jax.Array, info: dict[str, Any] | None = None
     ) -> jax.Array:
@@ -235,7 +235,7 @@ class MecanumEnv(Env):
             gains = ctl.gains(spec, jnp)
         return ctl.setpoints(spec, command, jnp.clip(action, -1.0, 1.0), gyro, integral, gains, jnp)
 
-    @broadcasting
+    @allow_rank_promotion
     def _observe(self, sens: Sensors, info: dict[str, Any]) -> dict[str, jax.Array]:
         policy = ctl.observe(self.control, control_state(info), info["latency"], jnp)
         return obs_.observe(self.constants, sens, info, policy, self.path_scale)

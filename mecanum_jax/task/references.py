@@ -24,7 +24,7 @@ from mecanum_jax.control import step as ctl
 from mecanum_jax.kinematics import limits
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.task.constants import RobotConstants
-from mecanum_jax.task.controller import broadcasting, control_state
+from mecanum_jax.task.controller import allow_rank_promotion, control_state
 from mecanum_jax.task.observations import command_from_obs
 
 Policy = Callable[[dict[str, jax.Array], jax.Array], tuple[jax.Array, dict[str, jax.Array]]]
@@ -117,7 +117,7 @@ def feasible_target(
     return limits.nearest_feasible(geom, command, robot.max_rates, omega_weight)
 
 
-@broadcasting
+@allow_rank_promotion
 def feedback_rates(spec: ControllerSpec, info: dict[str, Any]) -> jax.Array:
     """The ``feedback`` reference's wheel-rate setpoints for the state's ``info`` (the
     robot-side controller's, :func:`mecanum_jax.control.step.feedback_rates`)."""

@@ -239,7 +239,7 @@ def load_policy(
       ``(policy, meta)``; ``meta["policy_params"]`` holds the host arrays
       ``(normalizer, policy_params)`` for export.
     """
-    from train.learner.state import allow_rank_promotion
+    from mecanum_jax.task.controller import allow_rank_promotion
 
     restored = restore_policy(run_dir, seed, epoch)
     params = (restored.normalizer, restored.params)

@@ -43,6 +43,7 @@ from jax.stages import Compiled, Lowered, Wrapped
 from jax.typing import ArrayLike
 
 from mecanum_jax.host import host_side
+from mecanum_jax.task.controller import allow_rank_promotion
 from mecanum_jax.task.env import MecanumEnv, TrainingEnv
 from train.config import TrainConfig
 from train.learner import losses, parallel
@@ -53,7 +54,6 @@ from train.learner.split_epoch import SplitEpoch
 from train.learner.state import (
     TrainingState,
     all_finite,
-    allow_rank_promotion,
     epoch_metrics,
     fresh_state_program,
     make_networks,

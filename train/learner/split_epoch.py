@@ -36,10 +36,11 @@ from brax.training.types import Transition
 from jax.sharding import NamedSharding
 from jax.stages import Wrapped
 
+from mecanum_jax.task.controller import allow_rank_promotion
 from train.config import TrainConfig
 from train.learner.parallel import AXIS
 from train.learner.shapes import Epoch, Metrics, PackedEnv, Updated
-from train.learner.state import TrainingState, allow_rank_promotion, epoch_metrics
+from train.learner.state import TrainingState, epoch_metrics
 
 Tree = TypeVar("Tree")
 Rollouts = tuple[PackedEnv, Transition, jax.Array, Metrics]

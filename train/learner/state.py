@@ -12,7 +12,6 @@ import dataclasses
 import functools
 import math
 from collections.abc import Callable
-from typing import ParamSpec, TypeVar
 
 import flax
 import jax
@@ -31,20 +30,6 @@ from train.config import TrainConfig
 
 # Domain tags: training and evaluation rng streams never meet, whatever the seeds are.
 TRAIN_STREAM = 0x7A1
-P = ParamSpec("P")
-R = TypeVar("R")
-
-
-def allow_rank_promotion(fn: Callable[P, R]) -> Callable[P, R]:
-    """Trace ``fn`` with implicit rank promotion allowed: Brax's normalizer and
-    distributions rely on it (the project's own code does not)."""
-
-    @functools.wraps(fn)
-    def wrapped(*args: P.args, **kwargs: P.kwargs) -> R:
-        with jax.numpy_rank_promotion("allow"):
-            return fn(*args, **kwargs)
-
-    return wrapped
 
 
 @flax.struct.dataclass
@@ -250,7 +235,6 @@ __all__ = [
     "TRAIN_STREAM",
     "TrainingState",
     "all_finite",
-    "allow_rank_promotion",
     "epoch_metrics",
     "fresh_state",
     "fresh_state_program",
