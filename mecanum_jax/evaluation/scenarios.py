@@ -328,9 +328,10 @@ def load_scenarios(
     if not isinstance(include, list) or not all(isinstance(x, str) for x in include):
         raise ConfigError(f"{path}: include = {include!r}: expected a list of file names")
     for other in include:
-        if Path(find_config(other, EVAL_DIR, "scenarios", "scenario file")) in (*_seen, path):
+        found = find_config(other, EVAL_DIR, "scenarios", "scenario file")
+        if found in (*_seen, path):
             raise ConfigError(f"{path}: include = {include!r}: {other!r} includes itself")
-        for sc in load_scenarios(other, (*_seen, path)).scenarios:
+        for sc in load_scenarios(found, (*_seen, path)).scenarios:
             if sc.name in {s.name for s in scenarios}:
                 raise ConfigError(f"{path}: include {other!r}: scenario {sc.name!r} twice")
             scenarios.append(sc)

@@ -123,9 +123,9 @@ def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) ->
         console.log(f"wrote {path}")
         return 0
     path = export_policy(restored, Path(args.out))
-    modules = [path.with_name(m) for m in ("mecanum_policy.py", "mecanum_loop.py")]
-    package = path.with_name("mecanum_control")
-    console.log(f"wrote {path}, {modules[0]}, {modules[1]} and {package}/")
+    modules = sorted({name.split("/")[0] for name in robot_side_files()})  # the package once
+    beside = ", ".join(str(path.with_name(m)) for m in modules)
+    console.log(f"wrote {path} and beside it {beside}")
     return 0
 
 
