@@ -55,6 +55,37 @@ def test_a_loaded_program_gives_the_compiled_ones_numbers_bit_for_bit(tmp_path):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+def test_lowering_from_shapes_finds_the_stored_program_without_tracing(tmp_path):
+    """``Stored.lower`` (as train.loop.aot compiles ahead from shapes): cold, it traces,
+    compiles and writes the program; warm, it traces nothing, and the placed arrays'
+    first call runs the loaded program, with the same numbers."""
+    traced = []
+
+    def program():
+        f = _program()
+
+        def counted(state, x):
+            traced.append(1)
+            return f(state, x)
+
+        return jax.jit(counted)
+
+    shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), x.dtype), _args())
+    cold_store = _store(tmp_path)
+    cold_fn = warm_start.Stored(program(), "f", cold_store)
+    cold = cold_fn.lower(*shapes).compile()(*_args())
+    assert cold_store.written == ["f"]
+    assert len(traced) == 1
+    warm_store = _store(tmp_path)
+    warm_fn = warm_start.Stored(program(), "f", warm_store)
+    warm = warm_fn.lower(*shapes).compile()(*_args())
+    assert warm_store.loaded == ["f"]
+    assert warm_store.written == []
+    assert len(traced) == 1  # the warm lowering traced nothing
+    for a, b in zip(jax.tree.leaves(cold), jax.tree.leaves(warm), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
 def test_a_stale_entry_is_not_used(tmp_path):
     warm_start.Stored(_program(), "f", _store(tmp_path, {"run": "a"}))(*_args())
     other = _store(tmp_path, {"run": "b"})  # e.g. another code hash
@@ -123,7 +154,7 @@ def test_it_is_off_where_it_cannot_serve(monkeypatch):
     assert "MECANUM_WARM_START" in warm_start.why_not(learner(), {warm_start.ENV_VAR: "off"})
     monkeypatch.setattr("train.loop.compilation_cache.in_force", lambda: "/tmp")
     assert warm_start.why_not(learner(), {}) is None
-    assert "Warp" in warm_start.why_not(learner(impl="warp"), {})
+    assert warm_start.why_not(learner(impl="warp"), {}) is None  # (warp_targets.py)
     assert "split" in warm_start.why_not(learner(parallel="split"), {})
     assert "processes" in warm_start.why_not(learner(processes=2), {})
     assert "several CPU devices" in warm_start.why_not(learner(devices=2), {})
@@ -188,3 +219,54 @@ def test_evaluating_a_saved_model_imports_no_trainer():
     out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
     imported = set(json.loads(out.strip().splitlines()[-1]))
     assert not imported & set(TRAINER_MODULES)
+
+
+WARP_PROGRAM = """
+import json, sys
+from pathlib import Path
+import jax, jax.numpy as jnp
+from mecanum_jax.task import MecanumEnv
+from mecanum_jax.task.config import EnvConfig
+from train.loop import warm_start, warp_targets
+
+env = MecanumEnv(EnvConfig(physics_impl="warp"))
+tracers = [warp_targets.step_tracer(env.robot, env.substeps)] if sys.argv[2] == "on" else []
+lines = []
+store = warm_start.Store(Path(sys.argv[1]), {"run": "warp"}, lines.append, tracers)
+
+def rollout(key):
+    state = jax.vmap(env.reset)(jax.random.split(key, 8))
+    def tick(s, _):
+        s = jax.vmap(env.step)(s, jnp.full((8, env.action_size), 0.3))
+        return s, s.reward
+    return jax.lax.scan(tick, state, None, length=3)[1]
+
+rewards = warm_start.Stored(jax.jit(rollout), "rollout", store)(jax.random.PRNGKey(0))
+print(json.dumps({"rewards": jnp.asarray(rewards).tolist(), "loaded": store.loaded,
+                  "written": store.written, "log": lines}))
+"""
+
+
+@pytest.mark.full
+def test_a_warp_program_loads_into_a_fresh_process_once_its_ffi_targets_are_made(tmp_path):
+    """MuJoCo Warp's FFI targets exist only once a call is traced: a fresh process loads a
+    stored Warp rollout after warp_targets.register made them (and gets its numbers);
+    without the tracer that makes them the entry is refused and compiled again."""
+    pytest.importorskip("warp")
+
+    def start(tracers):
+        cmd = [sys.executable, "-c", WARP_PROGRAM, str(tmp_path), tracers]
+        out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
+        return json.loads(out.strip().splitlines()[-1])
+
+    cold = start("on")
+    assert cold["written"] == ["rollout"]
+    assert cold["loaded"] == []
+    warm = start("on")
+    assert warm["loaded"] == ["rollout"]
+    assert warm["written"] == []
+    assert warm["rewards"] == cold["rewards"]
+    blind = start("off")  # a process that cannot make the targets does not trust the file
+    assert blind["loaded"] == []
+    assert any("Warp FFI targets" in line for line in blind["log"])
+    assert blind["rewards"] == cold["rewards"]

@@ -18,9 +18,10 @@ if its checksum, its stored key and its deserialization all pass; else it is com
 again and rewritten, with a log line.
 
 Off (:func:`why_not`), with a log line, where the store cannot serve: no persistent
-cache, several processes, several CPU devices, ``run.parallel = "split"``, MJX's Warp
-implementation (Warp registers its FFI calls when they are traced, so an executable loaded
-untraced would call unregistered targets), or ``MECANUM_WARM_START=off``.
+cache, several processes, several CPU devices, ``run.parallel = "split"``, or
+``MECANUM_WARM_START=off``. Under MJX's Warp implementation, whose FFI targets exist only
+once a call is traced, a stored program records the targets it calls and a warm start
+makes them first (train/loop/warp_targets.py).
 """
 
 from __future__ import annotations
@@ -37,17 +38,18 @@ from typing import TYPE_CHECKING, Any
 
 import jax
 import numpy as np
-from jax.stages import Compiled, Lowered, Wrapped
+from jax.stages import Compiled, Wrapped
 from jax.tree_util import PyTreeDef
 
 import mecanum_jax
 import train
+from train.loop import warp_targets
 
 if TYPE_CHECKING:
     from train.config import TrainConfig
     from train.learner.ppo import Learner
 
-MAGIC = b"mecanum-jax executable 1\n"
+MAGIC = b"mecanum-jax executable 2\n"
 SUFFIX = ".jaxexe"
 SUBDIR = "mecanum-programs"
 ENV_VAR = "MECANUM_WARM_START"
@@ -61,8 +63,8 @@ JAX_FLAGS = (
 Log = Callable[[str], None]
 Key = dict[str, object]
 """A program's key: JSON-ready values (:func:`run_key`, plus the program's own)."""
-Aval = tuple[tuple[int, ...], str, bool, object]
-"""An argument's shape, dtype, weak type and sharding (:func:`_aval`)."""
+Aval = tuple[tuple[int, ...], str, bool]
+"""An argument's shape, dtype and weak type (:func:`_aval`)."""
 Signature = tuple[PyTreeDef, tuple[Aval, ...]]
 
 
@@ -105,10 +107,15 @@ def run_key(cfg: TrainConfig, devices: Sequence[jax.Device]) -> Key:
 class Store:
     """Compiled programs in a directory, each file keyed, checksummed and checked on load."""
 
-    def __init__(self, directory: Path, key: Key, log: Log):
+    def __init__(
+        self, directory: Path, key: Key, log: Log, tracers: Sequence[warp_targets.Tracer] = ()
+    ):
+        """``tracers``: where the programs call MuJoCo Warp, what makes its FFI targets in
+        a fresh process (:func:`train.loop.warp_targets.register`)."""
         self.directory = directory
         self.key = key
         self.log = log
+        self.tracers = tuple(tracers)
         self.loaded: list[str] = []
         self.written: list[str] = []
 
@@ -127,7 +134,10 @@ class Store:
             header, payload = _unframe(blob)
             if header != json.loads(json.dumps(full_key, default=repr)):
                 raise ValueError("its key differs (a stale entry)")
-            compiled = _deserialize(*pickle.loads(payload))
+            serialized, in_tree, out_tree, devices, targets = pickle.loads(payload)
+            if targets and not warp_targets.register(targets, self.tracers):
+                raise ValueError("its MuJoCo Warp FFI targets cannot be made here")
+            compiled = _deserialize(serialized, in_tree, out_tree, devices)
         except Exception as err:  # anything wrong with the file: never trusted
             self.log(f"warm start: {name}: {path.name} unusable ({err}); compiling it again")
             path.unlink(missing_ok=True)
@@ -142,7 +152,8 @@ class Store:
 
         try:
             devices = [d.id for d in compiled.runtime_executable().local_devices()]
-            payload = pickle.dumps((*serialize_executable.serialize(compiled), devices))
+            targets = warp_targets.used(compiled.as_text()) if self.tracers else []
+            payload = pickle.dumps((*serialize_executable.serialize(compiled), devices, targets))
         except Exception as err:
             self.log(f"warm start: {name} cannot be stored ({err}); it compiles on each start")
             return
@@ -186,55 +197,93 @@ def _unframe(blob: bytes) -> tuple[object, bytes]:
 class Stored:
     """A jitted (or pmapped) function whose compiled programs come from a :class:`Store`:
     called, it runs the program for its arguments' signature, loaded, or compiled (and
-    written) on first use; :meth:`lower` is the function's own."""
+    written) on first use; :meth:`lower` looks the program up first and traces only when
+    it is not stored (``train.loop.aot`` compiles through it)."""
 
     def __init__(self, fn: Wrapped, name: str, store: Store):
         self.fn = fn
         self.name = name
         self.store = store
         self._programs: dict[Signature, Compiled] = {}
+        self._checked: set[Signature] = set()
         self._lock = threading.Lock()  # (the baseline's evaluation runs in a thread)
 
-    def lower(self, *args: Any) -> Lowered:
-        return self.fn.lower(*args)
+    def lower(self, *args: Any) -> StoredLowering:
+        return StoredLowering(self, args)
 
     def __call__(self, *args: Any) -> Any:
-        leaves, tree = jax.tree.flatten(args)
-        sig = (tree, tuple(_aval(x) for x in leaves))
+        sig = _signature(args)
         with self._lock:
             program = self._programs.get(sig)
             if program is None:
-                program, out = self._first_call(args, sig)
-                self._programs[sig] = program
-                return out
+                program = self.load(sig) or self.adopt(sig, self.fn.lower(*args).compile())
+            if sig not in self._checked:
+                return self._first_run(program, args, sig)
         return program(*args)
 
-    def _first_call(self, args: tuple[Any, ...], sig: Signature) -> tuple[Compiled, Any]:
-        """The program for ``sig`` and its first outputs. The program is the stored one,
-        loaded, or written now and read back, so a cold start runs what a warm one will;
-        its first run is waited for, and one that fails (XLA:CPU of jaxlib 0.10.2 wrote an
-        executable it had read from the persistent cache without all its functions) is
-        dropped, the program compiled and run instead, and not stored."""
-        full_key = {**self.store.key, "program": self.name, "signature": repr(sig)}
-        program = self.store.load(self.name, full_key)
-        if program is None:
-            compiled = self.fn.lower(*args).compile()
-            self.store.save(self.name, full_key, compiled)
-            program = self.store.load(self.name, full_key, read_back=True) or compiled
+    def full_key(self, sig: Signature) -> Key:
+        return {**self.store.key, "program": self.name, "signature": repr(sig)}
+
+    def load(self, sig: Signature) -> Compiled | None:
+        """The stored program for ``sig`` (``None``: not stored, or unusable)."""
+        program = self._programs.get(sig) or self.store.load(self.name, self.full_key(sig))
+        if program is not None:
+            self._programs[sig] = program
+        return program
+
+    def adopt(self, sig: Signature, compiled: Compiled) -> Compiled:
+        """``compiled``, just compiled for ``sig``, written and read back, so a cold start
+        runs what a warm one will."""
+        full_key = self.full_key(sig)
+        self.store.save(self.name, full_key, compiled)
+        program = self.store.load(self.name, full_key, read_back=True) or compiled
+        self._programs[sig] = program
+        return program
+
+    def _first_run(self, program: Compiled, args: tuple[Any, ...], sig: Signature) -> Any:
+        """The program's first outputs, waited for. One that fails (XLA:CPU of jaxlib
+        0.10.2 wrote an executable it had read from the persistent cache without all its
+        functions) is dropped, the program compiled and run instead, and not stored."""
         try:
-            return program, jax.block_until_ready(program(*args))
+            out = jax.block_until_ready(program(*args))
         except Exception as err:  # the stored executable is broken: never used again
             self.store.log(f"warm start: {self.name} failed to run ({err}); compiled instead")
-            self.store.path(full_key).unlink(missing_ok=True)
-            compiled = self.fn.lower(*args).compile()
-            return compiled, compiled(*args)
+            self.store.path(self.full_key(sig)).unlink(missing_ok=True)
+            program = self._programs[sig] = self.fn.lower(*args).compile()
+            out = program(*args)
+        self._checked.add(sig)
+        return out
+
+
+class StoredLowering:
+    """What :meth:`Stored.lower` gives for arguments (arrays or ``ShapeDtypeStruct``s):
+    the stored program where there is one, nothing traced; else the function traced and
+    lowered now, on this thread (MuJoCo Warp numbers its calls in trace order). Its
+    :meth:`compile` (on any thread) compiles and writes what is not stored, and returns
+    the :class:`Stored` function, whose first call runs it, checked."""
+
+    def __init__(self, stored: Stored, args: tuple[Any, ...]):
+        self.stored = stored
+        self.sig = _signature(args)
+        self.lowered = None if stored.load(self.sig) else stored.fn.lower(*args)
+
+    def compile(self) -> Stored:
+        if self.lowered is not None:
+            self.stored.adopt(self.sig, self.lowered.compile())
+        return self.stored
+
+
+def _signature(args: tuple[Any, ...]) -> Signature:
+    leaves, tree = jax.tree.flatten(args)
+    return tree, tuple(_aval(x) for x in leaves)
 
 
 def _aval(x: Any) -> Aval:
+    """Shape, dtype and weak type; not the placement, which the run's key (its config
+    and devices) fixes, so a program lowered from shapes serves the placed arrays."""
     weak = bool(getattr(x, "weak_type", False))
-    sharding = x.sharding if isinstance(x, jax.Array) and x.committed else None
     dtype = x.dtype if hasattr(x, "dtype") else np.result_type(x)
-    return (np.shape(x), str(dtype), weak, sharding)
+    return (np.shape(x), str(dtype), weak)
 
 
 def why_not(learner: Learner, environ: Mapping[str, str] = os.environ) -> str | None:
@@ -254,8 +303,6 @@ def why_not(learner: Learner, environ: Mapping[str, str] = os.environ) -> str | 
         return "several CPU devices"
     if learner.parallel == "split":
         return "run.parallel = 'split' compiles per GPU on first use"
-    if learner.env.robot.impl == "warp":
-        return "MuJoCo Warp registers its FFI calls when traced"
     return None
 
 
@@ -273,7 +320,10 @@ def attach(learner: Any, log: Log = print) -> Any:
 
     directory = compilation_cache.in_force()
     assert directory is not None
-    store = Store(directory / SUBDIR, run_key(learner.cfg, learner.devices), log)
+    env = learner.env
+    warp = env.robot.impl == "warp"
+    tracers = [warp_targets.step_tracer(env.robot, env.substeps)] if warp else []
+    store = Store(directory / SUBDIR, run_key(learner.cfg, learner.devices), log, tracers)
     # the learner's and the evaluator's jitted programs, wrapped in place (their calls
     # and lowerings go through the wrappers unchanged)
     learner._reset = Stored(learner._reset, "reset", store)

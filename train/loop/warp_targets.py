@@ -1,0 +1,115 @@
+"""MuJoCo Warp's FFI targets, for executables that are loaded without being traced.
+
+MJX's Warp implementation calls its kernels through XLA FFI targets that Warp registers
+when a call is first traced (``mujoco.mjx.warp.ffi.jax_callable_variadic_tuple``), one per
+call structure (the shim, the model's and data's layout, the batch), named in the order
+they were made (``..._func_wrapper_0``, ``_1``, ...). An executable compiled in one process
+names the targets of that process; loaded into a fresh one, which has traced nothing,
+those targets do not exist and XLA refuses it (``No FFI handler registered``).
+
+:func:`used` records, when a program is stored, each Warp target it calls: its name, a
+fingerprint of its call structure and its batch. :func:`register` makes them in a fresh
+process before the program is loaded: in the order of their numbers, each by tracing (not
+running) one physics step of the robot at its batch (``jax.eval_shape``), which is what made
+it in the first place; it succeeds only if every target then exists under its name with its
+fingerprint, so an executable never calls a target of another structure. Where it does
+not, the program is compiled as usual (train/loop/warm_start.py).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+Target = dict[str, object]
+"""A Warp target a program calls: ``name``, ``fingerprint``, ``batch``."""
+Tracer = Callable[[int], None]
+"""Traces one physics step at a batch (:func:`step_tracer`)."""
+
+_CALL = re.compile(r'custom_call_target="([^"]+)"')
+_NUMBER = re.compile(r"_(\d+)$")
+
+
+def _registry() -> dict[tuple[Any, ...], Any]:
+    """MJX's Warp callables by their call structure ({} without MJX's Warp implementation)."""
+    try:
+        from mujoco.mjx.warp import ffi
+    except ImportError:  # no warp extra: no Warp targets anywhere
+        return {}
+    return dict(ffi._JAX_CALLABLE_VARIADIC_TUPLE_REGISTRY)
+
+
+def fingerprint(key: tuple[Any, ...]) -> str:
+    """A callable's call structure as a digest that is the same in every process: the
+    shim by its qualified name, then the flattened signature, the pytree, the output
+    count and shapes and the remaining options as they print."""
+    func, *rest = key
+    text = repr((func.__module__, func.__qualname__, *rest))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _batch(key: tuple[Any, ...]) -> int:
+    """The robots per call: the leading size of the outputs (``output_dims``)."""
+    dims = dict(key[6] or ())
+    shape = dims.get("act") or next(iter(dims.values()), (1,))
+    return int(shape[0])
+
+
+def used(hlo_text: str) -> list[Target]:
+    """The Warp targets a compiled program's HLO text calls, by number."""
+    names = set(_CALL.findall(hlo_text))
+    found = [
+        {"name": c.name, "fingerprint": fingerprint(k), "batch": _batch(k)}
+        for k, c in _registry().items()
+        if c.name in names
+    ]
+    return sorted(found, key=_number)
+
+
+def _number(target: Target) -> int:
+    match = _NUMBER.search(str(target["name"]))
+    return int(match.group(1)) if match else -1
+
+
+def _missing(targets: Sequence[Target]) -> list[Target]:
+    have = {c.name: fingerprint(k) for k, c in _registry().items()}
+    return [t for t in targets if have.get(str(t["name"])) != t["fingerprint"]]
+
+
+def register(targets: Sequence[Target], tracers: Sequence[Tracer]) -> bool:
+    """Make ``targets`` (:func:`used`'s) in this process, tracing a physics step with each
+    of ``tracers`` at each missing target's batch, in the order of their numbers; whether
+    every target then exists under its name with its structure."""
+    for target in sorted(targets, key=_number):
+        for trace in tracers:
+            if target not in _missing([target]):
+                break
+            trace(int(str(target["batch"])))
+    return not _missing(targets)
+
+
+def step_tracer(robot: Any, substeps: int) -> Tracer:
+    """Traces ``robot``'s physics step at a batch as a program does: once unbatched for a
+    batch of 1 (a reset's step), else vmapped over that many robots (a rollout's)."""
+
+    def trace(batch: int) -> None:
+        params = robot.nominal_params()
+
+        def one(p: Any) -> Any:
+            return robot.step(robot.reset(p), jnp.zeros(robot.n_wheels), p, substeps)
+
+        if batch == 1:
+            jax.eval_shape(one, params)
+        else:
+            lead = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *jnp.shape(x))), params)
+            jax.eval_shape(jax.vmap(one), lead)
+
+    return trace
+
+
+__all__ = ["Target", "Tracer", "fingerprint", "register", "step_tracer", "used"]
