@@ -10,6 +10,10 @@ without tracing. A cold start compiles each as ``jit(...).lower(...).compile()``
 and writes it; a warm one runs the executable it wrote, so the two give the same numbers
 bit for bit.
 
+The baseline's first evaluation is kept the same way (:meth:`Store.remember`): its
+figures on the run's fixed episodes are a pure function of the key, and under MuJoCo Warp
+they are on the critical path (the first epoch waits for them: ``aot.first_runs_alone``).
+
 Each entry is keyed by everything its program depends on (:func:`run_key`): the resolved
 config, the robot, the versions of jax, jaxlib, MuJoCo, MJX, Warp, Brax, Flax and optax,
 the devices, ``XLA_FLAGS``, JAX's numerics flags, a hash of the ``mecanum_jax`` and
@@ -34,7 +38,7 @@ import pickle
 import threading
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import jax
 import numpy as np
@@ -61,6 +65,7 @@ JAX_FLAGS = (
     "jax_default_prng_impl",
 )
 Log = Callable[[str], None]
+T = TypeVar("T")
 Key = dict[str, object]
 """A program's key: JSON-ready values (:func:`run_key`, plus the program's own)."""
 Aval = tuple[tuple[int, ...], str, bool]
@@ -122,25 +127,44 @@ class Store:
     def path(self, full_key: Key) -> Path:
         return self.directory / f"{_digest(full_key)[:40]}{SUFFIX}"
 
+    def _payload(self, full_key: Key) -> bytes | None:
+        """The payload kept under ``full_key`` (``None``: none); raises if the file is not
+        this key's intact entry."""
+        try:
+            blob = self.path(full_key).read_bytes()
+        except FileNotFoundError:
+            return None
+        header, payload = _unframe(blob)
+        if header != json.loads(json.dumps(full_key, default=repr)):
+            raise ValueError("its key differs (a stale entry)")
+        return payload
+
+    def _write(self, name: str, full_key: Key, payload: bytes) -> None:
+        path = self.path(full_key)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".tmp{os.getpid()}")
+        tmp.write_bytes(_frame(full_key, payload))
+        os.replace(tmp, path)  # atomically: never a partial file under the final name
+        self.written.append(name)
+
+    def _unusable(self, name: str, full_key: Key, err: Exception) -> None:
+        path = self.path(full_key)
+        self.log(f"warm start: {name}: {path.name} unusable ({err}); made again")
+        path.unlink(missing_ok=True)
+
     def load(self, name: str, full_key: Key, read_back: bool = False) -> Compiled | None:
         """The program stored under ``full_key``, or ``None`` (absent, stale or corrupt:
         logged, and the file removed); ``read_back``: just written, not counted as loaded."""
-        path = self.path(full_key)
         try:
-            blob = path.read_bytes()
-        except FileNotFoundError:
-            return None
-        try:
-            header, payload = _unframe(blob)
-            if header != json.loads(json.dumps(full_key, default=repr)):
-                raise ValueError("its key differs (a stale entry)")
+            payload = self._payload(full_key)
+            if payload is None:
+                return None
             serialized, in_tree, out_tree, devices, targets = pickle.loads(payload)
             if targets and not warp_targets.register(targets, self.tracers):
                 raise ValueError("its MuJoCo Warp FFI targets cannot be made here")
             compiled = _deserialize(serialized, in_tree, out_tree, devices)
         except Exception as err:  # anything wrong with the file: never trusted
-            self.log(f"warm start: {name}: {path.name} unusable ({err}); compiling it again")
-            path.unlink(missing_ok=True)
+            self._unusable(name, full_key, err)
             return None
         if not read_back:
             self.loaded.append(name)
@@ -157,12 +181,24 @@ class Store:
         except Exception as err:
             self.log(f"warm start: {name} cannot be stored ({err}); it compiles on each start")
             return
-        path = self.path(full_key)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".tmp{os.getpid()}")
-        tmp.write_bytes(_frame(full_key, payload))
-        os.replace(tmp, path)
-        self.written.append(name)
+        self._write(name, full_key, payload)
+
+    def remember(self, name: str, compute: Callable[[], T]) -> T:
+        """``compute()``'s value, kept under this store's key: read back where it was kept
+        (for a pure function of the key: the baseline's figures on the run's episodes),
+        else computed and written; an unusable file is computed again."""
+        full_key = {**self.key, "value": name}
+        try:
+            payload = self._payload(full_key)
+            if payload is not None:
+                value: T = pickle.loads(payload)
+                self.loaded.append(name)
+                return value
+        except Exception as err:  # never trusted
+            self._unusable(name, full_key, err)
+        value = compute()
+        self._write(name, full_key, pickle.dumps(value))
+        return value
 
 
 def _deserialize(
@@ -307,9 +343,10 @@ def why_not(learner: Learner, environ: Mapping[str, str] = os.environ) -> str | 
 
 
 def attach(learner: Any, log: Log = print) -> Any:
-    """Serve ``learner``'s reset, epoch and evaluation rollout from a :class:`Store` in the
-    compilation cache's directory (once per learner; :func:`store_of` gives it), unless
-    :func:`why_not` (said in a log line). Returns ``learner``."""
+    """Serve ``learner``'s reset, epoch and evaluation rollout, and the baseline's figures,
+    from a :class:`Store` in the compilation cache's directory (once per learner;
+    :func:`store_of` gives it), unless :func:`why_not` (said in a log line). Returns
+    ``learner``."""
     if store_of(learner) is not None:
         return learner
     reason = why_not(learner)
@@ -329,6 +366,8 @@ def attach(learner: Any, log: Log = print) -> Any:
     learner._reset = Stored(learner._reset, "reset", store)
     learner._parallel_epoch = Stored(learner._parallel_epoch, "epoch", store)
     learner.evaluation.store_programs(lambda fn: Stored(fn, "rollout", store))
+    baseline = learner.evaluate_baseline  # its figures: a pure function of the key
+    learner.evaluate_baseline = lambda ts: store.remember("baseline", lambda: baseline(ts))
     learner.warm_store = store
     return learner
 
