@@ -161,27 +161,6 @@ def test_the_loop_keeps_the_leaky_yaw_integral_with_the_tracked_command(shipped_
     assert obs_err > 1e-3
 
 
-def test_the_loop_observes_the_path_error_and_the_commands_phase(shipped_task):
-    """A policy that observes the measured path error and the command's phase (how long the
-    command has been held, rising to 1 over command_phase_s): the loop's observations are
-    the environment's, and the phase restarts at each change."""
-    task = dataclasses.replace(shipped_task, path_tau=3.0, command_phase_s=0.1)
-    env = MecanumEnv(task)
-    ctrl = Controller(network_free(env))
-    phase = ctrl.spec.entry("command_phase")
-    commands = np.repeat(np.array([[0.3, 0.0, 0.5], [0.0, -0.4, -1.5]]), 8, 0)
-    obs_err, set_err, _ = _lockstep(env, ctrl, commands.astype(np.float32), 0)
-    assert obs_err < 1e-5
-    assert set_err < 1e-3
-    ctrl.reset()
-    seen = []
-    for c in commands:
-        ctrl.step(c, np.zeros(4), 0.0, np.array([0.0, 0.0, 9.81]))
-        seen.append(float(ctrl.observation[phase][0]))
-    np.testing.assert_allclose(seen[:8], [0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 1.0, 1.0], atol=1e-6)
-    assert seen[8] == 0.0  # the new command's first period
-
-
 def test_a_layout_entry_the_loop_does_not_keep_is_refused(controller):
     """An export whose layout has a state the controller does not keep is refused, naming
     it (a new state is a field of mecanum_jax.control.ControllerState and a step of it)."""

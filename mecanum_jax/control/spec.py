@@ -38,7 +38,6 @@ def policy_layout(
     feedback_integral: bool = False,
     history: int = 0,
     path_error: bool = False,
-    command_phase: bool = False,
 ) -> Layout:
     """The policy observation's entries and their sizes, in order; ``history`` earlier
     sensor frames come last."""
@@ -56,8 +55,6 @@ def policy_layout(
         layout = (*layout, ("feedback_integral", 1))
     if path_error:
         layout = (*layout, ("path_error", 3))
-    if command_phase:
-        layout = (*layout, ("command_phase", 1))
     if history > 0:
         layout = (*layout, ("sensor_history", history * sensor_size(n_wheels)))
     return layout
@@ -111,7 +108,6 @@ class ControllerSpec:
     forward_matrix: np.ndarray
     feedback: FeedbackSpec
     symmetric: bool = False
-    command_phase_s: float = 0.0
 
     @property
     def n_wheels(self) -> int:
@@ -178,7 +174,6 @@ class ControllerSpec:
             forward_matrix=f32(meta["forward_matrix"]),
             feedback=feedback,
             symmetric=bool(meta.get("symmetric") or False),
-            command_phase_s=float(meta.get("command_phase_s") or 0.0),
         )
 
 

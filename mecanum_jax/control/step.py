@@ -95,9 +95,6 @@ def observe(spec: ControllerSpec, state: ControllerState, latency: Any, xp: Any)
         parts.append(state.feedback_integral[..., None] / float(scale[2]))
     if spec.path_tau > 0:
         parts.append(state.path_error / xp.asarray(spec.path_tau * scale))
-    if spec.command_phase_s > 0:
-        age = xp.astype(state.command_age[..., None], xp.float32)
-        parts.append(xp.minimum(age * (spec.control_dt / spec.command_phase_s), 1.0))
     if spec.obs_history > 0:
         past = xp.take(state.history, latency + 1 + xp.arange(spec.obs_history), axis=0)
         parts.append(xp.reshape(past, (-1,)))

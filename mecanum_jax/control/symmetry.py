@@ -70,8 +70,6 @@ def _entry_map(name: str, size: int, signs: Any, wheels: Map, spec: ControllerSp
         return scalar
     if name == "accel":
         return accel
-    if name == "command_phase":  # a time: every mirror leaves it as it is
-        return (np.zeros(1, int), np.ones(1, np.float32))
     if name == "last_action":
         return twist if spec.twist_residual else wheels
     if name == "sensor_history":

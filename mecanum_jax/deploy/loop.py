@@ -50,7 +50,7 @@ else:  # pragma: no cover - copied beside an export, next to mecanum_policy.py
 
 KNOWN = (
     "command", "wheel_rate", "gyro_z", "accel", "odometry_twist", "last_action",
-    "yaw_error_integral", "feedback_integral", "path_error", "command_phase", "sensor_history",
+    "yaw_error_integral", "feedback_integral", "path_error", "sensor_history",
 )  # fmt: skip
 """The observation entries the controller keeps."""
 

@@ -86,9 +86,6 @@ class EnvConfig:
     with τ (mecanum_jax.control.step.path_step); the critic sees the true one. It is what
     a scripted sequence's drift measures, which the twist alone cannot show.
 
-    command_phase_s = T > 0 adds how long the command has been held, min(age / T, 1): the
-    policy can tell a transient from a held command, and correct them differently.
-
     symmetric = true averages the policy over the robot's mirror group (left-right,
     front-back, half turn; mecanum_jax.control.symmetry): a command a mirror leaves
     unchanged gets a correction that mirror leaves unchanged, exactly.
@@ -131,8 +128,6 @@ class EnvConfig:
     MAX_OBS_HISTORY; 0: none)."""
     path_tau: float = 0.0
     """Time constant of the observed leaky path error, s (>= 0; 0: off)."""
-    command_phase_s: float = 0.0
-    """The command's age observed, as a phase rising to 1 over this many s (>= 0; 0: off)."""
     symmetric: bool = False
     """The policy is averaged over the robot's mirror group (exactly equivariant)."""
     commands: CommandConfig = CommandConfig()
@@ -208,7 +203,7 @@ class EnvConfig:
         require(
             self,
             where,
-            ("yaw_integral_tau", "path_tau", "residual_ramp_s", "command_phase_s"),
+            ("yaw_integral_tau", "path_tau", "residual_ramp_s"),
             lambda v: v >= 0,
             "must be >= 0 (0: off)",
         )

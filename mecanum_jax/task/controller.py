@@ -46,8 +46,6 @@ class ControllerConfig(Protocol):
     @property
     def path_tau(self) -> float: ...
     @property
-    def command_phase_s(self) -> float: ...
-    @property
     def symmetric(self) -> bool: ...
     @property
     def obs_history(self) -> int: ...
@@ -81,7 +79,6 @@ def controller_meta(
         feedback_base,
         config.obs_history,
         config.path_tau > 0,
-        config.command_phase_s > 0,
     )
     geometry = constants.geometry
     return {
@@ -97,7 +94,6 @@ def controller_meta(
         "feedback": dataclasses.asdict(config.feedback),
         "yaw_integral_tau": config.yaw_integral_tau,
         "path_tau": config.path_tau,
-        "command_phase_s": config.command_phase_s,
         "symmetric": config.symmetric,
         "obs_history": config.obs_history,
         "action_filter": config.action_filter,
