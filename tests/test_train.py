@@ -16,9 +16,7 @@ from learners import deterministic_policy, final_train_state, random_obs
 
 from mecanum_jax.config import ConfigError
 from train.cli import train as cli
-from train.config import (
-    parse_train_config,
-)
+from train.config_loading import parse_train_config
 from train.learner.policy import load_policy, restore_policy
 from train.learner.ppo import Learner
 from train.loop.run import Run, RunDirError, TrainingDiverged

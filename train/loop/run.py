@@ -37,7 +37,8 @@ from rich.console import Console
 
 from mecanum_jax import atomic
 from mecanum_jax.precision import set_matmul_precision
-from train.config import TrainConfig, config_diff
+from train.config import TrainConfig
+from train.config_loading import config_diff
 from train.learner.periodic import Result, beats, compare
 from train.learner.ppo import Learner, first_device, to_host
 from train.loop import aot, divergence, warm_start
