@@ -161,6 +161,8 @@ def test_a_warm_start_of_the_tiny_run_matches_a_cold_one_bit_for_bit(tmp_path):
 
 TRAINER_MODULES = (
     "train.learner.ppo",
+    "train.learner.iteration",
+    "train.learner.transfer",
     "train.learner.losses",
     "train.learner.split_epoch",
     "train.learner.parallel",

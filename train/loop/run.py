@@ -40,7 +40,8 @@ from mecanum_jax.precision import set_matmul_precision
 from train.config import TrainConfig
 from train.config_loading import config_diff
 from train.learner.periodic import Result, beats, compare
-from train.learner.ppo import Learner, first_device, to_host
+from train.learner.ppo import Learner
+from train.learner.transfer import first_device, to_host
 from train.loop import aot, divergence, warm_start
 from train.loop import run_records as records
 from train.loop.aot import first_runs_alone
