@@ -167,6 +167,7 @@ TRAINER_MODULES = (
     "train.learner.split_epoch",
     "train.learner.parallel",
     "train.loop.run",
+    "train.loop.run_steps",
     "train.loop.aot",
     "train.loop.warm_start",
 )

@@ -41,8 +41,9 @@ from train.config_loading import TRAIN_CONFIG_DIR, apply_flags, load_train_confi
 from train.loop import compilation_cache, curve
 from train.loop.distributed import init_distributed
 from train.loop.progress import print_error
-from train.loop.run import Run, RunDirError, TrainingDiverged
+from train.loop.run import Run, RunDirError
 from train.loop.run_records import write_json
+from train.loop.run_steps import TrainingDiverged
 from train.store import checkpoint, inputs, lock
 
 console = Console(stderr=True)
