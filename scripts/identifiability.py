@@ -35,7 +35,7 @@ from mecanum_jax.evaluation import metrics
 from mecanum_jax.kinematics import limits
 from mecanum_jax.task import MecanumEnv
 from mecanum_jax.task.references import REFERENCES
-from train.config import load_train_config
+from train.config_loading import load_train_config
 
 Predictor = Callable[[np.ndarray], np.ndarray]
 """A fitted predictor: features in, twist errors (vx, vy, ωz) out."""

@@ -172,7 +172,7 @@ def _release_compiled_programs():
 
 @pytest.fixture(scope="session")
 def tiny():
-    from train.config import load_train_config
+    from train.config_loading import load_train_config
 
     return load_train_config("tiny")
 

@@ -15,7 +15,8 @@ from mecanum_jax.config import ConfigError
 from mecanum_jax.kinematics import limits
 from mecanum_jax.task import EnvConfig, FeedbackConfig, MecanumEnv, RandomizationConfig
 from mecanum_jax.task.anchor import YAW, exact_components, is_nominal
-from train.config import TrainConfig, load_train_config, parse_train_config
+from train.config import TrainConfig
+from train.config_loading import load_train_config, parse_train_config
 from train.learner.losses import anchor_loss, ppo_loss_with_terms, state_extras
 from train.learner.state import make_networks
 from train.loss_config import AnchorConfig

@@ -23,7 +23,7 @@ def test_compiling_together_leaves_the_first_runs_nothing_to_compile(learner, mo
     and the epoch before any of them runs (under Warp, where they run one after the
     other): their first runs then compile nothing, and they were traced in the order every
     such start keeps (Warp's FFI numbers follow it): the reset, the epoch, the evaluation."""
-    from train.learner.ppo import first_device
+    from train.learner.transfer import first_device
     from train.tools.coldstart import CompileLog
 
     evaluator = learner.evaluation.evaluator

@@ -18,7 +18,7 @@ import orbax.checkpoint as ocp
 import pytest
 
 from mecanum_jax.task.env import MecanumEnv
-from train.config import parse_train_config
+from train.config_loading import parse_train_config
 from train.learner.policy import PROVENANCE, restore_policy
 from train.learner.state import state_template
 from train.store import checkpoint, leaves

@@ -22,7 +22,7 @@ from mecanum_jax.deploy.plant import Plant, PlantParams, SensorChannel
 from mecanum_jax.sim.state import Sensors
 from mecanum_jax.task import MecanumEnv
 from train.cli import deploy_sim
-from train.config import load_train_config
+from train.config_loading import load_train_config
 
 MODEL = Path(__file__).resolve().parent.parent / "models" / "o_rectangle"
 

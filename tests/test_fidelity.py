@@ -18,7 +18,7 @@ from mecanum_jax.sim.state import RobotParams
 from mecanum_jax.task import EnvConfig, MecanumEnv
 from mecanum_jax.task import fidelity as fid
 from train.cli import evaluate as cli
-from train.config import load_train_config, parse_train_config
+from train.config_loading import load_train_config, parse_train_config
 from train.learner.periodic import PeriodicEvaluation
 
 SPIN = (-10.0, -10.0, 10.0, 10.0)

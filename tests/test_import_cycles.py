@@ -112,7 +112,7 @@ def test_the_graph_sees_every_kind_of_import():
     # from mecanum_jax.task import commands as cmds
     assert "mecanum_jax.task.commands" in graph["mecanum_jax.task.env"]
     # inside restore_policy
-    assert {"train.learner.state", "train.config"} <= graph["train.learner.policy"]
+    assert {"train.learner.state", "train.config_loading"} <= graph["train.learner.policy"]
     # from mecanum_jax.task import REFERENCES, MecanumEnv: the package's __init__.py
     assert "mecanum_jax.task" in graph["train.cli.eval_target"]
 

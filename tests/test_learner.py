@@ -12,13 +12,11 @@ from learners import deterministic_policy, random_obs
 from mecanum_jax.config import ConfigError
 from mecanum_jax.evaluation.compare import TRAINING_COMPARED
 from mecanum_jax.evaluation.metrics import Part
-from train.config import (
-    PPOConfig,
-    TrainConfig,
-)
+from train.config import TrainConfig
+from train.config_sections import PPOConfig
 from train.learner.periodic import Result, beats, compare
-from train.learner.ppo import to_host
 from train.learner.state import gradient_clip, make_optimizer
+from train.learner.transfer import to_host
 from train.store import leaves
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from brax.training.agents.ppo import losses as ppo_losses
 
-from train.config import load_train_config
+from train.config_loading import load_train_config
 from train.loop.run import Run
 
 pytestmark = pytest.mark.full

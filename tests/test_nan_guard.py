@@ -16,7 +16,8 @@ import pytest
 
 from mecanum_jax.config import ConfigError
 from train.loop import divergence
-from train.loop.run import Run, TrainingDiverged
+from train.loop.run import Run
+from train.loop.run_steps import TrainingDiverged
 from train.store import checkpoint
 
 

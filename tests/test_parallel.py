@@ -8,7 +8,7 @@ import types
 import jax
 import pytest
 
-from train.config import load_train_config
+from train.config_loading import load_train_config
 from train.learner import parallel
 
 

@@ -132,7 +132,7 @@ def test_the_update_precision_applies_to_a_gradient_inside_and_only_there():
 
 def test_a_bad_update_precision_in_a_config_names_the_field():
     """A TOML file or a run's config.json is read through this parser."""
-    from train.config import parse_train_config
+    from train.config_loading import parse_train_config
 
     with pytest.raises(ConfigError, match=r"ppo.update_precision = 'fast'"):
         parse_train_config({"ppo": {"update_precision": "fast"}}, "bad.toml")

@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 
 from mecanum_jax.config import CONFIG_DIR
-from train.config import TrainConfig, load_train_config, parse_train_config
+from train.config import TrainConfig
+from train.config_loading import load_train_config, parse_train_config
 from train.store import inputs
 
 ROBOT = CONFIG_DIR / "robots" / "o_rectangle.toml"

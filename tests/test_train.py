@@ -16,12 +16,11 @@ from learners import deterministic_policy, final_train_state, random_obs
 
 from mecanum_jax.config import ConfigError
 from train.cli import train as cli
-from train.config import (
-    parse_train_config,
-)
+from train.config_loading import parse_train_config
 from train.learner.policy import load_policy, restore_policy
 from train.learner.ppo import Learner
-from train.loop.run import Run, RunDirError, TrainingDiverged
+from train.loop.run import Run, RunDirError
+from train.loop.run_steps import TrainingDiverged
 from train.store import checkpoint
 
 
@@ -283,7 +282,7 @@ def test_the_epoch_a_time_limit_stops_at_is_evaluated_and_logged(
 def test_first_runs_alone_under_warp(parallel, impl, alone):
     """Under MuJoCo Warp (and on the split path) the baseline's first evaluation finishes
     before the first epoch starts: a program's first run captures Warp's CUDA graphs, and
-    another thread's GPU work meanwhile breaks the capture (train/loop/run.py)."""
+    another thread's GPU work meanwhile breaks the capture (train/loop/run_steps.py)."""
     from types import SimpleNamespace
 
     from train.loop.aot import first_runs_alone

@@ -14,11 +14,8 @@ from mecanum_jax.config import ConfigError, validated_once
 from mecanum_jax.task import EnvConfig
 from train import config as train_config
 from train.cli import train as cli
-from train.config import (
-    TRAIN_CONFIG_DIR,
-    TrainConfig,
-    load_train_config,
-)
+from train.config import TrainConfig
+from train.config_loading import TRAIN_CONFIG_DIR, load_train_config
 from train.learner.ppo import Learner
 from train.loop.run import Run
 

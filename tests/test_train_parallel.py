@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from learners import trains_through_a_run
 
-from train.learner.ppo import Learner, to_host
+from train.learner.ppo import Learner
+from train.learner.transfer import to_host
 from train.loop.run import Run
 
 

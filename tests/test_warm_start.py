@@ -192,10 +192,13 @@ def test_a_warm_start_of_the_tiny_run_matches_a_cold_one_bit_for_bit(tmp_path):
 
 TRAINER_MODULES = (
     "train.learner.ppo",
+    "train.learner.iteration",
+    "train.learner.transfer",
     "train.learner.losses",
     "train.learner.split_epoch",
     "train.learner.parallel",
     "train.loop.run",
+    "train.loop.run_steps",
     "train.loop.aot",
     "train.loop.warm_start",
 )

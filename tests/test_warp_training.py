@@ -47,7 +47,7 @@ def test_warp_training_stops_and_resumes(tmp_path):
 
 SHARED_CHECK = """
 import jax, numpy as np
-from train.config import apply_flags, load_train_config
+from train.config_loading import apply_flags, load_train_config
 from train.learner.ppo import Learner
 flags = ["--env.physics-impl", "warp", "--ppo.num-envs", "16", "--ppo.batch-size", "16"]
 learner = Learner(apply_flags(load_train_config("tiny"), flags, "check"))

@@ -1,6 +1,6 @@
 """The settings of the losses added to PPO's (:mod:`train.learner.losses`): the smoothness
 terms (``ppo.smoothness``) and the anchor (``ppo.anchor``); sections of
-:class:`train.config.PPOConfig`."""
+:class:`train.config_sections.PPOConfig`."""
 
 from __future__ import annotations
 

@@ -1,7 +1,8 @@
 """The simulated robot: descriptions (:mod:`.description`), the MJCF model (:mod:`.mjcf`),
-the batched MJX robot (:mod:`.physics`) with its parameters and state (:mod:`.state`),
-wheel servos (:mod:`.servo`) and CPU batching (:mod:`.batching`), validation against the
-kinematics (:mod:`.validation`) and rendering (:mod:`.render`).
+the batched MJX robot (:mod:`.physics`, built by :mod:`.robot_model`) with its parameters
+and state (:mod:`.state`), wheel servos (:mod:`.servo`) and CPU batching
+(:mod:`.batching`), validation against the kinematics (:mod:`.validation`) and rendering
+(:mod:`.render`).
 
 Descriptions import eagerly; the names that need MJX import on first use.
 """

@@ -32,7 +32,7 @@ ServoModel = Literal["chord", "mjx"]
 
 CHORD_WARP_RANGE = 2.0
 """Under ``warp``, the chord servo's actuators get this multiple of the torque limit as
-their force range (see :meth:`mecanum_jax.sim.physics.Robot.model_for`)."""
+their force range (see :meth:`mecanum_jax.sim.robot_model.RobotModel.model_for`)."""
 
 
 def servo_control(

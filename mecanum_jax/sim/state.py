@@ -2,11 +2,11 @@
 of them.
 
 :class:`RobotParams` holds the per-robot physical parameters that domain randomisation
-varies (:meth:`mecanum_jax.sim.physics.Robot.model_for` writes them into that robot's copy
-of the ``mjx.Model``), :class:`SimState` what a step carries from one call to the next, and
-:class:`Sensors` what a real base measures plus the ground truth. These types need no MJX
-import of their own, so the task's observations, rewards and randomisation can name them
-without loading the simulator.
+varies (:meth:`mecanum_jax.sim.robot_model.RobotModel.model_for` writes them into that
+robot's copy of the ``mjx.Model``), :class:`SimState` what a step carries from one call to
+the next, and :class:`Sensors` what a real base measures plus the ground truth. These types
+need no MJX import of their own, so the task's observations, rewards and randomisation can
+name them without loading the simulator.
 """
 
 from __future__ import annotations

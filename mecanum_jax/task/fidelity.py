@@ -10,7 +10,8 @@ docs/physics_validation.md, so the judge does not change with a training run's t
 Only the MJX implementation (``physics_impl``) is taken from the task for both: it computes
 the same physics. Every :class:`~mecanum_jax.sim.state.RobotParams` field (friction,
 payload, wheel radius, torque limit, servo gains, setpoint slew) applies to both models
-(:meth:`~mecanum_jax.sim.physics.Robot.model_for`), so every scenario runs in either.
+(:meth:`~mecanum_jax.sim.robot_model.RobotModel.model_for`), so every scenario runs in
+either.
 """
 
 from __future__ import annotations

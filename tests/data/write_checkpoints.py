@@ -50,8 +50,9 @@ def write(folder: Path, train: dict[str, np.ndarray], meta: dict[str, Any]) -> N
 
 def main() -> int:
     sys.path.insert(0, str(HERE.parent.parent.parent))
-    from train.config import load_train_config
-    from train.learner.ppo import Learner, to_host
+    from train.config_loading import load_train_config
+    from train.learner.ppo import Learner
+    from train.learner.transfer import to_host
     from train.store.leaves import named_leaves, pack
 
     if HERE.exists():

@@ -22,7 +22,7 @@ from mecanum_jax.precision import set_matmul_precision
 from mecanum_jax.task import MecanumEnv
 from mecanum_jax.task import fidelity as fid
 from train.cli.eval_args import EvalArgs
-from train.config import load_train_config
+from train.config_loading import load_train_config
 from train.learner.policy import PROVENANCE, RestoredPolicy, restore_policy, split_target
 
 console = Console(stderr=True)

@@ -36,12 +36,14 @@ from mecanum_jax._checks import require_platform
 from mecanum_jax.config import ConfigError, find_config
 from mecanum_jax.sim.description import require_impl
 from train.cli.paths import check_input_dir, check_output
-from train.config import TRAIN_CONFIG_DIR, TrainConfig, apply_flags, load_train_config
+from train.config import TrainConfig
+from train.config_loading import TRAIN_CONFIG_DIR, apply_flags, load_train_config
 from train.loop import compilation_cache, curve
 from train.loop.distributed import init_distributed
 from train.loop.progress import print_error
-from train.loop.run import Run, RunDirError, TrainingDiverged
+from train.loop.run import Run, RunDirError
 from train.loop.run_records import write_json
+from train.loop.run_steps import TrainingDiverged
 from train.store import checkpoint, inputs, lock
 
 console = Console(stderr=True)

@@ -73,7 +73,7 @@ def restore_policy(
     checkpoint whose robot description or observation layout differs from what this code
     builds from the checkpoint's own config (e.g. the robot's TOML file changed since).
     """
-    from train.config import parse_train_config
+    from train.config_loading import parse_train_config
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():

@@ -15,6 +15,10 @@ observation normalizer) from an outer loop whose whole state is explicit:
 - between epochs the host checks for NaNs, evaluates the policy and the analytic
   baseline on the same fixed, held-out episodes, logs and checkpoints.
 
+An iteration's two halves, the rollouts and the update, are those of
+:class:`~train.learner.iteration.Iteration`, which :class:`Learner` extends with what they
+use; :mod:`train.learner.transfer` moves the states between the host and the devices.
+
 Array layout on the host: training state ``(D, S, ...)`` (replicated over the D devices),
 environment state ``(D, S, E/D, ...)``, where S is the number of seeds and E ``num_envs``.
 """
@@ -23,7 +27,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Mapping
-from typing import Any, TypeVar
+from typing import Any
 
 # isort: split
 import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
@@ -32,10 +36,8 @@ import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quie
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 from brax.envs.base import State
 from brax.training import gradients, types
-from brax.training.acme import running_statistics
 from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
 from jax.sharding import NamedSharding
@@ -47,9 +49,10 @@ from mecanum_jax.task.controller import allow_rank_promotion
 from mecanum_jax.task.env import MecanumEnv, TrainingEnv
 from train.config import TrainConfig
 from train.learner import losses, parallel
+from train.learner.iteration import Iteration
 from train.learner.parallel import AXIS
 from train.learner.periodic import PeriodicEvaluation, Result
-from train.learner.shapes import Epoch, Host, Metrics, PackedEnv, Placed, Updated
+from train.learner.shapes import Epoch, Host, PackedEnv, Placed
 from train.learner.split_epoch import SplitEpoch
 from train.learner.state import (
     TrainingState,
@@ -59,16 +62,11 @@ from train.learner.state import (
     make_networks,
     make_optimizer,
 )
+from train.learner.transfer import strip_weak_types
 from train.store import leaves
 
-Carry = tuple[State, jax.Array]  # a rollout's scan carry: environment state, key
-Rollout = tuple[State, types.Transition, Metrics]
-Rollouts = tuple[State, types.Transition, jax.Array, Metrics]  # Learner.iteration_rollouts
-Sgd = tuple[optax.OptState, ppo_losses.PPONetworkParams, jax.Array]  # an SGD scan's carry
-Tree = TypeVar("Tree")
 
-
-class Learner:
+class Learner(Iteration):
     """The compiled pieces of a run: init, the per-epoch training program, evaluation."""
 
     @host_side  # its constants and set-up on the CPU (mecanum_jax.host)
@@ -237,112 +235,6 @@ class Learner:
 
         return jax.tree.map(put, ts), jax.tree.map(put, env_state)
 
-    def _unroll(self, policy: types.Policy, env_state: State, key: jax.Array) -> Rollout:
-        env = self.train_env
-
-        def step(carry: Carry, _: None) -> tuple[Carry, tuple[types.Transition, Metrics]]:
-            s, k = carry
-            k, k_act = jax.random.split(k)
-            actions, extras = policy(s.obs, k_act)
-            ns = env.step(s, actions)
-            transition = types.Transition(
-                observation=s.obs,
-                action=actions,
-                reward=ns.reward,
-                discount=1.0 - ns.done,
-                next_observation=ns.obs,
-                extras={
-                    "policy_extras": extras,
-                    "state_extras": losses.state_extras(
-                        self.env, s.info, ns.info, self.cfg.ppo.anchor
-                    ),
-                },
-            )
-            return (ns, k), (transition, ns.metrics)
-
-        (env_state, _), (data, metrics) = jax.lax.scan(
-            step, (env_state, key), None, length=self.cfg.ppo.unroll_length
-        )
-        return env_state, data, metrics
-
-    def _iteration(
-        self, carry: tuple[TrainingState, State], _: None
-    ) -> tuple[tuple[TrainingState, State], Metrics]:
-        ts, env_state = carry
-        env_state, data, keys, env_metrics = self.iteration_rollouts(ts, env_state)
-        ts, metrics = self.iteration_update(ts, data, keys, env_metrics)
-        return (ts, env_state), metrics
-
-    def iteration_rollouts(self, ts: TrainingState, env_state: State) -> Rollouts:
-        """An iteration's first half, one seed: ``(env_state, data, keys, env metrics)``,
-        ``keys`` the next loop key and the update's, stacked."""
-        key, k_unroll, k_sgd = jax.random.split(ts.key, 3)
-        policy = self.make_policy((ts.normalizer_params, ts.params.policy, ts.params.value))
-        env_state, data, env_metrics = self.collect(policy, env_state, k_unroll)
-        metrics = {k: jnp.mean(v) for k, v in env_metrics.items()}
-        metrics["reward"] = jnp.mean(data.reward)
-        return env_state, data, jnp.stack([key, k_sgd]), metrics
-
-    def iteration_update(
-        self, ts: TrainingState, data: types.Transition, keys: jax.Array, env_metrics: Metrics
-    ) -> Updated:
-        """An iteration's second half, one seed: the update of :meth:`update` (averaged
-        across devices), the next loop key, and the iteration's metrics."""
-        ts, loss_metrics = self.update(ts, data, keys[1])
-        ts = TrainingState(ts.optimizer_state, ts.params, ts.normalizer_params, keys[0])
-        metrics = {f"loss/{k}": jnp.mean(v) for k, v in loss_metrics.items()}
-        return ts, metrics | env_metrics
-
-    def collect(self, policy: types.Policy, env_state: State, key: jax.Array) -> Rollout:
-        """One iteration's rollouts: ``(env_state, data (unrolls·E, T, ...), metrics)``."""
-
-        def unroll(c: Carry, _: None) -> tuple[Carry, tuple[types.Transition, Metrics]]:
-            s, k = c
-            k, k_now = jax.random.split(k)
-            s, data, metrics = self._unroll(policy, s, k_now)
-            return (s, k), (data, metrics)
-
-        (env_state, _), (data, env_metrics) = jax.lax.scan(
-            unroll, (env_state, key), None, length=self.unrolls_per_iteration
-        )
-        # (unrolls, T, E, ...) -> (unrolls * E, T, ...)
-        data = jax.tree.map(lambda x: jnp.swapaxes(x, 1, 2), data)
-        data = jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), data)
-        return env_state, data, env_metrics
-
-    def update(self, ts: TrainingState, data: types.Transition, key: jax.Array) -> Updated:
-        """Normalizer update and SGD passes over ``data``: ``(state, loss metrics)``, same key."""
-        p = self.cfg.ppo
-        normalizer = running_statistics.update(
-            ts.normalizer_params, data.observation, pmap_axis_name=AXIS
-        )
-
-        def minibatch(c: Sgd, batch: types.Transition) -> tuple[Sgd, Metrics]:
-            opt_state, params, k = c
-            k, k_loss = jax.random.split(k)
-            (_, metrics), grads = self._loss_and_grad(params, normalizer, batch, k_loss)
-            updates, opt_state = self.optimizer.update(grads, opt_state)
-            params = optax.apply_updates(params, updates)
-            return (opt_state, params, k), metrics
-
-        def sgd(c: Sgd, _: None) -> tuple[Sgd, Metrics]:
-            opt_state, params, k = c
-            k, k_perm, k_grad = jax.random.split(k, 3)
-
-            def shuffle(x: jax.Array) -> jax.Array:
-                x = jax.random.permutation(k_perm, x)
-                return x.reshape((p.num_minibatches, -1, *x.shape[1:]))
-
-            (opt_state, params, _grad_key), metrics = jax.lax.scan(
-                minibatch, (opt_state, params, k_grad), jax.tree.map(shuffle, data)
-            )
-            return (opt_state, params, k), metrics
-
-        (opt_state, params, _), loss_metrics = jax.lax.scan(
-            sgd, (ts.optimizer_state, ts.params, key), None, length=p.num_updates_per_batch
-        )
-        return TrainingState(opt_state, params, normalizer, ts.key), loss_metrics
-
     @allow_rank_promotion
     def _epoch(self, ts: TrainingState, packed: PackedEnv) -> Epoch:
         env_state = self.unpack_env(packed)
@@ -364,37 +256,4 @@ class Learner:
         return self.evaluation.play("analytic", jax.tree.map(lambda x: x[0], params))
 
 
-def strip_weak_types(tree: Tree) -> Tree:
-    """Arrays with concrete (non-weak) dtypes, so jit signatures do not flip between calls."""
-
-    def strip(x: ArrayLike) -> jax.Array:
-        x = jnp.asarray(x)
-        return jnp.astype(x, x.dtype) if x.weak_type else x
-
-    return jax.tree.map(strip, tree)
-
-
-def first_device(tree: object) -> Any:
-    """The device-0 copy of a ``(D, ...)`` tree, as host numpy arrays."""
-
-    def first(x: ArrayLike) -> np.ndarray:
-        if isinstance(x, jax.Array):
-            return np.asarray(x.addressable_shards[0].data)[0]
-        return np.asarray(x)[0]
-
-    return jax.tree.map(first, tree)
-
-
-def to_host(tree: object) -> Any:
-    """Host numpy copies; of an array spread over processes, this process's devices' part."""
-
-    def host(x: ArrayLike) -> np.ndarray:
-        if isinstance(x, jax.Array) and not x.is_fully_addressable:
-            shards = sorted(x.addressable_shards, key=lambda s: s.index[0].start or 0)
-            return np.concatenate([np.asarray(s.data) for s in shards])
-        return np.asarray(x)
-
-    return jax.tree.map(host, tree)
-
-
-__all__ = ["Learner", "all_finite", "first_device", "strip_weak_types", "to_host"]
+__all__ = ["Learner", "all_finite"]

@@ -9,8 +9,8 @@ and ``jax.shard_map`` of the step crashed. Here no program that holds the physic
 more than one device: device ``d``'s rollout program takes that device's slice of the
 states (``(1, S, ...)``, zero-copy from the mesh-sharded arrays) and returns its slice of
 the transitions, which are put together, again without a copy, into mesh-sharded arrays
-for the update, the same program :meth:`~train.learner.ppo.Learner.update` is on the ``"sharded"``
-path (gradients and normalizer statistics averaged across devices).
+for the update, the same program :meth:`~train.learner.iteration.Iteration.update` is on the
+``"sharded"`` path (gradients and normalizer statistics averaged across devices).
 
 An epoch is then ``epoch_iterations`` x (one rollout per device, one update).
 :meth:`SplitEpoch.__call__` takes and returns the states exactly as the other paths'
@@ -139,7 +139,7 @@ class SplitEpoch:
     @allow_rank_promotion
     def _rollout_one(self, ts: TrainingState, packed: PackedEnv) -> Rollouts:
         """One seed's rollouts of one iteration on one device: the one-program epoch's
-        :meth:`~train.learner.ppo.Learner.iteration_rollouts` (same keys)."""
+        :meth:`~train.learner.iteration.Iteration.iteration_rollouts` (same keys)."""
         learner = self.learner
         env_state, *rest = learner.iteration_rollouts(ts, learner.unpack_env(packed))
         return learner.pack_env(env_state), *rest

@@ -20,8 +20,9 @@ from typing import Any
 
 import jax
 
-from train.learner.ppo import Learner, first_device
+from train.learner.ppo import Learner
 from train.learner.state import fresh_state
+from train.learner.transfer import first_device
 
 
 def abstract_state(learner: Learner) -> tuple[Any, Any]:

@@ -11,7 +11,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from train.learner.ppo import to_host
+from train.learner.transfer import to_host
 
 LOSS_FIRST = "loss/total_loss"
 

@@ -28,7 +28,8 @@ import jax
 
 from mecanum_jax.atomic import DiskError, disk_errors
 from mecanum_jax.config import ConfigError
-from train.config import TrainConfig, config_diff
+from train.config import TrainConfig
+from train.config_loading import config_diff
 from train.loop.distributed import barrier
 from train.loop.run_records import write_json
 from train.store import checkpoint, inputs, lock

@@ -16,7 +16,8 @@ from mecanum_jax.sim.description import fingerprint
 from train.config import TrainConfig
 from train.learner.periodic import Result
 from train.learner.policy import check_compatible
-from train.learner.ppo import Learner, to_host
+from train.learner.ppo import Learner
+from train.learner.transfer import to_host
 from train.loop.distributed import restore_process, save_process
 from train.store import checkpoint
 

@@ -143,8 +143,8 @@ def load_saved_config(run_dir: Path, warn: bool = True, validate: bool = True) -
     """``run_dir/config.json`` as a TrainConfig whose ``env.robot`` is the run's copy (if
     it has one), so that it loads after the original is gone. Errors name the file.
     ``validate=False``: its types checked, its values left to the caller
-    (``train.config.parse_train_config``)."""
-    from train.config import parse_train_config
+    (``train.config_loading.parse_train_config``)."""
+    from train.config_loading import parse_train_config
 
     path = run_dir / "config.json"
     try:

@@ -189,8 +189,9 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
 
         from mecanum_jax.config import ConfigError
         from mecanum_jax.precision import set_matmul_precision
-        from train.config import apply_flags, load_train_config
-        from train.learner.ppo import Learner, first_device
+        from train.config_loading import apply_flags, load_train_config
+        from train.learner.ppo import Learner
+        from train.learner.transfer import first_device
     cache_dir = compilation_cache.in_force()
     with clock.phase("config (load, flags, validation)"):
         parser = argparse.ArgumentParser(

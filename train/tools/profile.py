@@ -38,8 +38,10 @@ from rich.table import Table
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.precision import set_matmul_precision
-from train.config import TrainConfig, apply_flags, load_train_config
-from train.learner.ppo import Learner, first_device, to_host
+from train.config import TrainConfig
+from train.config_loading import apply_flags, load_train_config
+from train.learner.ppo import Learner
+from train.learner.transfer import first_device, to_host
 from train.loop import compilation_cache
 from train.loop.progress import print_error
 from train.loop.run_records import machine_record, write_json
