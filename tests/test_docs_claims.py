@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from train.config import load_train_config
+from train.config_loading import load_train_config
 
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 CLAIM = re.compile(r"`([a-z_][a-z_.]*) = ([^`]+)`")
