@@ -235,7 +235,9 @@ def _command_episodes(args: DeploySimArgs, cfg: Any) -> Episodes:
     )
 
 
-def play(plant: Plant, controller: Controller, eps: Episodes, seed: int = 0) -> ev.Trace:
+def play(
+    plant: Plant, controller: Controller, eps: Episodes, seed: int = 0
+) -> ev.Trace[np.ndarray]:
     """Every episode through the control loop, one after another: a :class:`Trace` as
     mecanum-eval records it (twist, pose, torques at the end of each control period)."""
     E, T, _ = eps.commands.shape
@@ -271,7 +273,7 @@ TABLE = tuple(column for column in eval_output.TABLE if column[1] != "flicker")
 INTERVALS = ("rmse_lin", "rmse_wz", "ss_lin", "ss_wz")
 
 
-def report(trace: ev.Trace, eps: Episodes, args: DeploySimArgs) -> dict[str, Any]:
+def report(trace: ev.Trace[np.ndarray], eps: Episodes, args: DeploySimArgs) -> dict[str, Any]:
     """mecanum-eval's summary of the rehearsal, 95% bootstrap intervals over the episodes
     of the tracking figures, and the per-episode steady-state errors."""
     mcfg = metrics.MetricConfig(settle_s=args.settle_s)
