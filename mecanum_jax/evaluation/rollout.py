@@ -117,7 +117,7 @@ class Evaluator:
         self.env = env
         self.apply = apply
         self.max_batch = max_batch
-        self._run = jax.jit(self._rollout)
+        self._run: jax.stages.Wrapped = jax.jit(self._rollout)
 
     def _feasible_targets(self, batch: EpisodeBatch) -> jax.Array:
         """(E, T, 3): each command's nearest feasible twist for the robot as it really is
