@@ -16,7 +16,6 @@ import dataclasses
 import os
 import sys
 from pathlib import Path
-from typing import Any
 
 import jax
 import tyro
@@ -43,7 +42,7 @@ class DrivesComparison:
     """Directory for velocity_spaces.json and velocity_spaces.png."""
 
 
-def run_drives(args: DrivesComparison) -> list[dict[str, Any]]:
+def run_drives(args: DrivesComparison) -> list[dict[str, object]]:
     """Print the table, write the JSON and the plot."""
     from mecanum_jax.evaluation import velocity_space
 

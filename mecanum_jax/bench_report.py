@@ -6,9 +6,9 @@ import dataclasses
 import datetime
 import json
 import statistics
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import jax
 from rich.console import Console
@@ -17,7 +17,7 @@ if TYPE_CHECKING:
     from _typeshed import DataclassInstance
 
 
-def header(benchmark: str, args: DataclassInstance) -> dict[str, Any]:
+def header(benchmark: str, args: DataclassInstance) -> dict[str, object]:
     """What every benchmark's JSON starts with: the date, the device and the arguments."""
     device = jax.devices()[0]
     return {
@@ -50,7 +50,7 @@ def warn_spread(console: Console, what: str, spread: float) -> None:
         )
 
 
-def write_json(result: dict[str, Any], path: Path | None, console: Console) -> None:
+def write_json(result: Mapping[str, object], path: Path | None, console: Console) -> None:
     """Write ``result`` to ``path`` (none: nothing), never leaving a half-written file."""
     if path is None:
         return

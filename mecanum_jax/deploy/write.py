@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -17,7 +17,7 @@ def save(
     layers: list[tuple[np.ndarray, np.ndarray]],
     mean: np.ndarray,
     std: np.ndarray,
-    meta: dict[str, Any],
+    meta: Mapping[str, object],
 ) -> Path:
     """Write an export (atomically: a crash or a full disk leaves no half-written file)."""
     path = Path(path)
@@ -26,6 +26,5 @@ def save(
     arrays |= {"obs_mean": np.asarray(mean, np.float32), "obs_std": np.asarray(std, np.float32)}
     arrays["meta"] = np.asarray(json.dumps(dict(meta, format=FORMAT, layers=len(layers))))
     with atomic.open_atomic(path, "wb") as f:
-        savez: Any = np.savez
-        savez(f, **arrays)
+        np.savez(f, allow_pickle=True, **arrays)  # numpy's default, named: all else is arrays
     return path

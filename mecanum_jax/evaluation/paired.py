@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -38,7 +37,7 @@ class EpisodesDifferError(ValueError):
 
 def save_parts(path: str | Path, parts: Parts) -> None:
     """Write ``parts`` to ``path`` (a compressed ``.npz``)."""
-    arrays: dict[str, Any] = {}
+    arrays: dict[str, np.ndarray] = {}
     kinds: dict[str, str] = {}
     for scenario, by_who in parts.items():
         for who, by_metric in by_who.items():
@@ -49,7 +48,7 @@ def save_parts(path: str | Path, parts: Parts) -> None:
                 kinds[key] = p.kind
     arrays["kinds"] = np.asarray(json.dumps(kinds))
     with open(path, "wb") as f:
-        np.savez_compressed(f, **arrays)
+        np.savez_compressed(f, allow_pickle=True, **arrays)  # numpy's default, named
 
 
 def load_parts(path: str | Path) -> Parts:

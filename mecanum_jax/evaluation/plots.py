@@ -34,7 +34,7 @@ def _pyplot() -> Any:
 
 
 def plot_twist(
-    traces: dict[str, Trace], dt: float, title: str, out: Path, episode: int = 0
+    traces: dict[str, Trace[np.ndarray]], dt: float, title: str, out: Path, episode: int = 0
 ) -> Path:
     """Commanded against achieved vx, vy, ωz over time, every policy overlaid."""
     plt = _pyplot()
@@ -62,7 +62,7 @@ def plot_twist(
 
 
 def plot_trajectories(
-    traces: dict[str, dict[str, Trace]],
+    traces: dict[str, dict[str, Trace[np.ndarray]]],
     dt: float,
     scripted: dict[str, bool],
     out: Path,

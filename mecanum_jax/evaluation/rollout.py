@@ -28,11 +28,12 @@ the episode key only, not on the actions).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Generic, NamedTuple, TypeVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from brax.training.types import PolicyParams
 
 from mecanum_jax.evaluation import metrics
 from mecanum_jax.evaluation.episodes import EpisodeBatch
@@ -43,7 +44,9 @@ if TYPE_CHECKING:
     import numpy.typing as npt
     from brax.envs.base import State
 
-PolicyApply = Callable[[Any, dict[str, jax.Array]], jax.Array]
+PolicyApply = Callable[[PolicyParams, dict[str, jax.Array]], jax.Array]
+A = TypeVar("A", np.ndarray, jax.Array)
+"""A :class:`Trace`'s arrays: NumPy on the host, JAX in the rollout program."""
 METRICS = (
     "rmse_vx",
     "rmse_vy",
@@ -71,21 +74,21 @@ LEARNED = -1
 """The ``who`` code of the learned policy; references are their index in ``REFERENCES``."""
 
 
-class Trace(NamedTuple):
+class Trace(NamedTuple, Generic[A]):
     """A rollout, per episode and control step (leading axes E, T); numpy on the host."""
 
-    command: Any  # (E, T, 3) command in force during the step
-    target: Any  # (E, T, 3) the command's nearest feasible twist for the true robot
-    twist: Any  # (E, T, 3) true body twist at the end of the step
-    pose: Any  # (E, T, 3) world pose (x, y, yaw) at the end of the step
-    start: Any  # (E, 3) pose before the first step
-    energy_j: Any  # (E, T)
-    saturated: Any  # (E, T)
-    unstable: Any  # (E, T)
-    wheel_torque: Any  # (E, T, n) N·m
-    wheel_rate: Any  # (E, T, n) rad/s
-    qpos: Any  # (E, T, nq), for rendering
-    action: Any = None  # (E, T, a) the action applied (after the filter); 0 for references
+    command: A  # (E, T, 3) command in force during the step
+    target: A  # (E, T, 3) the command's nearest feasible twist for the true robot
+    twist: A  # (E, T, 3) true body twist at the end of the step
+    pose: A  # (E, T, 3) world pose (x, y, yaw) at the end of the step
+    start: A  # (E, 3) pose before the first step
+    energy_j: A  # (E, T)
+    saturated: A  # (E, T)
+    unstable: A  # (E, T)
+    wheel_torque: A  # (E, T, n) N·m
+    wheel_rate: A  # (E, T, n) rad/s
+    qpos: A  # (E, T, nq), for rendering
+    action: A | None = None  # (E, T, a) the action applied (after the filter); 0 for references
 
 
 def who_code(who: str) -> int:
@@ -114,7 +117,7 @@ class Evaluator:
         self.env = env
         self.apply = apply
         self.max_batch = max_batch
-        self._run = jax.jit(self._rollout)
+        self._run: jax.stages.Wrapped = jax.jit(self._rollout)
 
     def _feasible_targets(self, batch: EpisodeBatch) -> jax.Array:
         """(E, T, 3): each command's nearest feasible twist for the robot as it really is
@@ -123,7 +126,7 @@ class Evaluator:
 
     def _rollout(
         self, params: object, who: jax.Array, batch: EpisodeBatch, gains: jax.Array
-    ) -> Trace:
+    ) -> Trace[jax.Array]:
         env = self.env
         state = jax.vmap(env.reset_to)(batch.keys, batch.params, batch.latency, batch.noise_std)
         info = dict(state.info)
@@ -131,7 +134,7 @@ class Evaluator:
         state = state.replace(info=info)
         start = jax.vmap(env.robot.sensors)(state.pipeline_state).pose
 
-        def step(s: State, command: jax.Array) -> tuple[State, Trace]:
+        def step(s: State, command: jax.Array) -> tuple[State, dict[str, jax.Array]]:
             s = jax.vmap(env.set_command)(s, command)
             action = jnp.zeros((command.shape[0], env.action_size))
             if self.apply is not None:
@@ -143,27 +146,27 @@ class Evaluator:
             ns = jax.vmap(env.step)(s, action, who)
             sens = jax.vmap(env.robot.sensors)(ns.pipeline_state)
             m = ns.metrics
-            out = Trace(
-                command=command,
-                target=None,
-                twist=sens.twist,
-                pose=sens.pose,
-                start=None,
-                energy_j=m["energy_j"],
-                saturated=m["saturated"],
-                unstable=m["unstable"],
-                wheel_torque=sens.wheel_torque,
-                wheel_rate=sens.wheel_rate,
-                qpos=ns.pipeline_state.data.qpos,
-                action=ns.info["last_action"],
-            )
+            out = {  # the trace's fields of one step (the target and start are per episode)
+                "command": command,
+                "twist": sens.twist,
+                "pose": sens.pose,
+                "energy_j": m["energy_j"],
+                "saturated": m["saturated"],
+                "unstable": m["unstable"],
+                "wheel_torque": sens.wheel_torque,
+                "wheel_rate": sens.wheel_rate,
+                "qpos": ns.pipeline_state.data.qpos,
+                "action": ns.info["last_action"],
+            }
             return ns, out
 
-        _, trace = jax.lax.scan(step, state, jnp.swapaxes(batch.commands, 0, 1))
-        trace = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), trace)
-        return trace._replace(start=start, target=self._feasible_targets(batch))
+        _, steps = jax.lax.scan(step, state, jnp.swapaxes(batch.commands, 0, 1))
+        steps = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), steps)
+        return Trace(start=start, target=self._feasible_targets(batch), **steps)
 
-    def run(self, batch: EpisodeBatch, params: object = None, who: str = "analytic") -> Trace:
+    def run(
+        self, batch: EpisodeBatch, params: object = None, who: str = "analytic"
+    ) -> Trace[np.ndarray]:
         """Play ``batch`` with ``who`` (``"policy"`` or a reference's name)."""
         return self.run_many([(batch, who)], params)[0]
 
@@ -173,7 +176,7 @@ class Evaluator:
         params: object = None,
         progress: Callable[[int, int], None] | None = None,
         feedback_gains: npt.ArrayLike | None = None,
-    ) -> list[Trace]:
+    ) -> list[Trace[np.ndarray]]:
         """Play every ``(batch, who)`` job; batches of equal length run together.
 
         ``who`` is ``"policy"`` or a reference's name (``REFERENCES``).
@@ -183,8 +186,8 @@ class Evaluator:
         """
         gains = self._gains(feedback_gains)
         chunks = self._chunks(jobs)
-        results: list[Trace | None] = [None] * len(jobs)
-        outputs: dict[tuple[int, ...], list[Trace]] = {}
+        results: list[Trace[np.ndarray] | None] = [None] * len(jobs)
+        outputs: dict[tuple[int, ...], list[Trace[np.ndarray]]] = {}
         for n, (idx, part, flags, keep) in enumerate(chunks):
             out = self._run(params, jnp.asarray(flags), part, gains)
             outputs.setdefault(idx, []).append(Trace(*(np.asarray(x)[:keep] for x in out)))
@@ -195,7 +198,7 @@ class Evaluator:
             lo = 0
             for i in idx_t:
                 e = len(jobs[i][0].keys)
-                results[i] = Trace(*(x[lo : lo + e] for x in whole))
+                results[i] = jax.tree.map(lambda x, lo=lo, e=e: x[lo : lo + e], whole)
                 lo += e
         return [r for r in results if r is not None]
 
@@ -253,7 +256,7 @@ class Evaluator:
         return chunks
 
 
-def relative_poses(trace: Trace) -> np.ndarray:
+def relative_poses(trace: Trace[np.ndarray]) -> np.ndarray:
     """Poses (E, T, 3) in each episode's start frame (x forward, y left, yaw from start)."""
     start = trace.start[:, None, :]
     d = trace.pose[..., :2] - start[..., :2]
@@ -277,7 +280,10 @@ def _wrap(a: np.ndarray) -> np.ndarray:
 
 
 def trace_parts(
-    trace: Trace, jacobian: npt.ArrayLike, dt: float, cfg: metrics.MetricConfig | None = None
+    trace: Trace[np.ndarray],
+    jacobian: npt.ArrayLike,
+    dt: float,
+    cfg: metrics.MetricConfig | None = None,
 ) -> dict[str, metrics.Part]:
     """The per-episode metrics of a rollout (:func:`.metrics.episode_parts`), and the
     flicker of its actions where it has them (:func:`.metrics.flicker_part`)."""
@@ -301,7 +307,7 @@ def trace_parts(
 
 
 def summarize(
-    trace: Trace,
+    trace: Trace[np.ndarray],
     dt: float,
     scripted: bool,
     jacobian: npt.ArrayLike,
@@ -328,7 +334,7 @@ def summarize(
     return out
 
 
-def drift_parts(trace: Trace, dt: float) -> dict[str, metrics.Part]:
+def drift_parts(trace: Trace[np.ndarray], dt: float) -> dict[str, metrics.Part]:
     """Final position and heading drift of a scripted rollout, per episode."""
     final = relative_poses(trace)[:, -1]
     goal = intended_poses(trace.command, dt)[:, -1]
@@ -340,7 +346,7 @@ def drift_parts(trace: Trace, dt: float) -> dict[str, metrics.Part]:
 
 
 def per_episode(
-    trace: Trace, dt: float, scripted: bool, cfg: metrics.MetricConfig | None = None
+    trace: Trace[np.ndarray], dt: float, scripted: bool, cfg: metrics.MetricConfig | None = None
 ) -> dict[str, list[float | None]]:
     """Per-episode RMSE of v and ωz, steady-state error of v and ωz (``None`` for an episode
     without steady steps) and its count of steady steps (the summary's ``ss_*`` pool them,

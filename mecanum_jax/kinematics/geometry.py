@@ -24,7 +24,7 @@ import dataclasses
 import math
 import warnings
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any, Literal, TypedDict, Unpack
+from typing import TYPE_CHECKING, Literal, TypedDict, Unpack
 
 import jax
 import jax.numpy as jnp
@@ -53,6 +53,16 @@ class GeometryOptions(TypedDict, total=False):
 
     dtype: jax.typing.DTypeLike | None
     warn_singular: bool
+
+
+class GeometryChanges(TypedDict, total=False):
+    """The fields :meth:`WheelGeometry.replace` may change (its attributes)."""
+
+    positions: jax.Array
+    drive_angles: jax.Array
+    roller_angles: jax.Array
+    radii: jax.Array
+    names: tuple[str, ...]
 
 
 class GeometryError(InputError):
@@ -93,7 +103,7 @@ class WheelGeometry:
     def dtype(self) -> np.dtype:
         return self.radii.dtype
 
-    def replace(self, **changes: Any) -> WheelGeometry:
+    def replace(self, **changes: Unpack[GeometryChanges]) -> WheelGeometry:
         return dataclasses.replace(self, **changes)
 
 

@@ -12,7 +12,7 @@ name them without loading the simulator.
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, NamedTuple, TypedDict
 
 import jax
 import jax.numpy as jnp
@@ -69,7 +69,7 @@ class SimState:
     initial_qpos: jax.Array
     unstable: jax.Array
 
-    def replace(self, **changes: Any) -> SimState:
+    def replace(self, **changes: jax.Array | mjx.Data) -> SimState:
         return dataclasses.replace(self, **changes)
 
 
@@ -118,10 +118,18 @@ def stack_params(params: list[RobotParams]) -> RobotParams:
     return RobotParams(*(jnp.stack(xs) for xs in zip(*params, strict=True)))
 
 
-def unstable_robots(states: SimState, params: RobotParams) -> list[dict[str, Any]]:
+class UnstableRobot(TypedDict):
+    """A robot of a batch that went non-finite: its index, resets and parameters."""
+
+    robot: int
+    resets: int
+    params: dict[str, float | list[float]]  # its RobotParams fields, rounded to 6 places
+
+
+def unstable_robots(states: SimState, params: RobotParams) -> list[UnstableRobot]:
     """Robots (of a batch) that went non-finite and were reset: index, count and parameters."""
     counts = np.asarray(states.unstable)
-    out = []
+    out: list[UnstableRobot] = []
     for i in np.flatnonzero(counts):
         fields = {k: np.asarray(v[i]).round(6).tolist() for k, v in params._asdict().items()}
         out.append({"robot": int(i), "resets": int(counts[i]), "params": fields})
@@ -133,6 +141,7 @@ __all__ = [
     "RobotParams",
     "Sensors",
     "SimState",
+    "UnstableRobot",
     "select",
     "stack_params",
     "unstable_robots",

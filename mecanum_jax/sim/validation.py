@@ -51,7 +51,15 @@ from mecanum_jax.sim.description import (
 )
 from mecanum_jax.sim.mjcf import Fidelity
 from mecanum_jax.sim.state import RobotParams, SimState, stack_params
-from mecanum_jax.sim.validation_report import fmt_vector, summary, to_markdown
+from mecanum_jax.sim.validation_report import (
+    Results,
+    SlipRow,
+    Spin,
+    TrackingRow,
+    fmt_vector,
+    summary,
+    to_markdown,
+)
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -197,8 +205,8 @@ def run(
     quick: bool = False,
     robot_name: str = "o_rectangle",
     fidelities: tuple[Fidelity, ...] = ("fast", "reference"),
-    **sim: Any,
-) -> dict[str, Any]:
+    **sim: Any,  # fields of the [sim] table, each of its own type
+) -> Results:
     """Run every validation case for ``fidelities``; returns the results as plain data.
 
     ``sim`` overrides fields of the robots' ``[sim]`` table (e.g. ``solver="cg"``) for
@@ -206,7 +214,7 @@ def run(
     """
     desc = _with_sim(builtin_description(robot_name), sim)
     n_random = 4 if quick else 20
-    results: dict[str, Any] = {"robot": robot_name, "quick": quick}
+    results: Results = {"robot": robot_name, "quick": quick}
     track = tracking_cases(desc, n_random)
     slips = slip_cases(desc)
     with warnings.catch_warnings():
@@ -221,14 +229,14 @@ def run(
         robot = physics.Robot(desc, fidelity, robots=CHUNK)
         out = simulate(robot, track + slips, seconds=2.0)
         n_avg = int(0.5 / out["dt"])
-        rows = []
+        rows: list[TrackingRow] = []
         for i, c in enumerate(track):
             achieved = out["twist"][i, -n_avg:].mean(axis=0)
             cmd = np.asarray(c.twist)
             lin, ang, ok = _tracking_error(achieved, cmd, fidelity)
             rows.append({"case": c.name, "command": cmd.tolist(), "achieved": achieved.tolist(),
                          "linear_error": lin, "angular_error": ang, "pass": ok})  # fmt: skip
-        slip_rows = []
+        slip_rows: list[SlipRow] = []
         for j, c in enumerate(slips):
             i = len(track) + j
             early = out["twist"][i, : int(0.5 / out["dt"])].mean(axis=0)
@@ -245,7 +253,7 @@ def run(
         x_out = simulate(xs, [Case("X-square, O spin pattern", "x", spin_pattern),
                               Case("X-square, its own inverse of ω = 1 rad/s", "x", own)], 2.0)  # fmt: skip
         o_out = simulate(os_, [Case("O-square, O spin pattern", "x", spin_pattern)], 2.0)
-        spin = {
+        spin: Spin = {
             "x_square_pattern_wz": float(x_out["twist"][0, -n_avg:, 2].mean()),
             "x_square_own_inverse_rates": list(own),
             "x_square_own_inverse_wz": float(x_out["twist"][1, -n_avg:, 2].mean()),
@@ -298,8 +306,9 @@ def main(argv: list[str] | None = None) -> None:
         print(to_markdown(res))
     else:
         for name in args.fidelities:
-            print(summary(name, res[name]))
-            for row in res[name]["slip"]:
+            r = res["fast"] if name == "fast" else res["reference"]
+            print(summary(name, r))
+            for row in r["slip"]:
                 early, pose = row["mean_twist_first_0.5s"], row["final_pose"]
                 print(
                     f"  {row['case']}: mean twist 0-0.5 s {fmt_vector(early)}, "

@@ -5,16 +5,75 @@ both fidelities side by side), and one fidelity's verdict in a line (:func:`summ
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import NotRequired, TypedDict
 
 import numpy as np
+
+TrackingRow = TypedDict(
+    "TrackingRow",
+    {
+        "case": str,
+        "command": list[float],
+        "achieved": list[float],  # the mean true body twist over the last 0.5 s
+        "linear_error": float,
+        "angular_error": float,
+        "pass": bool,
+    },
+)
+"""One twist tracked from the analytic inverse model's wheel rates."""
+SlipRow = TypedDict(
+    "SlipRow",
+    {
+        "case": str,
+        "group": str,
+        "command": list[float],
+        "mean_twist_first_0.5s": list[float],
+        "final_pose": list[float],
+        "odometry_error_m": float,
+        "distance_m": float,
+        "resets": int,
+    },
+)
+"""One step command from rest: the acceleration phase's twist, the pose, the odometry."""
+
+
+class Spin(TypedDict):
+    """The X-square against the O-square under the O spin pattern, and its own inverse."""
+
+    x_square_pattern_wz: float
+    x_square_own_inverse_rates: list[float]
+    x_square_own_inverse_wz: float
+    o_square_pattern_wz: float
+
+
+class FidelityResults(TypedDict):
+    """One fidelity's results."""
+
+    tracking: list[TrackingRow]
+    slip: list[SlipRow]
+    x_square: Spin
+    unstable: int  # non-finite resets
+    seconds: float  # wall time, with compilation
+
+
+class Results(TypedDict):
+    """What :func:`mecanum_jax.sim.validation.run` returns (and ``main`` adds to)."""
+
+    robot: str
+    quick: bool
+    sim_overrides: NotRequired[dict[str, object]]  # the robots' [sim] fields overridden
+    fast: NotRequired[FidelityResults]
+    reference: NotRequired[FidelityResults]
+    device: NotRequired[str]
+    date: NotRequired[str]
+    notes: NotRequired[str]
 
 
 def fmt_vector(v: Sequence[float]) -> str:
     return "(" + ", ".join(f"{x:+.3f}" for x in v) + ")"
 
 
-def summary(name: str, r: dict[str, Any]) -> str:
+def summary(name: str, r: FidelityResults) -> str:
     """One fidelity's tracking verdict in a line."""
     rel = [
         np.linalg.norm(np.subtract(t["achieved"], t["command"])) / np.linalg.norm(t["command"])
@@ -28,14 +87,14 @@ def summary(name: str, r: dict[str, Any]) -> str:
     )
 
 
-def _flags(res: dict[str, Any]) -> str:
+def _flags(res: Results) -> str:
     """The command-line flags that reproduce ``res``."""
     flags = [" --quick"] if res["quick"] else []
     flags += [f" --{k} {v}" for k, v in res.get("sim_overrides", {}).items()]
     return "".join(flags)
 
 
-def to_markdown(res: dict[str, Any]) -> str:
+def to_markdown(res: Results) -> str:
     """The validation results as docs/physics_validation.md."""
     fast, ref = res["fast"], res["reference"]
     lines = _tracking_md(res) + _x_square_md(fast, ref) + _slip_md(fast, ref)
@@ -43,7 +102,7 @@ def to_markdown(res: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _tracking_md(res: dict[str, Any]) -> list[str]:
+def _tracking_md(res: Results) -> list[str]:
     fast, ref = res["fast"], res["reference"]
     lines = [
         "# Physics validation: MJX model against the kinematics",
@@ -82,7 +141,7 @@ def _tracking_md(res: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _x_square_md(fast: dict[str, Any], ref: dict[str, Any]) -> list[str]:
+def _x_square_md(fast: FidelityResults, ref: FidelityResults) -> list[str]:
     lines = [
         "## X-square cannot spin in place",
         "",
@@ -109,7 +168,7 @@ def _x_square_md(fast: dict[str, Any], ref: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _slip_md(fast: dict[str, Any], ref: dict[str, Any]) -> list[str]:
+def _slip_md(fast: FidelityResults, ref: FidelityResults) -> list[str]:
     lines = [
         "",
         "## Slip where physics says, and odometry",
@@ -122,7 +181,7 @@ def _slip_md(fast: dict[str, Any], ref: dict[str, Any]) -> list[str]:
         "|---|---|---|---|---|---|---|---|",
     ]
 
-    def pose(row: dict) -> str:
+    def pose(row: SlipRow) -> str:
         n = row.get("resets", 0)
         return fmt_vector(row["final_pose"]) + (f" **went unstable, reset {n}×**" if n else "")
 
@@ -135,4 +194,13 @@ def _slip_md(fast: dict[str, Any], ref: dict[str, Any]) -> list[str]:
     return lines
 
 
-__all__ = ["fmt_vector", "summary", "to_markdown"]
+__all__ = [
+    "FidelityResults",
+    "Results",
+    "SlipRow",
+    "Spin",
+    "TrackingRow",
+    "fmt_vector",
+    "summary",
+    "to_markdown",
+]

@@ -25,14 +25,23 @@ from __future__ import annotations
 
 import sys
 import threading
-from typing import Any
+from typing import Any, Protocol
 
 _PINNED: set[tuple[int, int]] = set()
 _LOCK = threading.Lock()
 _MARK = "_mecanum_pins_external_streams"
 
 
-def _key(device: Any, handle: Any) -> tuple[int, int]:
+class _Stream(Protocol):
+    """What :func:`_adopt` sets of a Warp ``Stream`` (or of a stand-in with its interface)."""
+
+    device: object
+    cuda_stream: int
+    _cached_event: object
+    _is_blocking: bool | None
+
+
+def _key(device: object, handle: int) -> tuple[int, int]:
     context = getattr(device, "context", None)
     return (int(context or 0), int(handle))
 
@@ -47,7 +56,9 @@ def pin_stream_class(stream_class: Any) -> bool:
         original_init = stream_class.__init__
         original_del = stream_class.__del__
 
-        def init(self: Any, device: Any = None, priority: int = 0, **kwargs: Any) -> None:
+        def init(
+            self: _Stream, device: object = None, priority: int = 0, **kwargs: int | None
+        ) -> None:
             handle = kwargs.get("cuda_stream")
             if not handle:  # Warp's own stream, or CUDA's default stream: Warp's rule
                 original_init(self, device, priority, **kwargs)
@@ -60,7 +71,7 @@ def pin_stream_class(stream_class: Any) -> bool:
                 original_init(self, device, priority, **kwargs)
                 _PINNED.add(key)
 
-        def delete(self: Any) -> None:
+        def delete(self: object) -> None:
             if not getattr(self, "owner", False) and getattr(self, "cuda_stream", None):
                 return  # an external stream: its entry stays (module docstring)
             original_del(self)
@@ -71,14 +82,14 @@ def pin_stream_class(stream_class: Any) -> bool:
         return True
 
 
-def _resolve(stream_class: Any, device: Any) -> Any:
+def _resolve(stream_class: type, device: object) -> object:
     """``device`` as Warp's ``__init__`` resolves it, through the ``runtime`` of the module
     that defines ``stream_class`` (Warp's ``context``)."""
     runtime = getattr(sys.modules.get(stream_class.__module__), "runtime", None)
     return runtime.get_device(device) if runtime is not None else device
 
 
-def _adopt(stream: Any, device: Any, handle: Any) -> None:
+def _adopt(stream: _Stream, device: object, handle: int) -> None:
     """Warp's ``__init__`` for an external handle, less the registration that the first
     wrapper of that handle made."""
     stream._cached_event = None

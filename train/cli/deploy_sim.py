@@ -27,7 +27,7 @@ import dataclasses
 import sys
 import time
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
 import tyro
@@ -45,6 +45,9 @@ from mecanum_jax.evaluation import rollout as ev
 from train.cli import eval_output
 from train.cli.paths import check_output, resolve_model
 from train.loop.progress import print_error
+
+if TYPE_CHECKING:
+    from train.config import TrainConfig
 
 console = Console(stderr=True)
 DEFAULT_MODEL = "models/o_rectangle"
@@ -131,7 +134,7 @@ def _check(args: DeploySimArgs) -> None:
     args.model = resolve_model(args.model)  # models/o_rectangle: the packaged one if need be
 
 
-def load_model(args: DeploySimArgs) -> tuple[Any, Controller]:
+def load_model(args: DeploySimArgs) -> tuple[TrainConfig, Controller]:
     """The model directory's task config and a controller on the chosen backend."""
     from train.store import inputs
 
@@ -161,7 +164,7 @@ def load_model(args: DeploySimArgs) -> tuple[Any, Controller]:
     return cfg, controller
 
 
-def episodes(args: DeploySimArgs, cfg: Any) -> Episodes:
+def episodes(args: DeploySimArgs, cfg: TrainConfig) -> Episodes:
     """The scenario's episodes (or ``--command``'s), prepared as mecanum-eval prepares
     them (JAX, before any control loop runs), with ``--latency`` and ``--noise-scale``."""
     from mecanum_jax.precision import set_matmul_precision
@@ -177,7 +180,7 @@ def episodes(args: DeploySimArgs, cfg: Any) -> Episodes:
     return eps
 
 
-def _scenario_episodes(args: DeploySimArgs, cfg: Any) -> Episodes:
+def _scenario_episodes(args: DeploySimArgs, cfg: TrainConfig) -> Episodes:
     import jax
     import jax.numpy as jnp
 
@@ -207,7 +210,7 @@ def _scenario_episodes(args: DeploySimArgs, cfg: Any) -> Episodes:
     )
 
 
-def _command_episodes(args: DeploySimArgs, cfg: Any) -> Episodes:
+def _command_episodes(args: DeploySimArgs, cfg: TrainConfig) -> Episodes:
     """``--command`` held on the nominal robot; its target as ``MecanumEnv.feasible_target``
     gives it (without building the MJX environment)."""
     import jax.numpy as jnp
@@ -235,7 +238,9 @@ def _command_episodes(args: DeploySimArgs, cfg: Any) -> Episodes:
     )
 
 
-def play(plant: Plant, controller: Controller, eps: Episodes, seed: int = 0) -> ev.Trace:
+def play(
+    plant: Plant, controller: Controller, eps: Episodes, seed: int = 0
+) -> ev.Trace[np.ndarray]:
     """Every episode through the control loop, one after another: a :class:`Trace` as
     mecanum-eval records it (twist, pose, torques at the end of each control period)."""
     E, T, _ = eps.commands.shape
@@ -271,7 +276,7 @@ TABLE = tuple(column for column in eval_output.TABLE if column[1] != "flicker")
 INTERVALS = ("rmse_lin", "rmse_wz", "ss_lin", "ss_wz")
 
 
-def report(trace: ev.Trace, eps: Episodes, args: DeploySimArgs) -> dict[str, Any]:
+def report(trace: ev.Trace[np.ndarray], eps: Episodes, args: DeploySimArgs) -> dict[str, Any]:
     """mecanum-eval's summary of the rehearsal, 95% bootstrap intervals over the episodes
     of the tracking figures, and the per-episode steady-state errors."""
     mcfg = metrics.MetricConfig(settle_s=args.settle_s)

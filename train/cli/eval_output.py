@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.table import Table
 
@@ -17,6 +17,9 @@ from mecanum_jax.evaluation import plots
 from mecanum_jax.evaluation import rollout as ev
 from mecanum_jax.evaluation.compare import score
 from mecanum_jax.task import REFERENCES
+
+if TYPE_CHECKING:
+    import numpy as np
 
 TABLE = (
     ("RMSE v", "rmse_lin", "{:.3f}"),
@@ -119,7 +122,10 @@ def scorecard_table(results: dict[str, Any], who: str, refs: Sequence[str]) -> T
 
 
 def write_plots(
-    results: dict[str, Any], traces: dict[str, dict[str, ev.Trace]], dt: float, out: Path
+    results: dict[str, Any],
+    traces: dict[str, dict[str, ev.Trace[np.ndarray]]],
+    dt: float,
+    out: Path,
 ) -> list[Path]:
     paths = [
         plots.plot_errors(

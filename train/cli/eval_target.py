@@ -9,7 +9,7 @@ import importlib.util
 import json
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import jax
 from rich.console import Console
@@ -24,6 +24,9 @@ from mecanum_jax.task import fidelity as fid
 from train.cli.eval_args import EvalArgs
 from train.config_loading import load_train_config
 from train.learner.policy import PROVENANCE, RestoredPolicy, restore_policy, split_target
+
+if TYPE_CHECKING:
+    from brax.training.types import PolicyParams
 
 console = Console(stderr=True)
 
@@ -94,7 +97,7 @@ class Target:
         self.evaluator = ev.Evaluator(self.env, apply, max_batch)
 
     @property
-    def params(self) -> Any:
+    def params(self) -> PolicyParams | None:
         r = self.restored
         return None if r is None else (r.normalizer, r.params)
 

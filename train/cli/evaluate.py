@@ -83,7 +83,7 @@ def evaluate(
     scenario_set: scenarios.ScenarioSet,
     args: EvalArgs,
     parts_out: paired.Parts | None = None,
-) -> tuple[dict[str, Any], dict[str, dict[str, ev.Trace]], dict[str, float]]:
+) -> tuple[dict[str, Any], dict[str, dict[str, ev.Trace[np.ndarray]]], dict[str, float]]:
     """Every scenario with the policy (if any) and the references, all in as few compiled
     chunks as the batch limit allows: results, traces and timings; ``parts_out``, if
     given, also receives every controller's per-episode metric parts by scenario."""
@@ -99,7 +99,7 @@ def evaluate(
         out = target.evaluator.run_many(jobs, target.params, progress)
     t_rollout = time.time() - t0 - t_prepare
     results: dict[str, Any] = {}
-    traces: dict[str, dict[str, ev.Trace]] = {}
+    traces: dict[str, dict[str, ev.Trace[np.ndarray]]] = {}
     jac = kinematics.jacobian(env.geometry)
     for k, sc in enumerate(scenario_set.scenarios):
         per = {who: out[k * len(players) + j] for j, who in enumerate(players)}
@@ -143,7 +143,7 @@ def evaluate(
 
 
 def write_videos(
-    target: Target, traces: dict[str, dict[str, ev.Trace]], args: EvalArgs, out: Path
+    target: Target, traces: dict[str, dict[str, ev.Trace[np.ndarray]]], args: EvalArgs, out: Path
 ) -> list[Path]:
     from mecanum_jax.sim.render import render_frames, write_video
 

@@ -25,7 +25,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import jax
 from rich.console import Console
@@ -64,7 +64,7 @@ def _meta_parser(prog: str, batch: bool) -> argparse.ArgumentParser:
     return p
 
 
-def _f(x: Any) -> str:
+def _f(x: float | str | None) -> str:
     """A figure for a table: four decimals, "-" where undefined."""
     return "-" if x is None or not math.isfinite(float(x)) else f"{float(x):.4f}"
 
@@ -134,7 +134,13 @@ def _hold(run: Run) -> Run:
     return run
 
 
-def _releasing(command: Any) -> Any:
+class Command(Protocol):
+    """A command line's ``main``: its arguments (default: ``sys.argv``'s) to an exit code."""
+
+    def __call__(self, argv: list[str] | None = None) -> int: ...
+
+
+def _releasing(command: Command) -> Command:
     """``command`` giving back the locks :func:`_hold` took when it returns (an in-process
     caller, a test, may resume the run from another process next)."""
 

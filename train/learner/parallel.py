@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import jax
 import numpy as np
@@ -83,7 +83,7 @@ def mesh_sharding(parallel: str, devices: Sequence[jax.Device]) -> NamedSharding
 
 
 def spread(
-    fn: Callable[..., Any],
+    fn: Callable[..., object],
     parallel: str,
     devices: Sequence[jax.Device],
     sharding: NamedSharding | None,

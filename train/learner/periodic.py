@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import jax
 import numpy as np
@@ -79,7 +79,7 @@ class PeriodicEvaluation:
         self._jacobian = np.asarray(kinematics.jacobian(self.env.geometry))
         self._batches: dict[str, episodes.EpisodeBatch] | None = None
 
-    def store_programs(self, wrap: Callable[[Wrapped], Any]) -> None:
+    def store_programs(self, wrap: Callable[[Wrapped], Wrapped]) -> None:
         """Run the rollout through ``wrap(jitted rollout)`` (train/loop/warm_start.py)."""
         self.evaluator._run = wrap(self.evaluator._run)
 

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Protocol, TypeVar
+from typing import Protocol, TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -57,7 +57,7 @@ class SplitLearner(Protocol):
 
     @property
     def sharding(self) -> NamedSharding | None: ...
-    def program(self, fn: Callable[..., Any]) -> Wrapped: ...
+    def program(self, fn: Callable[..., object]) -> Wrapped: ...
     def pack_env(self, env_state: State) -> PackedEnv: ...
     def unpack_env(self, packed: PackedEnv) -> State: ...
     def iteration_rollouts(
@@ -145,9 +145,11 @@ class SplitEpoch:
         return learner.pack_env(env_state), *rest
 
     @allow_rank_promotion
-    def _update_one(self, *args: Any) -> Updated:
+    def _update_one(
+        self, ts: TrainingState, data: Transition, keys: jax.Array, env_metrics: Metrics
+    ) -> Updated:
         """One seed's update on one device, averaged across devices (``AXIS``)."""
-        return self.learner.iteration_update(*args)
+        return self.learner.iteration_update(ts, data, keys, env_metrics)
 
     def _finish_one(self, ts: TrainingState, per_iteration: tuple[Metrics, ...]) -> Metrics:
         """The epoch's metrics as the one-program epoch reports them."""

@@ -29,14 +29,14 @@ def evaluations(run_dir: Path) -> list[dict[str, Any]]:
     return [r for r in rows if "eval" in r]
 
 
-def _num(x: Any, fmt: str) -> str:
+def _num(x: object, fmt: str) -> str:
     """A figure, "-" where missing or not finite (metrics.jsonl writes NaN as a string)."""
     if not isinstance(x, int | float) or not math.isfinite(x):
         return "-"
     return fmt.format(x)
 
 
-def _float(x: Any) -> float:
+def _float(x: object) -> float:
     """A logged figure as a float (NaN where metrics.jsonl holds none or ``"nan"``)."""
     return float(x) if isinstance(x, int | float) else math.nan
 

@@ -21,21 +21,31 @@ import itertools
 import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Protocol, TypedDict, TypeVar
 
 import jax
 import numpy as np
+import numpy.typing as npt
 
 from mecanum_jax.config import ConfigError
 from train.store.leaves import CheckpointError, corruption, pack, unpack
 
 ENV_KEYS = ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID")
+Tree = TypeVar("Tree")
 
 
-def distributed_args(environ: Mapping[str, str]) -> dict[str, Any]:
+class DistributedArgs(TypedDict, total=False):
+    """The ``jax.distributed.initialize`` keyword arguments the environment variables give."""
+
+    coordinator_address: str
+    num_processes: int
+    process_id: int
+
+
+def distributed_args(environ: Mapping[str, str]) -> DistributedArgs:
     """``jax.distributed.initialize`` keyword arguments from ``environ``; raises
     :class:`ConfigError` naming the variable and its value when one is malformed."""
-    args: dict[str, Any] = {}
+    args: DistributedArgs = {}
     address = environ.get("JAX_COORDINATOR_ADDRESS")
     if address is not None:
         host, sep, port = address.rpartition(":")
@@ -44,15 +54,16 @@ def distributed_args(environ: Mapping[str, str]) -> dict[str, Any]:
                 f"JAX_COORDINATOR_ADDRESS = {address!r}: expected host:port (port 1-65535)"
             )
         args["coordinator_address"] = address
+    counts: dict[str, int] = {}
     for key, name in (("JAX_NUM_PROCESSES", "num_processes"), ("JAX_PROCESS_ID", "process_id")):
         raw = environ.get(key)
         if raw is None:
             continue
         try:
-            args[name] = int(raw)
+            counts[name] = int(raw)
         except ValueError:
             raise ConfigError(f"{key} = {raw!r}: expected an integer") from None
-    n, pid = args.get("num_processes"), args.get("process_id")
+    n, pid = counts.get("num_processes"), counts.get("process_id")
     if n is not None and n < 1:
         raise ConfigError(f"JAX_NUM_PROCESSES = {n}: must be >= 1")
     if pid is not None and pid < 0:
@@ -67,6 +78,8 @@ def distributed_args(environ: Mapping[str, str]) -> dict[str, Any]:
             f"JAX_NUM_PROCESSES = {n}: JAX_COORDINATOR_ADDRESS (host:port of process 0) "
             "must be set too"
         )
+    if n is not None and pid is not None:
+        args["num_processes"], args["process_id"] = n, pid
     return args
 
 
@@ -74,12 +87,12 @@ def init_distributed(
     enabled: bool,
     environ: Mapping[str, str] | None = None,
     initialize: Callable[..., None] | None = None,
-) -> dict[str, Any]:
+) -> DistributedArgs:
     """Join the ``jax.distributed`` run when ``enabled`` (``--distributed``): from the
     environment variables above, else from the cluster environment JAX detects. Returns the
     arguments it passed (empty when not enabled)."""
     if not enabled:
-        return {}
+        return DistributedArgs()
     args = distributed_args(os.environ if environ is None else environ)
     if initialize is None:
         initialize = jax.distributed.initialize
@@ -110,7 +123,16 @@ def barrier(name: str, timeout_s: float = 1800.0) -> None:
     client.wait_at_barrier(f"mecanum/{name}/{next(_barriers)}", int(timeout_s * 1000))
 
 
-def coordination_client() -> Any:
+class CoordinationClient(Protocol):
+    """What this package uses of the ``jax.distributed`` coordination service's client."""
+
+    def wait_at_barrier(self, barrier_id: str, timeout_in_ms: int, /) -> None: ...
+    def key_value_set(self, key: str, value: str, /) -> None: ...
+    def key_value_dir_get(self, key: str, /) -> list[tuple[str, str]]: ...
+    def key_value_delete(self, key: str, /) -> None: ...
+
+
+def coordination_client() -> CoordinationClient | None:
     """The ``jax.distributed`` coordination service's client (a key-value store and
     barriers), or ``None`` where this process joined none (several processes without
     jax.distributed: nothing to wait on)."""
@@ -126,7 +148,7 @@ def _process_dir(run_dir: Path, index: int) -> Path:
     return run_dir / PROCESS_DIR / f"p{index}"
 
 
-def save_process(run_dir: Path, epoch: int, keys: Any, env: Any, keep: int) -> Path:
+def save_process(run_dir: Path, epoch: int, keys: npt.ArrayLike, env: object, keep: int) -> Path:
     """What only this process holds in a multi-process run (process 0's orbax checkpoint has
     the replicated training state): its devices' loop keys and robots, as one ``.npz``
     written atomically; keeps the newest ``keep``."""
@@ -134,9 +156,9 @@ def save_process(run_dir: Path, epoch: int, keys: Any, env: Any, keep: int) -> P
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{epoch}.npz"
     tmp = folder / f".{epoch}.tmp.npz"
-    arrays: dict[str, Any] = {f"env_{k}": v for k, v in pack(env).items()}
+    arrays: dict[str, np.ndarray] = {f"env_{k}": v for k, v in pack(env).items()}
     arrays["key"] = np.asarray(keys)
-    np.savez(tmp, **arrays)
+    np.savez(tmp, allow_pickle=True, **arrays)  # numpy's default, named: all else is arrays
     os.replace(tmp, path)
     saved = sorted(int(f.stem) for f in folder.glob("*.npz") if f.stem.isdigit())
     for old in saved[:-keep] if keep > 0 else []:
@@ -145,8 +167,8 @@ def save_process(run_dir: Path, epoch: int, keys: Any, env: Any, keep: int) -> P
 
 
 def restore_process(
-    run_dir: Path, epoch: int, keys_like: Any, env_like: Any
-) -> tuple[np.ndarray, Any] | None:
+    run_dir: Path, epoch: int, keys_like: npt.ArrayLike, env_like: Tree
+) -> tuple[np.ndarray, Tree] | None:
     """This process's loop keys and robots of ``epoch`` (see :func:`save_process`), or
     ``None`` when it has none for that epoch."""
     path = _process_dir(run_dir, jax.process_index()) / f"{epoch}.npz"
@@ -166,6 +188,8 @@ def restore_process(
 
 __all__ = [
     "ENV_KEYS",
+    "CoordinationClient",
+    "DistributedArgs",
     "barrier",
     "coordination_client",
     "distributed_args",

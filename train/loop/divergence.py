@@ -6,12 +6,15 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import jax
 import numpy as np
 
 from train.learner.transfer import to_host
+
+if TYPE_CHECKING:
+    from train.learner.state import TrainingState
 
 LOSS_FIRST = "loss/total_loss"
 
@@ -33,7 +36,7 @@ def bad_seeds(seeds: Sequence[int], metrics: dict[str, np.ndarray]) -> list[int]
 
 
 def first_non_finite(
-    seeds: Sequence[int], metrics: dict[str, np.ndarray], state: Any, i: int
+    seeds: Sequence[int], metrics: dict[str, np.ndarray], state: TrainingState, i: int
 ) -> str:
     """The first non-finite quantity of seed ``seeds[i]``: ``"loss/total_loss is nan in
     seed 0"`` or ``"policy parameter params/hidden_0/kernel is nan in seed 0"``. ``state``:

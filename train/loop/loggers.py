@@ -9,11 +9,15 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from mecanum_jax import atomic
 from train.loop import run_records as records
+
+if TYPE_CHECKING:
+    from train.config import TrainConfig
 
 
 class MetricLogger(Protocol):
@@ -66,7 +70,7 @@ class WandbLogger:
     """One W&B run per run directory (its id derived from the directory, so a resumed run
     continues the same W&B run); each seed's metrics under ``seed_<s>/``."""
 
-    def __init__(self, project: str, run_dir: Path, config: dict[str, Any]):
+    def __init__(self, project: str, run_dir: Path, config: Mapping[str, object]):
         import wandb
 
         run_id = hashlib.sha1(str(run_dir.resolve()).encode()).hexdigest()[:16]
@@ -92,8 +96,8 @@ class EpochLog:
     line per seed, and the sinks: TensorBoard, W&B where ``run.wandb_project`` names a
     project, and the user's ``extra`` loggers."""
 
-    def __init__(self, cfg: Any, run_dir: Path, extra: list[MetricLogger], enabled: bool):
-        self.cfg, self.dir, self.enabled = cfg, run_dir, enabled  # cfg: a TrainConfig
+    def __init__(self, cfg: TrainConfig, run_dir: Path, extra: list[MetricLogger], enabled: bool):
+        self.cfg, self.dir, self.enabled = cfg, run_dir, enabled
         self._extra = list(extra)
         self.sinks: list[MetricLogger] = []
 
@@ -105,7 +109,9 @@ class EpochLog:
         if self.cfg.run.wandb_project:
             self.sinks.append(WandbLogger(self.cfg.run.wandb_project, self.dir, self.cfg.to_dict()))
 
-    def log(self, epoch: int, steps: int, walltime: float, rows: list[dict[str, Any]]) -> None:
+    def log(
+        self, epoch: int, steps: int, walltime: float, rows: Sequence[Mapping[str, object]]
+    ) -> None:
         if not self.enabled:
             return
         lines = [{"epoch": epoch, "env_steps": steps, "walltime": walltime, **r} for r in rows]

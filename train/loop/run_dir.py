@@ -22,7 +22,6 @@ import shutil
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
 
 import jax
 
@@ -142,7 +141,7 @@ def resumed_config(run_dir: Path, overrides: TrainConfig | None) -> TrainConfig:
     return cfg
 
 
-def _get(cfg: Any, dotted: str) -> Any:
+def _get(cfg: object, dotted: str) -> object:
     for part in dotted.split("."):
         cfg = getattr(cfg, part)
     return cfg

@@ -8,18 +8,23 @@ import dataclasses
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 
 from mecanum_jax.sim.description import fingerprint
 from train.config import TrainConfig
-from train.learner.periodic import Result
+from train.learner.periodic import Comparison, Result
 from train.learner.policy import check_compatible
 from train.learner.ppo import Learner
+from train.learner.shapes import PackedEnv
+from train.learner.state import TrainingState
 from train.learner.transfer import to_host
 from train.loop.distributed import restore_process, save_process
 from train.store import checkpoint
+
+if TYPE_CHECKING:
+    import orbax.checkpoint as ocp
 
 
 @dataclasses.dataclass
@@ -32,19 +37,20 @@ class Session:
     is_writer: bool  # process 0: writes the checkpoints
     learner: Learner
     t_start: float
-    state: Any
-    env_state: Any
+    state: TrainingState
+    env_state: PackedEnv
     epoch: int = 0
     walltime_before: float = 0.0
-    beat_at: dict[str, Any] = dataclasses.field(default_factory=dict)
+    # per seed, the epoch, env steps and wall time it first beat the baseline at
+    beat_at: dict[str, dict[str, float]] = dataclasses.field(default_factory=dict)
     saved_epoch: int = 0
     first_epoch: int = 1  # this session's
-    mgr: Any = None
+    mgr: ocp.CheckpointManager | None = None
     baseline_job: Any = None  # a Future of the baseline's Result
     baseline: Result | None = None
     setup_s: float = 0.0
     results: list[Result] = dataclasses.field(default_factory=list)
-    comparisons: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    comparisons: list[Comparison] = dataclasses.field(default_factory=list)
     shown: str = ""  # the last evaluation's figures, kept on the progress line
 
     def steps(self, epochs: int) -> int:
@@ -70,7 +76,7 @@ class Session:
         """Checkpoint this epoch: on the period, and on the epoch a run ends or stops at."""
         return self.epoch % self.cfg.run.checkpoint_every == 0 or final
 
-    def meta(self) -> dict[str, Any]:
+    def meta(self) -> dict[str, object]:
         env = self.learner.env
         return {
             "config": self.cfg.to_dict(),
@@ -110,7 +116,7 @@ class Session:
         self.beat_at = meta.get("beat_baseline", {})
         log(f"resumed {self.dir} at epoch {self.epoch} ({meta['env_steps']:,} steps)")
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> dict[str, object]:
         """status.json's figures besides the state: the epoch reached, its env steps per
         seed, the run's length in epochs, and the last checkpoint (``None`` before one)."""
         last = None

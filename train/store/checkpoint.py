@@ -71,7 +71,7 @@ def _orbax() -> ModuleType:
 def manager(run_dir: Path, max_to_keep: int = 3, create: bool = True) -> ocp.CheckpointManager:
     ocp = _orbax()
     root = (run_dir / CHECKPOINT_DIR).absolute()
-    extra: dict[str, Any] = {}
+    extra: dict[str, object] = {}  # more CheckpointManagerOptions
     if jax.process_count() > 1:
         # process-local: process 0 alone writes its host copies; orbax's default would
         # wait at barriers for every process of a jax.distributed run (and with a process
@@ -88,7 +88,11 @@ def manager(run_dir: Path, max_to_keep: int = 3, create: bool = True) -> ocp.Che
 
 
 def save(
-    mgr: ocp.CheckpointManager, epoch: int, train: object, env: object, meta: dict[str, Any]
+    mgr: ocp.CheckpointManager,
+    epoch: int,
+    train: object,
+    env: object,
+    meta: Mapping[str, object],
 ) -> None:
     """Save host (numpy) trees; blocks until written so a crash cannot leave it half done.
     orbax writes ``<epoch>.orbax-checkpoint-tmp`` and renames it when complete; a save that

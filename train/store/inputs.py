@@ -21,10 +21,13 @@ import hashlib
 import json
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from mecanum_jax import atomic
 from mecanum_jax.config import CONFIG_DIR, ConfigError, find_config
+
+if TYPE_CHECKING:
+    from train.config import TrainConfig
 
 INPUTS_DIR = "inputs"
 INDEX = "inputs.json"
@@ -43,7 +46,7 @@ def robot_file(robot: str) -> Path:
     return find_config(robot, CONFIG_DIR / "robots", "env.robot", "built-in description")
 
 
-def read_index(run_dir: Path) -> dict[str, Any]:
+def read_index(run_dir: Path) -> dict[str, object]:
     """``inputs/inputs.json`` of ``run_dir`` (empty when the run predates copied inputs)."""
     path = run_dir / INPUTS_DIR / INDEX
     if not path.is_file():
@@ -67,7 +70,7 @@ def add_file(run_dir: Path, key: str, source: Path) -> None:
     atomic.write_json(folder / INDEX, index)
 
 
-def save_inputs(run_dir: str | Path, cfg: Any) -> None:
+def save_inputs(run_dir: str | Path, cfg: TrainConfig) -> None:
     """Copy the robot description of ``cfg`` (a TrainConfig) into ``run_dir/inputs/``."""
     add_file(Path(run_dir), "robot", robot_file(cfg.env.robot))
 
@@ -113,11 +116,13 @@ def robot_copy(run_dir: Path, given: str) -> Path | None:
     return copy
 
 
-def use_copies(data: Any, run_dir: Path, warn: bool = True) -> Any:
+def use_copies(data: object, run_dir: Path, warn: bool = True) -> object:
     """A saved config mapping of ``run_dir`` (config.json's, or a checkpoint's) with
     ``env.robot`` the run's copy, where it has one; parse it after this, since parsing
     loads the description."""
-    env = data.get("env") if isinstance(data, dict) else None
+    if not isinstance(data, dict):
+        return data
+    env = data.get("env")
     if not (isinstance(env, dict) and isinstance(env.get("robot"), str)):
         return data
     with warnings.catch_warnings():
@@ -139,7 +144,7 @@ def as_given(data: dict[str, Any], saved: dict[str, Any]) -> dict[str, Any]:
     return {**data, "env": {**data["env"], "robot": robot}}
 
 
-def load_saved_config(run_dir: Path, warn: bool = True, validate: bool = True) -> Any:
+def load_saved_config(run_dir: Path, warn: bool = True, validate: bool = True) -> TrainConfig:
     """``run_dir/config.json`` as a TrainConfig whose ``env.robot`` is the run's copy (if
     it has one), so that it loads after the original is gone. Errors name the file.
     ``validate=False``: its types checked, its values left to the caller

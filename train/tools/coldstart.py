@@ -44,7 +44,13 @@ import threading  # noqa: E402
 from collections import Counter  # noqa: E402
 from collections.abc import Iterator  # noqa: E402
 from pathlib import Path  # noqa: E402
-from typing import Any  # noqa: E402
+from typing import TYPE_CHECKING, Any, NotRequired, TypedDict  # noqa: E402
+
+if TYPE_CHECKING:
+    from jax.stages import Compiled
+    from rich.table import Table
+
+    from train.learner.shapes import Host
 
 EVENTS = {
     "/jax/core/compile/jaxpr_trace_duration": "trace_s",
@@ -73,18 +79,44 @@ def process_age_s() -> float | None:
 AGE_AT_MODULE = process_age_s()
 
 
+class Event(TypedDict):
+    """One traced, lowered or compiled program as ``jax.monitoring`` reports it."""
+
+    event: str  # trace_s, lower_s or compile_s
+    name: str
+    s: float
+    phase: str
+    cache: NotRequired[str | None]  # compile_s: hit or miss (None: no persistent cache)
+
+
+class Program(TypedDict):
+    """One XLA compilation, with the tracing and lowering of the same name before it."""
+
+    name: str
+    phase: str
+    trace_s: float | None
+    lower_s: float | None
+    compile_s: float
+    cache: str | None
+
+
 class CompileLog:
     """Listens to ``jax.monitoring``: one record per traced, lowered or compiled program."""
 
     def __init__(self) -> None:
         self.phase = "start"
-        self.events: list[dict[str, Any]] = []
+        self.events: list[Event] = []
         self._current = threading.local()
 
     def on_duration(self, event: str, duration_secs: float, **kwargs: str | int) -> None:
         if event in EVENTS:
             name = str(kwargs.get("fun_name", "?"))
-            record = {"event": EVENTS[event], "name": name, "s": duration_secs, "phase": self.phase}
+            record: Event = {
+                "event": EVENTS[event],
+                "name": name,
+                "s": duration_secs,
+                "phase": self.phase,
+            }
             if event == COMPILE_EVENT:
                 record["cache"] = getattr(self._current, "cache", None)
                 self._current.cache = None
@@ -106,7 +138,7 @@ class CompileLog:
         mon.register_event_listener(self.on_event)
         return self
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, *exc: object) -> None:
         import jax.monitoring as mon
 
         for name, listener in (
@@ -118,9 +150,9 @@ class CompileLog:
             if unregister is not None:
                 unregister(listener)
 
-    def programs(self) -> list[dict[str, Any]]:
+    def programs(self) -> list[Program]:
         """Each XLA compilation, with the tracing and lowering of the same name before it."""
-        out: list[dict[str, Any]] = []
+        out: list[Program] = []
         pending: dict[str, dict[str, float]] = {}
         for e in self.events:
             key = _base_name(e["name"])
@@ -155,7 +187,7 @@ class Clock:
     def __init__(self, log: CompileLog):
         self.offset = (AGE_AT_MODULE or 0.0) - T_MODULE
         self.log = log
-        self.phases: list[dict[str, Any]] = []
+        self.phases: list[dict[str, object]] = []
         self._t, self._cpu = T_MODULE, CPU_AT_MODULE
         if AGE_AT_MODULE is not None:
             name = "interpreter, import train (jax, mecanum_jax)"
@@ -163,11 +195,11 @@ class Clock:
             self.phases.append({**first, "cpu_s": CPU_AT_MODULE})
 
     @contextlib.contextmanager
-    def phase(self, name: str) -> Iterator[dict[str, Any]]:
+    def phase(self, name: str) -> Iterator[dict[str, object]]:
         """Time the block as phase ``name``; programs compiled in it are attributed to it.
         The block may add entries to the dict it gets."""
         self.log.phase = name
-        extra: dict[str, Any] = {}
+        extra: dict[str, object] = {}
         yield extra
         now, cpu = time.perf_counter(), time.process_time()
         at = now + self.offset
@@ -239,7 +271,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
     baseline_first = first_runs_alone(learner)  # as mecanum-train orders them
     on = args.compile_together == "on"
     together = baseline_first and on and can_compile_together(learner)
-    prepared: tuple[Any, Any] = (None, None)
+    prepared: tuple[Host | None, Compiled | None] = (None, None)
     if together:
         with clock.phase("compiling together: the reset, the epoch and the evaluation"):
             prepared = compile_together(learner)
@@ -296,18 +328,17 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
     }
 
 
-def summarize(result: dict[str, Any], programs: list[dict[str, Any]]) -> dict[str, Any]:
+def summarize(result: dict[str, Any], programs: list[Program]) -> dict[str, Any]:
     """The report: the programs, slowest first, and their totals. ``recompiled``: each
     name compiled more than once, with its count and total compile time, slowest first
     (eager operations on arrays of new shapes count too)."""
     count = Counter(p["name"] for p in programs)
-    seconds: Counter[str] = Counter()
+    seconds: dict[str, float] = {}
     for p in programs:
-        seconds[p["name"]] += p["compile_s"]
+        seconds[p["name"]] = seconds.get(p["name"], 0.0) + p["compile_s"]
     cache = Counter(str(p["cache"]) for p in programs)
-    recompiled = {
-        n: {"count": count[n], "compile_s": s} for n, s in seconds.most_common() if count[n] > 1
-    }
+    slowest = sorted(seconds.items(), key=lambda item: -item[1])
+    recompiled = {n: {"count": count[n], "compile_s": s} for n, s in slowest if count[n] > 1}
     return {
         **result,
         "programs": sorted(programs, key=lambda p: -p["compile_s"]),
@@ -323,7 +354,7 @@ def summarize(result: dict[str, Any], programs: list[dict[str, Any]]) -> dict[st
     }
 
 
-def _tables(report: dict[str, Any], top: int) -> list[Any]:
+def _tables(report: dict[str, Any], top: int) -> list[Table]:
     from rich.table import Table
 
     phases = Table(

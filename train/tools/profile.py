@@ -29,7 +29,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, NotRequired, TypedDict, TypeVar, TypeVarTuple
 
 import jax
 import numpy as np
@@ -47,6 +47,19 @@ from train.loop.progress import print_error
 from train.loop.run_records import machine_record, write_json
 from train.tools.profile_parts import EpochParts
 
+R = TypeVar("R")
+Args = TypeVarTuple("Args")
+
+
+class Timing(TypedDict):
+    """One program's times (s): its compilation, first call, and the timed rounds."""
+
+    aot: NotRequired[bool]  # compiled ahead of time (dropped once the median is in)
+    compile_s: float
+    first_call_s: float
+    times_s: list[float]
+    median_s: NotRequired[float]
+
 
 class Timer:
     """Programs compiled and warmed up one by one, then timed in turns: each round calls
@@ -54,10 +67,10 @@ class Timer:
 
     def __init__(self, log: Callable[[str], None]):
         self.log = log
-        self.calls: dict[str, tuple[Callable[..., Any], tuple[Any, ...]]] = {}
-        self.programs: dict[str, dict[str, Any]] = {}
+        self.calls: dict[str, tuple[Callable[..., object], tuple[object, ...]]] = {}
+        self.programs: dict[str, Timing] = {}
 
-    def add(self, name: str, fn: Callable[..., Any], *args: Any) -> Any:
+    def add(self, name: str, fn: Callable[[*Args], R], *args: *Args) -> R:
         """Compile ``fn`` for ``args`` (ahead of time where it is jitted; else its first
         call, less a timed one, is taken as its compilation) and run it once; returns its
         output."""
@@ -76,7 +89,7 @@ class Timer:
         }
         return out
 
-    def run(self, repeats: int) -> dict[str, dict[str, Any]]:
+    def run(self, repeats: int) -> dict[str, Timing]:
         """``repeats`` rounds; each program's median, and its compile time."""
         self.log(f"timing {len(self.calls)} programs, {repeats} rounds")
         for _ in range(repeats):
@@ -128,7 +141,7 @@ def measure(
     return report(cfg, learner, programs)
 
 
-def report(cfg: TrainConfig, learner: Learner, programs: dict[str, Any]) -> dict[str, Any]:
+def report(cfg: TrainConfig, learner: Learner, programs: dict[str, Timing]) -> dict[str, Any]:
     """The table's rows (seconds per epoch of the run loop) from the programs' medians."""
     t = {name: p["median_s"] for name, p in programs.items()}
     for name in ("physics", "task", "env", "rollout"):  # a call's own cost is not the part's

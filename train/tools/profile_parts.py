@@ -35,23 +35,32 @@ drop work that the epoch needs.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable, Iterator
-from typing import Any
+from collections.abc import Iterator
 
 import jax
 import jax.numpy as jnp
+from brax.envs.base import State
+from brax.training import types
 from brax.training.acme import running_statistics
 from brax.training.agents.ppo import losses as ppo_losses
+from jax.typing import ArrayLike
 
 from mecanum_jax.sim.batching import chunked_vmap
+from mecanum_jax.sim.physics import Robot
+from mecanum_jax.sim.state import RobotParams, SimState
 from train.learner.parallel import AXIS
 from train.learner.ppo import Learner, TrainingState, allow_rank_promotion
+from train.learner.shapes import Metrics, PackedEnv, Updated
+
+Collected = tuple[PackedEnv, types.Transition, Metrics]
+"""The epoch's rollouts: the packed environment state after them, their stacked data and
+metrics (:meth:`EpochParts._collect`)."""
 
 
-def zero_policy(policy: Callable[..., Any]) -> Callable[..., Any]:
+def zero_policy(policy: types.Policy) -> types.Policy:
     """A policy with ``policy``'s outputs (actions and extras), all zeros, and no network."""
 
-    def zero(obs: Any, key: jax.Array) -> Any:
+    def zero(obs: types.Observation, key: jax.Array) -> tuple[types.Action, types.Extra]:
         shapes = jax.eval_shape(policy, obs, key)
         return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
 
@@ -59,12 +68,14 @@ def zero_policy(policy: Callable[..., Any]) -> Callable[..., Any]:
 
 
 @contextlib.contextmanager
-def physics_replaced(robot: Any) -> Iterator[None]:
+def physics_replaced(robot: Robot) -> Iterator[None]:
     """While a part program is traced, ``robot.step`` only holds the wheel setpoints it is
     given (the data flow stays: nothing that reads the state or the setpoints is dropped),
     without an MJX step."""
 
-    def hold(state: Any, command: Any, params: Any, substeps: int = 1) -> Any:
+    def hold(
+        state: SimState, command: ArrayLike, params: RobotParams, substeps: int = 1
+    ) -> SimState:
         return state.replace(setpoint=jnp.asarray(command, jnp.float32))
 
     robot.__dict__["step"] = hold  # shadows the method on this instance only
@@ -94,10 +105,10 @@ class EpochParts:
         }
         self.programs = {k: learner.program(allow_rank_promotion(f)) for k, f in parts.items()}
 
-    def _policy(self, ts: TrainingState) -> Any:
+    def _policy(self, ts: TrainingState) -> types.Policy:
         return self.learner.make_policy((ts.normalizer_params, ts.params.policy, ts.params.value))
 
-    def _physics(self, ts: TrainingState, packed: Any) -> Any:
+    def _physics(self, ts: TrainingState, packed: PackedEnv) -> PackedEnv:
         learner = self.learner
         env, menv = learner.unpack_env(packed), learner.env
         info = env.info
@@ -109,19 +120,21 @@ class EpochParts:
             lambda s, r, p: menv.robot.step(s, r, p, menv.substeps), learner.train_env.chunk
         )
 
-        def body(sim: Any, _: None) -> tuple[Any, None]:
+        def body(sim: SimState, _: None) -> tuple[SimState, None]:
             return step(sim, rates, info["params"]), None
 
         sim, _ = jax.lax.scan(body, env.pipeline_state, None, length=self.steps)
         return learner.pack_env(env.replace(pipeline_state=sim))
 
-    def _task(self, ts: TrainingState, packed: Any) -> Any:
+    def _task(
+        self, ts: TrainingState, packed: PackedEnv
+    ) -> tuple[PackedEnv, tuple[jax.Array, jax.Array, Metrics]]:
         learner = self.learner
         env, menv = learner.unpack_env(packed), learner.env
         zeros = jnp.zeros((env.reward.shape[0], menv.action_size))
         step = chunked_vmap(menv.step, learner.train_env.chunk)
 
-        def body(s: Any, _: None) -> tuple[Any, Any]:
+        def body(s: State, _: None) -> tuple[State, tuple[jax.Array, jax.Array, Metrics]]:
             s = step(s, zeros)
             return s, (s.obs, s.reward, s.metrics)
 
@@ -129,17 +142,17 @@ class EpochParts:
             env, out = jax.lax.scan(body, env, None, length=self.steps)
         return learner.pack_env(env), out
 
-    def _env(self, ts: TrainingState, packed: Any) -> Any:
+    def _env(self, ts: TrainingState, packed: PackedEnv) -> Collected:
         return self._collect(zero_policy(self._policy(ts)), ts, packed)
 
-    def _rollout(self, ts: TrainingState, packed: Any) -> Any:
+    def _rollout(self, ts: TrainingState, packed: PackedEnv) -> Collected:
         return self._collect(self._policy(ts), ts, packed)
 
-    def _collect(self, policy: Any, ts: TrainingState, packed: Any) -> Any:
+    def _collect(self, policy: types.Policy, ts: TrainingState, packed: PackedEnv) -> Collected:
         """The epoch's rollouts (same policy throughout); the last iteration's data last."""
         learner = self.learner
 
-        def iteration(env: Any, key: jax.Array) -> tuple[Any, Any]:
+        def iteration(env: State, key: jax.Array) -> tuple[State, tuple[types.Transition, Metrics]]:
             env, data, metrics = learner.collect(policy, env, key)
             return env, (data, metrics)
 
@@ -148,19 +161,21 @@ class EpochParts:
             env, (data, metrics) = jax.lax.scan(iteration, learner.unpack_env(packed), keys)
         return learner.pack_env(env), data, metrics
 
-    def _call(self, ts: TrainingState, packed: Any) -> Any:
+    def _call(self, ts: TrainingState, packed: PackedEnv) -> jax.Array:
         """Nothing: the cost of calling a program with the parts' arguments."""
         return ts.key
 
-    def _update(self, ts: TrainingState, data: Any) -> Any:
+    def _update(self, ts: TrainingState, data: types.Transition) -> Updated:
         return self.learner.update(ts, data, ts.key)
 
-    def _normalizer(self, ts: TrainingState, data: Any) -> Any:
+    def _normalizer(
+        self, ts: TrainingState, data: types.Transition
+    ) -> running_statistics.RunningStatisticsState:
         return running_statistics.update(
             ts.normalizer_params, data.observation, pmap_axis_name=AXIS
         )
 
-    def _gae(self, ts: TrainingState, data: Any) -> Any:
+    def _gae(self, ts: TrainingState, data: types.Transition) -> tuple[jax.Array, jax.Array]:
         """GAE as the loss computes it: per minibatch ``(T, B)``, each pass over the data."""
         p = self.learner.cfg.ppo
         truncation = data.extras["state_extras"]["truncation"]
@@ -168,7 +183,9 @@ class EpochParts:
         values = data.discount * 0.5 + data.reward  # any (N, T) array: GAE's cost is the same
         fields = (truncation, termination, data.reward * p.reward_scaling, values)
 
-        def minibatch(c: None, xs: tuple[jax.Array, ...]) -> tuple[None, Any]:
+        def minibatch(
+            c: None, xs: tuple[jax.Array, ...]
+        ) -> tuple[None, tuple[jax.Array, jax.Array]]:
             trunc, term, reward, value = (jnp.swapaxes(x, 0, 1) for x in xs)
             return c, ppo_losses.compute_gae(
                 truncation=trunc,
@@ -180,7 +197,7 @@ class EpochParts:
                 discount=p.discounting,
             )
 
-        def one_pass(c: None, _: None) -> tuple[None, Any]:
+        def one_pass(c: None, _: None) -> tuple[None, tuple[jax.Array, jax.Array]]:
             split = tuple(x.reshape((p.num_minibatches, -1, *x.shape[1:])) for x in fields)
             return jax.lax.scan(minibatch, c, split)
 
