@@ -24,7 +24,7 @@ def test_compiling_together_leaves_the_first_runs_nothing_to_compile(learner, mo
     other): their first runs then compile nothing, and they were traced in the order every
     such start keeps (Warp's FFI numbers follow it): the reset, the epoch, the evaluation."""
     from train.learner.transfer import first_device
-    from train.tools.coldstart import CompileLog
+    from train.tools.compile_log import CompileLog
 
     evaluator = learner.evaluation.evaluator
     rollout = "jit(_rollout)"  # the evaluation's rollout, shared with the tiny run's tests

@@ -12,7 +12,7 @@ import jax
 import pytest
 from rich.console import Console
 
-from train.tools import coldstart, profile
+from train.tools import coldstart, compile_log, profile
 
 PARTS = [
     "physics (MJX step)",
@@ -123,7 +123,7 @@ def test_compile_log_counts_recompilations():
         return x * 2 + 1
 
     f = jax.jit(twice_recompiled)
-    with coldstart.CompileLog() as log:
+    with compile_log.CompileLog() as log:
         f(jnp.ones(3))
         f(jnp.ones(4))
         f(jnp.ones(4))  # cached: no third compilation
