@@ -161,6 +161,20 @@ def test_the_loop_keeps_the_leaky_yaw_integral_with_the_tracked_command(shipped_
     assert obs_err > 1e-3
 
 
+@pytest.mark.parametrize("integrator", ["exact", "euler"])
+def test_the_loop_keeps_the_path_error_as_the_environment_does(shipped_task, integrator):
+    """The measured path error (observed) on both path integrators, through a spin beyond
+    reach (exact: against its nearest feasible twist)."""
+    task = dataclasses.replace(shipped_task, path_tau=3.0, path_integrator=integrator)
+    env = MecanumEnv(task)
+    ctrl = Controller(network_free(env))
+    assert ctrl.spec.path_integrator == integrator
+    commands = np.repeat(np.array([[0.3, 0.0, 0.5], [0.0, 0.2, 14.0]]), 6, 0)
+    obs_err, set_err, _ = _lockstep(env, ctrl, commands.astype(np.float32), 0)
+    assert obs_err < 1e-5
+    assert set_err < 1e-3
+
+
 def test_a_layout_entry_the_loop_does_not_keep_is_refused(controller):
     """An export whose layout has a state the controller does not keep is refused, naming
     it (a new state is a field of mecanum_jax.control.ControllerState and a step of it)."""

@@ -46,6 +46,8 @@ class ControllerConfig(Protocol):
     @property
     def path_tau(self) -> float: ...
     @property
+    def path_integrator(self) -> str: ...
+    @property
     def symmetric(self) -> bool: ...
     @property
     def obs_history(self) -> int: ...
@@ -94,6 +96,7 @@ def controller_meta(
         "feedback": dataclasses.asdict(config.feedback),
         "yaw_integral_tau": config.yaw_integral_tau,
         "path_tau": config.path_tau,
+        "path_integrator": config.path_integrator,
         "symmetric": config.symmetric,
         "obs_history": config.obs_history,
         "action_filter": config.action_filter,

@@ -182,8 +182,9 @@ class MecanumEnv(Env):
         if cfg.reward.target == "feasible":  # what the evaluation scores (RewardConfig)
             target = self.feasible_target(command, params.radius_scale)
         path = info["true_path_error"]
-        if cfg.path_tau > 0:  # against the command tracked in this step, the true twist
-            path = ctl.path_step(spec, path, sens.twist, command, jnp)
+        if cfg.path_tau > 0:  # the true twist against this step's command (exact: its target)
+            reference = target if cfg.path_integrator == "exact" else command
+            path = ctl.path_step(spec, path, sens.twist, reference, jnp)
         reward, metrics = step_reward(
             cfg.reward, sens, target, action, before.last_action, params,
             cfg.control_dt, path,

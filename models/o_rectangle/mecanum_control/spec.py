@@ -108,6 +108,7 @@ class ControllerSpec:
     forward_matrix: np.ndarray
     feedback: FeedbackSpec
     symmetric: bool = False
+    path_integrator: str = "euler"
 
     @property
     def n_wheels(self) -> int:
@@ -174,6 +175,7 @@ class ControllerSpec:
             forward_matrix=f32(meta["forward_matrix"]),
             feedback=feedback,
             symmetric=bool(meta.get("symmetric") or False),
+            path_integrator=str(meta.get("path_integrator") or "euler"),
         )
 
 
