@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -88,12 +89,6 @@ class FeedbackConfig:
         return jnp.asarray([self.kp, self.ki, self.i_max], jnp.float32)
 
 
-REFERENCES = ("analytic", "analytic_nearest", "feedback")
-"""The reference controllers, by index: the analytic inverse model with uniform
-desaturation (the baseline), the same with nearest-feasible desaturation, and
-:class:`FeedbackConfig`'s closed loop."""
-
-
 def baseline_rates(robot: RobotConstants, command: jax.Array) -> jax.Array:
     """The analytic baseline: the nominal inverse model, desaturated to the rate limits."""
     twist, _ = limits.desaturate(robot.geometry, command, robot.max_rates)
@@ -137,15 +132,31 @@ def reference_rates(
     """Wheel-rate setpoints of reference controller ``reference`` (an index into
     :data:`REFERENCES`; a Python int computes only that one) for the state's ``info``
     (``fb``: the feedback controller's settings; ``spec``: the controller it runs as)."""
-    candidates = (
-        lambda: baseline_rates(robot, info["command"]),
-        lambda: nearest_rates(robot, info["command"], fb.omega_weight),
-        lambda: feedback_rates(spec, info),
-    )
+    candidates = [
+        functools.partial(rates, robot, info, fb, spec) for rates in REFERENCE_RATES.values()
+    ]
     if isinstance(reference, int):
         return candidates[reference]()
     index = jnp.clip(jnp.asarray(reference), 0, len(candidates) - 1)
     return jnp.select([index == i for i in range(len(candidates))], [c() for c in candidates])
+
+
+RatesOf = Callable[[RobotConstants, dict[str, Any], FeedbackConfig, ControllerSpec], jax.Array]
+
+REFERENCE_RATES: dict[str, RatesOf] = {
+    "analytic": lambda robot, info, fb, spec: baseline_rates(robot, info["command"]),
+    "analytic_nearest": lambda robot, info, fb, spec: nearest_rates(
+        robot, info["command"], fb.omega_weight
+    ),
+    "feedback": lambda robot, info, fb, spec: feedback_rates(spec, info),
+}
+"""The reference controllers, one entry each, in their index order: the analytic inverse
+model with uniform desaturation (the baseline), the same with nearest-feasible
+desaturation, and :class:`FeedbackConfig`'s closed loop; each gives its wheel-rate
+setpoints for a state's ``info``."""
+
+REFERENCES = tuple(REFERENCE_RATES)
+"""The reference controllers' names, by index (:data:`REFERENCE_RATES`)."""
 
 
 def baseline_policy(robot: RobotConstants, residual: bool, action_size: int) -> Policy:
@@ -168,6 +179,7 @@ def baseline_policy(robot: RobotConstants, residual: bool, action_size: int) -> 
 
 __all__ = [
     "REFERENCES",
+    "REFERENCE_RATES",
     "FeedbackConfig",
     "Policy",
     "baseline_policy",
