@@ -4,9 +4,12 @@ size, so a large batch runs as a ``lax.map`` over vmapped chunks (:func:`chunked
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import ParamSpec, TypeVar
 
 import jax
+
+P = ParamSpec("P")
+R = TypeVar("R")
 
 CPU_CHUNK = {"fast": 64, "reference": 16}
 """Robots per vmapped physics call on CPU, per fidelity: jaxlib 0.10's batched LAPACK (the
@@ -23,17 +26,17 @@ def cpu_chunk(fidelity: str = "fast", impl: str = "jax") -> int:
     return CPU_CHUNK[fidelity] if jax.default_backend() == "cpu" and impl == "jax" else 0
 
 
-def chunked_vmap(fn: Callable[..., Any], chunk: int) -> Callable[..., Any]:
+def chunked_vmap(fn: Callable[P, R], chunk: int) -> Callable[P, R]:
     """``jax.vmap(fn)``, but over at most ``chunk`` items at a time (a ``lax.map`` over
     chunks; 0: one vmap). The chunk is the largest divisor of the batch up to ``chunk``."""
 
-    def mapped(*xs: Any) -> Any:
-        n = jax.tree.leaves(xs)[0].shape[0]
+    def mapped(*xs: P.args, **kw: P.kwargs) -> R:
+        n = jax.tree.leaves((xs, kw))[0].shape[0]
         c = max(d for d in range(1, min(chunk, n) + 1) if n % d == 0) if chunk else n
         if c == n:
-            return jax.vmap(fn)(*xs)
-        split = jax.tree.map(lambda x: x.reshape((n // c, c, *x.shape[1:])), xs)
-        out = jax.lax.map(lambda ys: jax.vmap(fn)(*ys), split)
+            return jax.vmap(fn)(*xs, **kw)
+        split = jax.tree.map(lambda x: x.reshape((n // c, c, *x.shape[1:])), (xs, kw))
+        out = jax.lax.map(lambda ys: jax.vmap(fn)(*ys[0], **ys[1]), split)
         return jax.tree.map(lambda x: x.reshape((n, *x.shape[2:])), out)
 
     return mapped

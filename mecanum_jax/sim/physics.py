@@ -24,7 +24,7 @@ parameters.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 # isort: split
 import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
@@ -33,6 +33,7 @@ import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quie
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.stages import Wrapped
 from mujoco import mjx
 
 from mecanum_jax.precision import HIGHEST
@@ -186,12 +187,16 @@ class Robot(RobotModel):
 
     # --- batches ------------------------------------------------------------------------
 
-    def batched(self, substeps: int = 1) -> tuple[Any, Any, Any]:
+    def batched(self, substeps: int = 1) -> tuple[Wrapped, Wrapped, Wrapped]:
         """Jitted, vmapped ``(reset, step, sensors)`` over a leading robot axis (on CPU in
         chunks, :func:`cpu_chunk`)."""
         chunk = cpu_chunk(self.fidelity, self.impl)
+
+        def step_(s: SimState, c: jax.typing.ArrayLike, p: RobotParams) -> SimState:
+            return self.step(s, c, p, substeps)
+
         reset = jax.jit(chunked_vmap(self.reset, chunk))
-        step = jax.jit(chunked_vmap(lambda s, c, p: self.step(s, c, p, substeps), chunk))
+        step = jax.jit(chunked_vmap(step_, chunk))
         sensors = jax.jit(jax.vmap(self.sensors))
         return reset, step, sensors
 

@@ -25,7 +25,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Protocol, TypedDict
 
 import jax
 from rich.console import Console
@@ -42,11 +42,19 @@ from train.loop import compilation_cache, curve
 from train.loop.distributed import init_distributed
 from train.loop.progress import print_error
 from train.loop.run import Run, RunDirError
-from train.loop.run_records import write_json
+from train.loop.run_records import Summary, write_json
 from train.loop.run_steps import TrainingDiverged
 from train.store import checkpoint, inputs, lock
 
 console = Console(stderr=True)
+
+
+class Diverged(TypedDict):
+    """A batch variant's entry in the batch's summary.json where it diverged."""
+
+    name: str
+    run_dir: str
+    diverged: str
 
 
 def _meta_parser(prog: str, batch: bool) -> argparse.ArgumentParser:
@@ -69,7 +77,7 @@ def _f(x: float | str | None) -> str:
     return "-" if x is None or not math.isfinite(float(x)) else f"{float(x):.4f}"
 
 
-def results_table(summary: dict[str, Any], title: str) -> Table:
+def results_table(summary: Summary, title: str) -> Table:
     """Policy against baseline per scenario and seed (final evaluation): steady-state error
     against the nearest feasible twist (train.learner.periodic)."""
     table = Table(title=title)
@@ -279,7 +287,7 @@ def batch_main(argv: list[str] | None = None) -> int:
         ]
     except (ConfigError, RunDirError, OSError) as err:
         return _fail(err, 2)
-    summaries = []
+    summaries: list[Summary | Diverged] = []
     for run in runs:
         console.rule(f"variant {run.cfg.name} ({run.dir})")
         try:
@@ -300,7 +308,7 @@ def batch_main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def batch_table(summaries: list[dict[str, Any]]) -> Table:
+def batch_table(summaries: list[Summary | Diverged]) -> Table:
     table = Table(title="batch: final steady-state error (randomized eval), time to beat baseline")
     for col in ("variant", "seed", "ss v", "base v", "ss ω", "base ω", "beat baseline at"):
         table.add_column(col)

@@ -12,7 +12,6 @@ programs of their own.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
 
 # isort: split
 import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
@@ -49,7 +48,8 @@ class Iteration:
     unrolls_per_iteration: int
     make_policy: Callable[..., types.Policy]
     optimizer: optax.GradientTransformation
-    _loss_and_grad: Callable[..., Any]
+    # ``(loss, metrics), gradients`` of the loss at (params, normalizer, batch, key)
+    _loss_and_grad: Callable[..., tuple[tuple[jax.Array, Metrics], ppo_losses.PPONetworkParams]]
 
     def _unroll(self, policy: types.Policy, env_state: State, key: jax.Array) -> Rollout:
         env = self.train_env

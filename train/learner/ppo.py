@@ -163,7 +163,7 @@ class Learner(Iteration):
 
     # --- training ---------------------------------------------------------------------------
 
-    def program(self, fn: Callable[..., Any]) -> Wrapped:
+    def program(self, fn: Callable[..., object]) -> Wrapped:
         """``fn`` of one seed's states as the epoch runs: vmapped over seeds, then spread over
         the devices as ``run.parallel`` says (train/learner/parallel.py)."""
         return parallel.spread(fn, self.parallel, self.devices, self._sharding)

@@ -19,9 +19,11 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import jax
+from jax.stages import Compiled, Lowered
 
 from train.learner.ppo import Learner
-from train.learner.state import fresh_state
+from train.learner.shapes import Host
+from train.learner.state import TrainingState, fresh_state
 from train.learner.transfer import first_device
 
 
@@ -41,7 +43,7 @@ def abstract_state(learner: Learner) -> tuple[Any, Any]:
     lead = (learner.n_devices, learner.n_seeds)
     sharding = learner.sharding
 
-    def spec(x: Any) -> jax.ShapeDtypeStruct:
+    def spec(x: jax.ShapeDtypeStruct) -> jax.ShapeDtypeStruct:
         dtype = jax.dtypes.canonicalize_dtype(x.dtype)  # (x64 off: float32)
         return jax.ShapeDtypeStruct((*lead, *x.shape), dtype, sharding=sharding)
 
@@ -65,7 +67,7 @@ def can_compile_together(learner: Learner) -> bool:
     return learner.parallel != "split" and learner.n_processes == 1
 
 
-def compile_together(learner: Learner) -> tuple[tuple[Any, Any], Any]:
+def compile_together(learner: Learner) -> tuple[Host, Compiled]:
     """Trace and lower the robots' reset, the epoch and the baseline's evaluation, in that
     order, on this thread, and compile them at the same time as far as XLA's autotuning
     allows; runs nothing of Warp's. The reset compiles on a worker thread while the epoch
@@ -104,7 +106,7 @@ def compile_together(learner: Learner) -> tuple[tuple[Any, Any], Any]:
     return host, compiled_reset
 
 
-def trace_baseline(learner: Learner, ts_first_device: Any) -> list[Any]:
+def trace_baseline(learner: Learner, ts_first_device: TrainingState) -> list[Lowered]:
     """Trace and lower the programs of the baseline's evaluation
     (:meth:`~train.learner.ppo.Learner.evaluate_baseline`), running nothing; the lowered
     programs (``PeriodicEvaluation.trace``)."""

@@ -31,7 +31,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TypedDict, Unpack
 
 import jax
 from rich.console import Console
@@ -55,6 +55,13 @@ from train.loop.run_dir import (
 from train.loop.run_steps import RunSteps
 from train.loop.session import Session
 from train.store import checkpoint
+
+
+class RunOptions(TypedDict, total=False):
+    """What :meth:`Run.create` and :meth:`Run.resume` pass on to :class:`Run`."""
+
+    console: Console | None
+    loggers: list[MetricLogger] | None
 
 
 class Run(RunSteps):
@@ -88,7 +95,11 @@ class Run(RunSteps):
 
     @classmethod
     def create(
-        cls, cfg: TrainConfig, run_dir: str | Path, config_file: Path | None = None, **kw: Any
+        cls,
+        cfg: TrainConfig,
+        run_dir: str | Path,
+        config_file: Path | None = None,
+        **kw: Unpack[RunOptions],
     ) -> Run:
         """A new run; refuses a directory that already has content, or that another
         process writes. ``config_file``: the config file it was given, copied into its
@@ -108,7 +119,9 @@ class Run(RunSteps):
         return run
 
     @classmethod
-    def resume(cls, run_dir: str | Path, overrides: TrainConfig | None = None, **kw: Any) -> Run:
+    def resume(
+        cls, run_dir: str | Path, overrides: TrainConfig | None = None, **kw: Unpack[RunOptions]
+    ) -> Run:
         """Reopen a run directory; ``overrides`` may only lengthen it or change cadences
         (after a divergence, also :data:`AFTER_DIVERGENCE`). A run stopped before its first
         checkpoint starts again from epoch 0."""
@@ -138,7 +151,7 @@ class Run(RunSteps):
         stop_after_epochs: int | None = None,
         learner: Learner | None = None,
         time_limit_s: float | None = None,
-    ) -> dict[str, Any]:
+    ) -> records.Summary:
         """Train to ``ppo.num_timesteps`` (or ``stop_after_epochs`` more epochs).
 
         Returns the summary (also written to ``summary.json``).

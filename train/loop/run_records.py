@@ -8,7 +8,7 @@ import math
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, NotRequired, TypedDict
 
 import jax
 import numpy as np
@@ -27,6 +27,32 @@ Evals = Mapping[str, Mapping[str, np.ndarray]]
 """Per scenario and metric, the seeds' values (:func:`stacked`)."""
 Values = Mapping[str, Mapping[str, float | None]]
 """Per scenario, one controller's metrics (``Result.values``)."""
+
+
+class SeedSummary(TypedDict):
+    """One seed's entry in summary.json: the epoch, env steps and wall time it first beat
+    the baseline at (``None``: not yet), its last evaluation and comparison, if any."""
+
+    seed: int
+    beat_baseline: Mapping[str, float] | None
+    eval: NotRequired[dict[str, dict[str, float]]]
+    compare: NotRequired[Comparison]
+
+
+class Summary(TypedDict):
+    """summary.json (:func:`summary`)."""
+
+    name: str
+    run_dir: str
+    epochs: int
+    env_steps_per_seed: int
+    walltime_s: float
+    session_s: float
+    devices: int | None
+    processes: int
+    device_kind: str
+    baseline: Values
+    seeds: list[SeedSummary]
 
 
 def jsonable(x: object) -> object:
@@ -68,7 +94,7 @@ def keep_rows(path: Path, epoch: int) -> int:
     return len(lines) - len(kept)
 
 
-def machine_record(cfg: TrainConfig, physics_impl: str) -> dict[str, Any]:
+def machine_record(cfg: TrainConfig, physics_impl: str) -> dict[str, str]:
     """Where and when a benchmark ran: device, platform, jax, date, config, physics."""
     return {
         "device": jax.devices()[0].device_kind,
@@ -109,14 +135,14 @@ def seed_rows(
     baseline: Values,
     sps: float | None = None,
     comps: list[Comparison] | None = None,
-) -> list[dict[str, Any]]:
+) -> list[dict[str, object]]:
     """One metrics.jsonl row per seed: training metrics, and the evaluation if one ran."""
     rows = []
     for i, seed in enumerate(seeds):
-        row: dict[str, Any] = {"seed": seed}
-        row["train"] = {k: float(v[i]) for k, v in metrics.items()}
+        train = {k: float(v[i]) for k, v in metrics.items()}
         if sps is not None:
-            row["train"]["steps_per_s"] = sps
+            train["steps_per_s"] = sps
+        row: dict[str, object] = {"seed": seed, "train": train}
         if evals:
             row["eval"] = _per_seed(evals, i)
             row["baseline"] = baseline
@@ -134,14 +160,14 @@ def summary(
     evals: Evals,
     comps: list[Comparison],
     baseline: Values,
-    beat_at: Mapping[str, object],
+    beat_at: Mapping[str, Mapping[str, float]],
     t_start: float,
     devices: int | None,
-) -> dict[str, Any]:
+) -> Summary:
     """summary.json: the run's length and time, and each seed's last evaluation."""
     per_seed = []
     for i, seed in enumerate(cfg.run.seeds):
-        entry: dict[str, Any] = {"seed": seed, "beat_baseline": beat_at.get(str(seed))}
+        entry: SeedSummary = {"seed": seed, "beat_baseline": beat_at.get(str(seed))}
         if evals:
             entry["eval"] = _per_seed(evals, i)
         if comps:

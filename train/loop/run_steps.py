@@ -10,7 +10,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import TypeVarTuple
 
 import jax
 import numpy as np
@@ -21,6 +21,8 @@ from train.config import TrainConfig
 from train.config_loading import config_diff
 from train.learner.periodic import Result, beats, compare
 from train.learner.ppo import Learner
+from train.learner.shapes import Placed
+from train.learner.state import TrainingState
 from train.learner.transfer import first_device, to_host
 from train.loop import aot, divergence, warm_start
 from train.loop import run_records as records
@@ -33,6 +35,8 @@ from train.store import checkpoint
 
 # Fields the compiled learner never reads: a learner built without them serves the run.
 LOGGING_ONLY = {"run.wandb_project", "run.progress_every_s"}
+
+Ts = TypeVarTuple("Ts")
 
 
 class TrainingDiverged(RuntimeError):  # noqa: N818 (reads as the event it reports)
@@ -50,11 +54,11 @@ class RunSteps:
     learner: Learner | None
     _logs: EpochLog
 
-    def _status(self, state: str, **extra: Any) -> None:
+    def _status(self, state: str, **extra: object) -> None:
         if self.is_writer:
             write_json(self.dir / "status.json", {"state": state, "time": time.time(), **extra})
 
-    def _report(self, loop: Session, state: str, **extra: Any) -> None:
+    def _report(self, loop: Session, state: str, **extra: object) -> None:
         """status.json: ``state``, the epoch reached and the last checkpoint."""
         self._status(state, **loop.status(), **extra)
 
@@ -85,9 +89,9 @@ class RunSteps:
             barrier("epoch-compiled")
         self._logs.open(loop.steps(loop.epoch) + 1 if (self.dir / "tb").exists() else None)
         self._report(loop, "running")
-        loop.baseline_job = _in_thread(learner.evaluate_baseline, first_device(loop.state))
+        loop.baseline_job = job = _in_thread(learner.evaluate_baseline, first_device(loop.state))
         if first_runs_alone(learner):
-            loop.baseline_job.result()
+            job.result()
         loop.setup_s = time.time() - t_start
         return loop
 
@@ -101,7 +105,7 @@ class RunSteps:
         return learner or warm_start.attach(Learner(self.cfg), self.console.log)
 
     @staticmethod
-    def _fresh(learner: Learner) -> tuple[Any, Any]:
+    def _fresh(learner: Learner) -> Placed:
         """The learner's fresh state; where the baseline runs first, its reset, epoch and
         evaluation compiled together before any of them runs
         (:func:`train.loop.aot.compile_together`)."""
@@ -122,6 +126,7 @@ class RunSteps:
             self._report(loop, "interrupted", signal="SIGINT")
             raise
         if loop.baseline is None:
+            assert loop.baseline_job is not None  # begun at set-up
             loop.baseline = loop.baseline_job.result()
             beside = "" if first_runs_alone(loop.learner) else ", with the baseline's evaluation"
             epoch_s = time.time() - t_epoch
@@ -133,7 +138,9 @@ class RunSteps:
         sps = loop.steps(1) * len(self.cfg.run.seeds) / (time.time() - t_epoch)
         return sps, metrics
 
-    def _diverged(self, loop: Session, metrics: dict[str, Any], state: Any, bad: list[int]) -> None:
+    def _diverged(
+        self, loop: Session, metrics: dict[str, np.ndarray], state: TrainingState, bad: list[int]
+    ) -> None:
         """The epoch after ``loop.epoch`` went non-finite (seeds ``bad``, indices): the last
         good state saved (the bad one never is), the bad epoch's row logged, the status,
         and the error naming the first non-finite quantity."""
@@ -178,10 +185,11 @@ class RunSteps:
         if evals:
             loop.shown = records.shown(evals["randomized"], loop.baseline.values["randomized"])
 
-    def _finish(self, loop: Session) -> dict[str, Any]:
+    def _finish(self, loop: Session) -> records.Summary:
         """The last checkpoint, the summary and the final status."""
         loop.save()
         if loop.baseline is None:  # no epoch ran (a finished run resumed)
+            assert loop.baseline_job is not None  # begun at set-up
             loop.baseline = loop.baseline_job.result()
         evals = stacked(loop.results) if loop.results else {}
         devices = self.learner.n_devices * self.learner.n_processes if self.learner else None
@@ -204,7 +212,7 @@ class RunSteps:
         return summary
 
 
-def _in_thread(fn: Callable[..., Result], *args: Any) -> Future[Result]:
+def _in_thread(fn: Callable[[*Ts], Result], *args: *Ts) -> Future[Result]:
     """``fn(*args)`` begun in a thread of its own."""
     pool = ThreadPoolExecutor(1, thread_name_prefix="baseline-eval")
     job = pool.submit(fn, *args)

@@ -7,8 +7,9 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable
+from concurrent.futures import Future
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import jax
 
@@ -46,7 +47,7 @@ class Session:
     saved_epoch: int = 0
     first_epoch: int = 1  # this session's
     mgr: ocp.CheckpointManager | None = None
-    baseline_job: Any = None  # a Future of the baseline's Result
+    baseline_job: Future[Result] | None = None  # the baseline's evaluation, begun at set-up
     baseline: Result | None = None
     setup_s: float = 0.0
     results: list[Result] = dataclasses.field(default_factory=list)
