@@ -178,7 +178,7 @@ def test_a_warm_start_of_the_tiny_run_matches_a_cold_one_bit_for_bit(tmp_path):
         return json.loads(out.read_text())
 
     cold, warm = start("cold"), start("warm")
-    assert sorted(warm["warm_start"]["loaded"]) == ["baseline", "epoch", "reset", "rollout"]
+    assert sorted(warm["warm_start"]["loaded"]) == ["epoch", "reset", "rollout"]
     assert warm["warm_start"]["written"] == []
     assert not any(p["name"] == "jit(_rollout)" for p in warm["programs"])  # not traced
 
@@ -273,31 +273,3 @@ def test_a_warp_program_loads_into_a_fresh_process_once_its_ffi_targets_are_made
     assert blind["loaded"] == []
     assert any("Warp FFI targets" in line for line in blind["log"])
     assert blind["rewards"] == cold["rewards"]
-
-
-def test_a_remembered_value_is_read_back_and_a_damaged_one_computed_again(tmp_path):
-    """``Store.remember`` (the baseline's figures): computed and written once, read back
-    by a later store of the same key, not by one of another key, and computed again from
-    a damaged file."""
-    calls = []
-
-    def compute():
-        calls.append(1)
-        return {"figures": np.arange(4.0)}
-
-    first = _store(tmp_path).remember("baseline", compute)
-    again = _store(tmp_path)
-    np.testing.assert_array_equal(again.remember("baseline", compute)["figures"], np.arange(4.0))
-    assert again.loaded == ["baseline"]
-    assert len(calls) == 1
-    _store(tmp_path, {"run": "b"}).remember("baseline", compute)  # another key
-    assert len(calls) == 2
-    (path,) = [p for p in tmp_path.iterdir() if p.read_bytes() and b'"a"' in p.read_bytes()]
-    path.write_bytes(path.read_bytes()[:-3])
-    lines = []
-    damaged = _store(tmp_path, lines=lines)
-    np.testing.assert_array_equal(
-        damaged.remember("baseline", compute)["figures"], first["figures"]
-    )
-    assert len(calls) == 3
-    assert "unusable" in lines[0]

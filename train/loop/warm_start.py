@@ -10,10 +10,6 @@ without tracing. A cold start compiles each as ``jit(...).lower(...).compile()``
 and writes it; a warm one runs the executable it wrote, so the two give the same numbers
 bit for bit.
 
-The baseline's first evaluation is kept the same way (:meth:`Store.remember`): its
-figures on the run's fixed episodes are a pure function of the key, and under MuJoCo Warp
-they are on the critical path (the first epoch waits for them: ``aot.first_runs_alone``).
-
 Each entry is keyed by everything its program depends on (:func:`run_key`): the resolved
 config, the robot, the versions of jax, jaxlib, MuJoCo, MJX, Warp, Brax, Flax and optax,
 the devices, ``XLA_FLAGS``, JAX's numerics flags, a hash of the ``mecanum_jax`` and
@@ -38,7 +34,7 @@ import pickle
 import threading
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any
 
 import jax
 import numpy as np
@@ -65,7 +61,6 @@ JAX_FLAGS = (
     "jax_default_prng_impl",
 )
 Log = Callable[[str], None]
-T = TypeVar("T")
 Key = dict[str, object]
 """A program's key: JSON-ready values (:func:`run_key`, plus the program's own)."""
 Aval = tuple[tuple[int, ...], str, bool]
@@ -182,23 +177,6 @@ class Store:
             self.log(f"warm start: {name} cannot be stored ({err}); it compiles on each start")
             return
         self._write(name, full_key, payload)
-
-    def remember(self, name: str, compute: Callable[[], T]) -> T:
-        """``compute()``'s value, kept under this store's key: read back where it was kept
-        (for a pure function of the key: the baseline's figures on the run's episodes),
-        else computed and written; an unusable file is computed again."""
-        full_key = {**self.key, "value": name}
-        try:
-            payload = self._payload(full_key)
-            if payload is not None:
-                value: T = pickle.loads(payload)
-                self.loaded.append(name)
-                return value
-        except Exception as err:  # never trusted
-            self._unusable(name, full_key, err)
-        value = compute()
-        self._write(name, full_key, pickle.dumps(value))
-        return value
 
 
 def _deserialize(
@@ -343,10 +321,9 @@ def why_not(learner: Learner, environ: Mapping[str, str] = os.environ) -> str | 
 
 
 def attach(learner: Any, log: Log = print) -> Any:
-    """Serve ``learner``'s reset, epoch and evaluation rollout, and the baseline's figures,
-    from a :class:`Store` in the compilation cache's directory (once per learner;
-    :func:`store_of` gives it), unless :func:`why_not` (said in a log line). Returns
-    ``learner``."""
+    """Serve ``learner``'s reset, epoch and evaluation rollout from a :class:`Store` in the
+    compilation cache's directory (once per learner; :func:`store_of` gives it), unless
+    :func:`why_not` (said in a log line). Returns ``learner``."""
     if store_of(learner) is not None:
         return learner
     reason = why_not(learner)
@@ -366,8 +343,6 @@ def attach(learner: Any, log: Log = print) -> Any:
     learner._reset = Stored(learner._reset, "reset", store)
     learner._parallel_epoch = Stored(learner._parallel_epoch, "epoch", store)
     learner.evaluation.store_programs(lambda fn: Stored(fn, "rollout", store))
-    baseline = learner.evaluate_baseline  # its figures: a pure function of the key
-    learner.evaluate_baseline = lambda ts: store.remember("baseline", lambda: baseline(ts))
     learner.warm_store = store
     return learner
 
