@@ -17,9 +17,11 @@ import numpy as np
 import orbax.checkpoint as ocp
 import pytest
 
+from mecanum_jax.task import EnvConfig
 from mecanum_jax.task.env import MecanumEnv
+from mecanum_jax.task.shapes import task_shapes
 from train.config_loading import parse_train_config
-from train.learner.policy import PROVENANCE, restore_policy
+from train.learner.policy import PROVENANCE, check_compatible, restore_policy
 from train.learner.state import state_template
 from train.store import checkpoint, leaves
 
@@ -234,6 +236,76 @@ def test_the_shipped_model_restores():
     leaf-index format, at the time of writing)."""
     restored = restore_policy(ROOT / "models" / "o_rectangle")
     assert restored.params["params"]
+
+
+def test_restoring_builds_no_model(monkeypatch):
+    """Restoring the shipped model builds no MJCF or MJX model (issue 66): its shapes and
+    checks come from the config and the robot description, and its parameters are those
+    the state template of a whole environment restores (as restoring did before)."""
+    from mujoco import mjx
+
+    from mecanum_jax.sim import mjcf
+
+    def refused(*args, **kwargs):
+        raise AssertionError("restoring built a model")
+
+    model = ROOT / "models" / "o_rectangle"
+    with monkeypatch.context() as m:
+        m.setattr(mjcf, "build_model", refused)
+        m.setattr(mjx, "put_model", refused)
+        restored = restore_policy(model)
+        cfg, meta = restored.cfg, restored.meta
+        shapes = task_shapes(cfg.env)  # what restoring checks the checkpoint against
+        for change, message in [
+            ({"robot": "x_square"}, "trained on robot 'x_square', expected 'o_rectangle'"),
+            ({"robot_fingerprint": "0" * 16}, "has changed since training"),
+            ({"observation_layout": [["command", 3]]}, "observation layout [['command', 3]]"),
+            ({"action_size": 4}, "action size 4, expected 3"),
+        ]:
+            with pytest.raises(checkpoint.CheckpointError) as err:
+                check_compatible({**meta, **change}, shapes, "ckpt")
+            assert message in str(err.value)
+        with pytest.raises(AssertionError, match="built a model"):  # the trap holds
+            MecanumEnv(dataclasses.replace(cfg.env, physics_impl="jax"))
+    env = MecanumEnv(dataclasses.replace(cfg.env, physics_impl="jax"))
+    assert (shapes.layout, shapes.privileged_layout, shapes.action_size) == (
+        env.layout,
+        env.privileged_layout,
+        env.action_size,
+    )
+    sizes = {k: v.shape for k, v in restored.normalizer.mean.items()}
+    assert sizes == env.observation_size
+    assert sizes["state"] == (sum(s for _, s in meta["observation_layout"]),)
+    epoch, items = checkpoint.read_checked(model, restored.epoch, ("train", "meta"))
+    template = state_template(cfg, env, int(meta["devices"]))
+    train = checkpoint.unpack_train(model, epoch, template, items)
+    one = jax.tree.map(lambda x: x[0, list(cfg.run.seeds).index(restored.seed)], train)
+    for got, want in (
+        (restored.params, one.params.policy),
+        (restored.normalizer, one.normalizer_params),
+    ):
+        assert jax.tree.structure(got) == jax.tree.structure(want)
+        for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
+            assert a.dtype == b.dtype
+            np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {},
+        {"residual": False},
+        {"residual_space": "twist", "residual_base": "feedback", "path_tau": 3.0},
+        {"yaw_integral_tau": 0.5, "obs_history": 2, "symmetric": True},
+        {"robot": "custom_six"},
+    ],
+)
+def test_the_shapes_are_the_controller_specs(change):
+    """A task's shapes without its constants (what a restore reads) are those of the
+    controller spec built from them (what an environment and an export read)."""
+    shapes = task_shapes(dataclasses.replace(EnvConfig(), **change).validate())
+    assert shapes.layout == shapes.control.layout
+    assert shapes.action_size == shapes.control.action_size
 
 
 def test_a_model_directory_evaluates_its_packaged_epoch(tmp_path):

@@ -21,7 +21,7 @@ from mecanum_jax.kinematics.geometry import WheelGeometry
 from mecanum_jax.sim import mjcf
 from mecanum_jax.sim.description import RobotDescription, require_impl
 from mecanum_jax.sim.servo import CHORD_WARP_RANGE, ServoModel, axle_inverse_inertia
-from mecanum_jax.sim.state import RobotParams
+from mecanum_jax.sim.state import RobotParams, nominal_params
 from mecanum_jax.sim.warp_cache import leave_the_persistent_cache
 from mecanum_jax.sim.warp_streams import pin_external_streams
 
@@ -101,23 +101,7 @@ class RobotModel:
 
     def nominal_params(self, **overrides: npt.ArrayLike) -> RobotParams:
         """The description's nominal parameters, with any field overridden (scalars broadcast)."""
-        n = self.n_wheels
-        a = self.desc.actuators
-        base = {
-            "friction": jnp.full((n,), self.desc.sim.floor_friction),
-            "payload_mass": jnp.asarray(0.0),
-            "payload_com": jnp.zeros(3),
-            "radius_scale": jnp.ones(n),
-            "torque_limit": jnp.full((n,), a.max_torque),
-            "kp": jnp.full((n,), a.kp),
-            "ki": jnp.full((n,), a.ki),
-            "max_accel": jnp.asarray(a.max_accel),
-        }
-        for key, value in overrides.items():
-            if key not in base:
-                raise KeyError(f"{key!r} is not a RobotParams field; fields: {sorted(base)}")
-            base[key] = jnp.broadcast_to(jnp.asarray(value, jnp.float32), base[key].shape)
-        return RobotParams(**{k: jnp.asarray(v, jnp.float32) for k, v in base.items()})
+        return nominal_params(self.desc, self.n_wheels, **overrides)
 
     def model_for(self, params: RobotParams) -> mjx.Model:
         """This robot's MJX model with ``params`` written in (traceable; batched under vmap)."""

@@ -19,7 +19,10 @@ import jax.numpy as jnp
 import numpy as np
 
 if TYPE_CHECKING:
+    import numpy.typing as npt
     from mujoco import mjx
+
+    from mecanum_jax.sim.description import RobotDescription
 
 GRAVITY = 9.81
 
@@ -46,6 +49,30 @@ class RobotParams(NamedTuple):
     kp: jax.Array
     ki: jax.Array
     max_accel: jax.Array
+
+
+def nominal_params(
+    desc: RobotDescription, n_wheels: int, **overrides: npt.ArrayLike
+) -> RobotParams:
+    """The nominal parameters of the robot ``desc`` describes (``n_wheels`` wheels), with
+    any field overridden (scalars broadcast): no model is built for them."""
+    n = n_wheels
+    a = desc.actuators
+    base = {
+        "friction": jnp.full((n,), desc.sim.floor_friction),
+        "payload_mass": jnp.asarray(0.0),
+        "payload_com": jnp.zeros(3),
+        "radius_scale": jnp.ones(n),
+        "torque_limit": jnp.full((n,), a.max_torque),
+        "kp": jnp.full((n,), a.kp),
+        "ki": jnp.full((n,), a.ki),
+        "max_accel": jnp.asarray(a.max_accel),
+    }
+    for key, value in overrides.items():
+        if key not in base:
+            raise KeyError(f"{key!r} is not a RobotParams field; fields: {sorted(base)}")
+        base[key] = jnp.broadcast_to(jnp.asarray(value, jnp.float32), base[key].shape)
+    return RobotParams(**{k: jnp.asarray(v, jnp.float32) for k, v in base.items()})
 
 
 @jax.tree_util.register_dataclass
@@ -142,6 +169,7 @@ __all__ = [
     "Sensors",
     "SimState",
     "UnstableRobot",
+    "nominal_params",
     "select",
     "stack_params",
     "unstable_robots",

@@ -4,7 +4,8 @@
 - :mod:`.config`: :class:`EnvConfig`, the task's settings;
 - :mod:`.commands`, :mod:`.randomization`, :mod:`.observations`, :mod:`.reward`: its parts;
 - :mod:`.references`: the reference controllers (``analytic``, the baseline, among them);
-- :mod:`.constants`: :class:`~.constants.RobotConstants`, what those parts know of the robot.
+- :mod:`.constants`: :class:`~.constants.RobotConstants`, what those parts know of the robot;
+- :mod:`.shapes`: :class:`~.shapes.TaskShapes`, the task as its policy sees it, without physics.
 """
 
 from mecanum_jax.task.commands import CommandConfig

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, ParamSpec, Protocol, TypeVar
 import jax
 import numpy as np
 
-from mecanum_jax.control import ControllerSpec, ControllerState, policy_layout
+from mecanum_jax.control import ControllerSpec, ControllerState, Layout, policy_layout
 from mecanum_jax.control.state import FIELDS
 from mecanum_jax.sim.description import RobotDescription, fingerprint
 from mecanum_jax.sim.state import GRAVITY
@@ -63,6 +63,23 @@ class ControllerConfig(Protocol):
     def control_dt(self) -> float: ...
 
 
+def policy_shape(config: ControllerConfig, n_wheels: int) -> tuple[int, Layout]:
+    """The action size and the observation layout of a task's policy on a robot of
+    ``n_wheels`` wheels: the config's alone, no robot constants needed."""
+    twist = config.residual and config.residual_space == "twist"
+    action_size = 3 if twist else n_wheels
+    feedback_base = config.residual and config.residual_base == "feedback"
+    layout = policy_layout(
+        n_wheels,
+        action_size,
+        config.yaw_integral_tau > 0,
+        feedback_base,
+        config.obs_history,
+        config.path_tau > 0,
+    )
+    return action_size, layout
+
+
 def controller_meta(
     config: ControllerConfig, desc: RobotDescription, constants: RobotConstants
 ) -> dict[str, object]:
@@ -71,17 +88,7 @@ def controller_meta(
     kinematics, the control period (the export's ``meta``, less the network's part).
     ``config``: the task's ``EnvConfig`` (not imported: it imports the reference
     controllers, which import this module)."""
-    twist = config.residual and config.residual_space == "twist"
-    action_size = 3 if twist else constants.n_wheels
-    feedback_base = config.residual and config.residual_base == "feedback"
-    layout = policy_layout(
-        constants.n_wheels,
-        action_size,
-        config.yaw_integral_tau > 0,
-        feedback_base,
-        config.obs_history,
-        config.path_tau > 0,
-    )
+    action_size, layout = policy_shape(config, constants.n_wheels)
     geometry = constants.geometry
     return {
         "robot": desc.robot.name,
@@ -154,5 +161,6 @@ __all__ = [
     "control_state",
     "controller_meta",
     "controller_spec",
+    "policy_shape",
     "with_control",
 ]

@@ -47,16 +47,11 @@ from mecanum_jax.task import observations as obs_
 from mecanum_jax.task import randomization as rand
 from mecanum_jax.task import references as refs
 from mecanum_jax.task.config import EnvConfig
-from mecanum_jax.task.constants import robot_constants
-from mecanum_jax.task.controller import (
-    allow_rank_promotion,
-    control_state,
-    controller_spec,
-    with_control,
-)
+from mecanum_jax.task.controller import allow_rank_promotion, control_state, with_control
 from mecanum_jax.task.observations import NoiseConfig
 from mecanum_jax.task.references import FeedbackConfig
 from mecanum_jax.task.reward import METRIC_NAMES, step_reward
+from mecanum_jax.task.shapes import task_shapes
 
 
 class MecanumEnv(Env):
@@ -70,13 +65,13 @@ class MecanumEnv(Env):
         together), for MuJoCo Warp's shared contact buffer (:class:`Robot`). ``fidelity``:
         the physics model, "fast" or "reference" (:mod:`.fidelity`)."""
         self.config = config = (config or EnvConfig()).validate()
-        self.desc = config.description()
         self.robot = Robot(*fid.model(config, fidelity), robots=robots)
         self.substeps = fid.substeps(config, self.robot.desc, self.robot.fidelity)
-        # what the task's parts read of the robot, built once and handed to them
-        c = self.constants = robot_constants(
-            self.desc, self.robot.geometry, self.robot.nominal_params()
-        )
+        # the task's description, what its parts read of the robot (built once and handed
+        # to them), the controller and the layouts: a restored policy's (.shapes)
+        self.shapes = shapes = task_shapes(config)
+        self.desc = shapes.desc
+        c = self.constants = shapes.constants
         self.geometry, self.n_wheels, self.max_rates = c.geometry, c.n_wheels, c.max_rates
         self.command_scale, self.nominal_params = c.command_scale, c.nominal_params
         self.jacobian = c.jacobian
@@ -84,9 +79,8 @@ class MecanumEnv(Env):
         self.max_rate = float(np.max(np.asarray(self.max_rates)))
         self.max_latency = config.randomization.latency_steps[1]
         # the robot-side controller, one description for the environment and its exports
-        self.control = spec = controller_spec(config, self.desc, c)
+        self.control = spec = shapes.control
         self.twist_residual = spec.twist_residual
-        self._action_size = spec.action_size
         self.sensor_size = sensor_size(n)
         # the sensor frames kept: the latest latency_steps[1] + 1 and the observed history
         self.history_frames = self.max_latency + 1 + config.obs_history
@@ -94,20 +88,17 @@ class MecanumEnv(Env):
         self.layout = spec.layout
         tau = config.path_tau
         self.path_scale = jnp.asarray(tau * np.asarray(c.command_scale)) if tau > 0 else None
-        self.privileged_layout = obs_.privileged_layout(self.layout, n, config.path_tau > 0)
+        self.privileged_layout = shapes.privileged_layout
 
     # --- Brax interface ---------------------------------------------------------------------
 
     @property
     def observation_size(self) -> dict[str, tuple[int, ...]]:
-        return {
-            "state": (sum(s for _, s in self.layout),),
-            "privileged_state": (sum(s for _, s in self.privileged_layout),),
-        }
+        return self.shapes.observation_size
 
     @property
     def action_size(self) -> int:
-        return self._action_size
+        return self.shapes.action_size
 
     @property
     def backend(self) -> str:

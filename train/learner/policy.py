@@ -31,7 +31,7 @@ if TYPE_CHECKING:
     from brax.training.types import Params, PolicyParams
     from jax.typing import ArrayLike
 
-    from mecanum_jax.task.env import MecanumEnv
+    from mecanum_jax.task.shapes import Shaped
     from train.config import TrainConfig
 
 
@@ -67,6 +67,9 @@ def restore_policy(
     run_dir: str | Path, seed: int | None = None, epoch: int | None = None
 ) -> RestoredPolicy:
     """Restore one seed's policy (not the optimizer or environment) from a run's checkpoint.
+
+    Builds no environment: the shapes and the checks come from the checkpoint's config and
+    robot description (:func:`~mecanum_jax.task.shapes.task_shapes`).
 
     Raises :class:`CheckpointError` naming what is missing, corrupt or mismatched: no
     run directory or checkpoint, unreadable files, a seed the run did not train, or a
@@ -105,15 +108,15 @@ def restore_policy(
     seed = seeds[0] if seed is None else int(seed)
     if seed not in seeds:
         raise CheckpointError(f"seed = {seed}: this run trained seeds {seeds}")
-    from mecanum_jax.task.env import MecanumEnv
+    from mecanum_jax.task.shapes import task_shapes
     from train.learner.state import make_networks, state_template
 
-    # the networks need the task's shapes only: whichever MJX implementation trained it,
-    # restoring needs no Warp
-    env = MecanumEnv(dataclasses.replace(cfg.env, physics_impl="jax"))
-    networks = make_networks(env, cfg)
-    check_compatible(meta, env, f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r}")
-    train = unpack_train(run_dir, epoch, state_template(cfg, env, int(meta["devices"])), items)
+    # the networks and the checks need the task's shapes only, from its config and robot
+    # description: no MJCF or MJX model is built (nor Warp needed)
+    shapes = task_shapes(cfg.env)
+    networks = make_networks(shapes, cfg)
+    check_compatible(meta, shapes, f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r}")
+    train = unpack_train(run_dir, epoch, state_template(cfg, shapes, int(meta["devices"])), items)
     one = jax.tree.map(lambda x: x[0, seeds.index(seed)], train)
     return RestoredPolicy(
         run_dir=run_dir,
@@ -200,8 +203,9 @@ def _pack(restored: RestoredPolicy, tmp: Path, provenance: Mapping[str, object])
     (tmp / PROVENANCE).write_text(json.dumps(record, indent=2) + "\n")
 
 
-def check_compatible(meta: dict[str, Any], env: MecanumEnv, what: str) -> None:
-    """Refuse a checkpoint whose robot or observation layout differs from ``env``'s."""
+def check_compatible(meta: dict[str, Any], env: Shaped, what: str) -> None:
+    """Refuse a checkpoint whose robot or observation layout differs from ``env``'s (an
+    environment's, or the :class:`~mecanum_jax.task.shapes.TaskShapes` of its config)."""
     from mecanum_jax.sim.description import fingerprint
 
     robot = env.desc.robot.name

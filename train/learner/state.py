@@ -25,7 +25,7 @@ from brax.training.types import Params
 from flax import linen
 from jax.typing import ArrayLike
 
-from mecanum_jax.task.env import MecanumEnv
+from mecanum_jax.task.shapes import Shaped
 from train.config import TrainConfig
 
 # Domain tags: training and evaluation rng streams never meet, whatever the seeds are.
@@ -42,9 +42,10 @@ class TrainingState:
     key: jax.Array
 
 
-def make_networks(env: MecanumEnv, cfg: TrainConfig) -> ppo_networks.PPONetworks:
-    """Brax PPO networks for this task: the policy reads the sensors' observation, the critic
-    also the privileged state; both read it normalized (and clipped)."""
+def make_networks(env: Shaped, cfg: TrainConfig) -> ppo_networks.PPONetworks:
+    """Brax PPO networks for this task (an environment or its shapes): the policy reads the
+    sensors' observation, the critic also the privileged state; both read it normalized
+    (and clipped)."""
     normalize = functools.partial(
         running_statistics.normalize, max_abs_value=cfg.ppo.clip_observations or None
     )
@@ -65,9 +66,7 @@ def make_networks(env: MecanumEnv, cfg: TrainConfig) -> ppo_networks.PPONetworks
     return networks
 
 
-def symmetric_networks(
-    networks: ppo_networks.PPONetworks, env: MecanumEnv
-) -> ppo_networks.PPONetworks:
+def symmetric_networks(networks: ppo_networks.PPONetworks, env: Shaped) -> ppo_networks.PPONetworks:
     """``networks`` with the policy averaged over the robot's mirror group
     (:func:`mecanum_jax.control.symmetry.symmetrize`): its mean is exactly equivariant and
     its spread invariant, so the whole action distribution is."""
@@ -154,7 +153,7 @@ def initial_policy(
 
 def fresh_state(
     cfg: TrainConfig,
-    env: MecanumEnv,
+    env: Shaped,
     networks: ppo_networks.PPONetworks,
     optimizer: optax.GradientTransformation,
     seed: int,
@@ -185,7 +184,7 @@ _FRESH: dict[tuple[TrainConfig, tuple[tuple[str, tuple[int, ...]], ...], int], F
 
 def fresh_state_program(
     cfg: TrainConfig,
-    env: MecanumEnv,
+    env: Shaped,
     networks: ppo_networks.PPONetworks,
     optimizer: optax.GradientTransformation,
 ) -> FreshProgram:
@@ -200,7 +199,7 @@ def fresh_state_program(
     return _FRESH[key]
 
 
-def state_template(cfg: TrainConfig, env: MecanumEnv, devices: int) -> TrainingState:
+def state_template(cfg: TrainConfig, env: Shaped, devices: int) -> TrainingState:
     """Zero arrays shaped like a saved training state ``(devices, seeds, ...)``, built from
     shapes alone (nothing is initialised or compiled): what a checkpoint restores into."""
     networks = make_networks(env, cfg)
