@@ -88,8 +88,8 @@ class EnvConfig:
     path_integrator = "exact" turns the commanded frame by each period's whole angle and
     follows the path of the command's nearest feasible twist (the critic's: the reward's
     target), so the error stays within the leak's bound; "euler", the shipped policy's,
-    turns it to first order against the command itself: on fast spins it outgrows the leak
-    (train/ runs held 8 s reached path errors of 10^2 m), and beyond reach it counts the
+    turns it to first order against the command itself: on fast spins it outgrows the leak,
+    so the error grows for as long as such a command is held, and beyond reach it counts the
     part of the command no wheel can drive.
 
     symmetric = true averages the policy over the robot's mirror group (left-right,

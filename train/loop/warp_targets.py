@@ -21,13 +21,26 @@ from __future__ import annotations
 import hashlib
 import re
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import jax
 import jax.numpy as jnp
 
-Target = dict[str, object]
-"""A Warp target a program calls: ``name``, ``fingerprint``, ``batch``."""
+if TYPE_CHECKING:
+    from mecanum_jax.sim.physics import Robot
+    from mecanum_jax.sim.state import RobotParams, SimState
+
+
+class Target(TypedDict):
+    """A Warp target a program calls."""
+
+    name: str
+    fingerprint: str
+    """:func:`fingerprint` of its call structure."""
+    batch: int
+    """The robots per call."""
+
+
 Tracer = Callable[[int], None]
 """Traces one physics step at a batch (:func:`step_tracer`)."""
 
@@ -64,7 +77,7 @@ def used(hlo_text: str) -> list[Target]:
     """The Warp targets a compiled program's HLO text calls, by number."""
     names = set(_CALL.findall(hlo_text))
     found = [
-        {"name": c.name, "fingerprint": fingerprint(k), "batch": _batch(k)}
+        Target(name=c.name, fingerprint=fingerprint(k), batch=_batch(k))
         for k, c in _registry().items()
         if c.name in names
     ]
@@ -72,13 +85,16 @@ def used(hlo_text: str) -> list[Target]:
 
 
 def _number(target: Target) -> int:
-    match = _NUMBER.search(str(target["name"]))
+    match = _NUMBER.search(target["name"])
     return int(match.group(1)) if match else -1
 
 
-def _missing(targets: Sequence[Target]) -> list[Target]:
-    have = {c.name: fingerprint(k) for k, c in _registry().items()}
-    return [t for t in targets if have.get(str(t["name"])) != t["fingerprint"]]
+def _made(target: Target) -> bool:
+    """Whether ``target`` exists in this process under its name, with its structure."""
+    return any(
+        c.name == target["name"] and fingerprint(k) == target["fingerprint"]
+        for k, c in _registry().items()
+    )
 
 
 def register(targets: Sequence[Target], tracers: Sequence[Tracer]) -> bool:
@@ -87,20 +103,20 @@ def register(targets: Sequence[Target], tracers: Sequence[Tracer]) -> bool:
     every target then exists under its name with its structure."""
     for target in sorted(targets, key=_number):
         for trace in tracers:
-            if target not in _missing([target]):
+            if _made(target):
                 break
-            trace(int(str(target["batch"])))
-    return not _missing(targets)
+            trace(target["batch"])
+    return all(_made(t) for t in targets)
 
 
-def step_tracer(robot: Any, substeps: int) -> Tracer:
+def step_tracer(robot: Robot, substeps: int) -> Tracer:
     """Traces ``robot``'s physics step at a batch as a program does: once unbatched for a
     batch of 1 (a reset's step), else vmapped over that many robots (a rollout's)."""
 
     def trace(batch: int) -> None:
         params = robot.nominal_params()
 
-        def one(p: Any) -> Any:
+        def one(p: RobotParams) -> SimState:
             return robot.step(robot.reset(p), jnp.zeros(robot.n_wheels), p, substeps)
 
         if batch == 1:
