@@ -184,7 +184,9 @@ class MecanumEnv(Env):
         rng, k_noise, k_cmd, k_time = jax.random.split(info["rng"], 4)
         step = info["step"] + 1
         resample = step >= info["next_resample"]
-        new_command = jnp.where(resample, cmds.sample_command(c, k_cmd, cfg.commands), command)
+        new_command = jnp.where(
+            resample, cmds.next_command(c, k_cmd, cfg.commands, command), command
+        )
         due = cmds.resample_time(k_time, step, cfg.commands, cfg.control_dt)
         info["next_resample"] = jnp.where(resample, due, info["next_resample"])
         info.update(step=step, rng=rng, true_path_error=path)
