@@ -47,8 +47,7 @@ profile() {  # [--trace] [flags]: the epoch's parts (train/tools/profile.py)
   if [ "$size" -gt $((60 * 1024 * 1024)) ]; then  # $OUT takes 64 MiB in files of 16 MiB
     echo "trace: $size bytes, too large to send back; try --run.epoch-iterations 1"
   else
-    split -b 15M -d /tmp/profile_trace.tgz "$O/profile_trace.tgz.part"
-    echo "trace: $size bytes in $O/profile_trace.tgz.part*: cat them into profile_trace.tgz"
+    mv /tmp/profile_trace.tgz "$O/" && send_back "$O/profile_trace.tgz"
   fi
 }
 

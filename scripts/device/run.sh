@@ -54,7 +54,9 @@
 #                           packaged as /tmp/model_NAME/o_rectangle and $OUT/model_NAME.tgz
 #                           (compare them next with: tune /tmp/model_NAME/o_rectangle ...); a
 #                           variant of several --run.seeds K... as /tmp/model_NAME_sK/o_rectangle,
-#                           all of them in $OUT/model_NAME.tgz
+#                           all of them in $OUT/model_NAME.tgz (an archive over 15 MiB, as
+#                           3 seeds' 19 MB are, comes back as model_NAME.tgz.partNN: at most 8
+#                           files come back a call, so 2 such variants and their metrics)
 #   multi-gpu EPOCHS [VARIANT...] [-- FLAGS...]  throughput over several GPUs: sh1gpu sh2gpu
 #                           sh2gpu_64k mp2gpu (default), pmap2gpu, sh1gpu_64k, and split2gpu
 #                           split2gpu_64k (each GPU its own rollout program), each with FLAGS
@@ -148,13 +150,22 @@ PY
   [ -d "$2/o_rectangle" ] || { echo "package: no model was written for $1"; return 1; }
 }
 
+send_back() {  # FILE under $OUT: left whole, or cut into FILE.partNN of 15 MiB where it is
+  # larger than a returned file may be (16 MiB; at most 8 files come back): `cat F.part* > F`
+  local f=$1 size
+  size=$(stat -c %s "$f") || return 1
+  [ "$size" -gt $((15 * 1024 * 1024)) ] || return 0
+  split -b 15M -d "$f" "$f.part" && rm "$f"
+  echo "$(basename "$f"): $size bytes in $(basename "$f").part*: cat them into one"
+}
+
 ship() {  # MINUTES [flags]
   local min=$1; shift
   echo "device: $(nvidia-smi --query-gpu=name --format=csv,noheader | head -1); $(date -u +%Y-%m-%dT%H:%M:%SZ)"
   rm -rf /tmp/gpu  # scratch of an earlier call on this warm machine
   train /tmp/gpu "$min" "$@" 2>&1 | quiet | tail -22
   package /tmp/gpu /tmp/model "$min" "$*" || return 1
-  tar czf "$O/model.tgz" -C /tmp/model o_rectangle
+  tar czf "$O/model.tgz" -C /tmp/model o_rectangle && send_back "$O/model.tgz"
   cp /tmp/gpu/metrics.jsonl /tmp/gpu/summary.json "$O/"
 }
 
@@ -167,7 +178,7 @@ seeds() {  # MINUTES SEEDS [flags]: one run training the seeds (e.g. "0 1 2") si
   train /tmp/gpu "$min" --run.seeds $list "$@" 2>&1 | quiet | tail -22
   for k in $list; do
     package /tmp/gpu "/tmp/model_s$k" "$min" "--run.seeds $list $*" "$k" || return 1
-    tar czf "$O/model_s$k.tgz" -C "/tmp/model_s$k" o_rectangle
+    tar czf "$O/model_s$k.tgz" -C "/tmp/model_s$k" o_rectangle && send_back "$O/model_s$k.tgz"
   done
   cp /tmp/gpu/metrics.jsonl /tmp/gpu/summary.json "$O/"
 }
@@ -212,6 +223,7 @@ ab_package() {  # MINUTES 'name|flags': a variant's policy (each of its seeds) p
       package "/tmp/run_$name" "/tmp/model_$name" "$min" "${spec#*|}" \
         && tar czf "$O/model_$name.tgz" -C "/tmp/model_$name" o_rectangle
     fi
+    send_back "$O/model_$name.tgz"  # (3 seeds: about 19 MB)
     cp "/tmp/run_$name/metrics.jsonl" "$O/${name}_metrics.jsonl" || true
   }
 }
