@@ -32,8 +32,11 @@ def _draws(robot, c, previous, n=2000):
     return np.asarray(nxt(keys)), np.asarray(fresh(keys))
 
 
-def test_without_mirrors_the_next_command_is_the_fresh_draw_bit_for_bit(robot):
-    new, fresh = _draws(robot, CommandConfig(), jnp.array([0.3, -0.2, 0.5]))
+@pytest.mark.parametrize("p", [0.0, jnp.asarray(0.0)], ids=["static", "traced"])
+def test_without_mirrors_the_next_command_is_the_fresh_draw_bit_for_bit(robot, p):
+    # traced: as evaluation passes the mix, the mirror's draws run and must change nothing
+    c = dataclasses.replace(CommandConfig(), p_mirror=p)
+    new, fresh = _draws(robot, c, jnp.array([0.3, -0.2, 0.5]))
     np.testing.assert_array_equal(new, fresh)
 
 

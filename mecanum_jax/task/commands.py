@@ -122,6 +122,8 @@ def next_command(
     by a fresh draw). The mirror's randomness comes from ``key`` folded, so with
     ``p_mirror = 0`` the commands are those of the fresh draws, bit for bit."""
     fresh = sample_command(robot, key, c)
+    if isinstance(c.p_mirror, float | int) and c.p_mirror == 0:
+        return fresh  # (a training config's value is static: its step draws no mirrors)
     k_flip, k_which = jax.random.split(jax.random.fold_in(key, MIRROR_STREAM))
     flip = jax.random.bernoulli(k_flip, c.p_mirror) & jnp.any(previous != 0.0)
     which = jax.random.randint(k_which, (), 0, len(MIRRORS))
