@@ -302,7 +302,10 @@ def shipped():
 @pytest.fixture(scope="module")
 def eval_env(shipped):
     """The evaluation's environment of the default scenarios."""
-    from mecanum_jax.evaluation.episodes import eval_env_config
-    from mecanum_jax.task import EnvConfig, MecanumEnv
+    from tasks import PLAIN_FEEDBACK, WHEEL
 
-    return MecanumEnv(eval_env_config(EnvConfig(), shipped))
+    from mecanum_jax.evaluation.episodes import eval_env_config
+    from mecanum_jax.task import EnvConfig, FeedbackConfig, MecanumEnv
+
+    task = EnvConfig(**WHEEL, feedback=FeedbackConfig(**PLAIN_FEEDBACK))  # quick.toml's
+    return MecanumEnv(eval_env_config(task, shipped))

@@ -111,10 +111,14 @@ def test_state_extras_carry_the_mask_only_when_the_anchor_is_on(robots):
     env, batch = robots
     info = {**batch.info, "command": batch.info["command"].at[:, :YAW].set(0.0),
             "command_age": jnp.full((64,), 25)}  # fmt: skip
-    off = state_extras(env, info, batch.info, AnchorConfig())
+    off = state_extras(env, info, batch.info, AnchorConfig(weight=0.0))
     assert set(off) == {"truncation"}
-    yaw_only = state_extras(env, info, batch.info, AnchorConfig(weight=1.0))["anchor"]
-    spins = state_extras(env, info, batch.info, AnchorConfig(weight=1.0, spins=True))["anchor"]
+    yaw_only = state_extras(
+        env, info, batch.info, AnchorConfig(weight=1.0, spins=False, translations=False)
+    )["anchor"]
+    spins = state_extras(
+        env, info, batch.info, AnchorConfig(weight=1.0, spins=True, translations=False)
+    )["anchor"]
     assert yaw_only.shape == spins.shape == (64, 3)
     nominal = jax.vmap(lambda i: is_nominal(env.constants, i))(info)
     assert 0 < int(nominal.sum()) < 64  # about half the robots are nominal

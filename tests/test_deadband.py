@@ -10,10 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from loops import constant
+from tasks import PLAIN_FEEDBACK, WHEEL
 
 from mecanum_jax.config import ConfigError, from_mapping
 from mecanum_jax.deploy.policy import NumpyPolicy
-from mecanum_jax.task import EnvConfig, MecanumEnv, RandomizationConfig
+from mecanum_jax.task import EnvConfig, FeedbackConfig, MecanumEnv, RandomizationConfig
 from train.cli.export import task_meta
 
 DEADBAND = 0.5
@@ -24,14 +25,12 @@ SHRUNK = np.asarray([np.tanh(0.8) - DEADBAND, -(np.tanh(0.6) - DEADBAND), 0.0], 
 
 @pytest.fixture(scope="module")
 def env():
-    rand = RandomizationConfig(enabled=True, latency_steps=(0, 0))
+    rand = RandomizationConfig(enabled=True, latency_steps=(0, 0), nominal_share=0.0)
     cfg = EnvConfig(
-        residual_space="twist",
-        residual_base="feedback",
-        residual_deadband=DEADBAND,
-        action_filter=FILTER,
+        **{**WHEEL, "residual_space": "twist", "residual_base": "feedback"}
+        | {"residual_deadband": DEADBAND, "action_filter": FILTER},
         randomization=rand,
-        feedback=dataclasses.replace(EnvConfig().feedback, deadband=0.02),  # both deadbands
+        feedback=FeedbackConfig(**{**PLAIN_FEEDBACK, "deadband": 0.02}),  # both deadbands
     )
     return MecanumEnv(dataclasses.replace(cfg, noise=dataclasses.replace(cfg.noise, scale=0.0)))
 
@@ -81,7 +80,10 @@ def test_no_deadband_passes_the_action_unchanged(env):
 @pytest.mark.parametrize(
     ("mapping", "message"),
     [
-        ({"residual": False, "residual_deadband": 0.1}, r"env\.residual_deadband = 0\.1: needs"),
+        (
+            {**WHEEL, "residual": False, "residual_deadband": 0.1},
+            r"env\.residual_deadband = 0\.1: needs",
+        ),
         ({"residual_deadband": 1.0}, r"env\.residual_deadband = 1\.0: must be in \[0, 1\)"),
         ({"residual_deadband": -0.01}, r"env\.residual_deadband = -0\.01"),
     ],

@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from tasks import WHEEL
 
 from mecanum_jax.config import ConfigError, from_mapping
 from mecanum_jax.kinematics import limits
@@ -29,7 +30,7 @@ from mecanum_jax.task.references import baseline_rates
 def env():
     # scales unlike the defaults, so the reward test sees each scale applied
     reward = RewardConfig(error_lin=0.5, error_ang=0.05, action_rate=0.2)
-    return MecanumEnv(EnvConfig(episode_length=6, reward=reward))
+    return MecanumEnv(EnvConfig(episode_length=6, reward=reward, **WHEEL))
 
 
 @pytest.fixture(scope="session")
@@ -90,14 +91,15 @@ def test_commands_cover_kinds_and_respect_reach(env):
     spin = ~zero & (np.abs(cmds[:, 0]) < 1e-6) & (np.abs(cmds[:, 1]) < 1e-6)
     translation = ~zero & (cmds[:, 2] == 0)
     beyond = sat > 1.0
-    for name, mask, p in [
-        ("zero", zero, 0.1),
-        ("spin", spin, 0.15),
-        ("translation", translation, 0.3),
-        ("beyond", beyond, 0.1),
-    ]:
-        assert abs(mask.mean() - p) < 0.03, (name, mask.mean())
     c = env.config.commands
+    total = c.p_zero + c.p_translation + c.p_spin + c.p_combined + c.p_beyond
+    for name, mask, p in [
+        ("zero", zero, c.p_zero),
+        ("spin", spin, c.p_spin),
+        ("translation", translation, c.p_translation),
+        ("beyond", beyond, c.p_beyond),
+    ]:
+        assert abs(mask.mean() - p / total) < 0.03, (name, mask.mean())
     assert sat[~beyond & ~zero].max() <= c.max_fraction + 1e-4
     assert sat[~zero].min() >= c.min_fraction - 1e-4
     assert sat[beyond].max() <= c.beyond_max_fraction + 1e-4
@@ -119,7 +121,7 @@ def test_baseline_is_desaturated_inverse(env):
 
 
 def test_direct_mode_baseline_action_reproduces_rates():
-    env = MecanumEnv(EnvConfig(residual=False))
+    env = MecanumEnv(EnvConfig(**{**WHEEL, "residual": False}))
     policy = baseline_policy(env.constants, env.config.residual, env.action_size)
     cmd = jnp.array([0.5, 0.2, -1.0])
     obs = {"state": jnp.concatenate([cmd / env.command_scale, jnp.zeros(14)])}
@@ -206,7 +208,10 @@ def test_reward_target_feasible_scores_the_nearest_feasible_twist():
 @pytest.mark.full
 def test_observation_latency_delays_sensors():
     cfg = EnvConfig(
-        randomization=dataclasses.replace(EnvConfig().randomization, latency_steps=(2, 2))
+        **WHEEL,
+        randomization=dataclasses.replace(
+            EnvConfig().randomization, latency_steps=(2, 2), nominal_share=0.0
+        ),
     )
     env = MecanumEnv(cfg)
     s = env.reset(jax.random.PRNGKey(0))
@@ -288,7 +293,7 @@ def test_twist_residual_acts_only_through_the_inverse_model():
     """residual_space = "twist": three actions, the zero action is the baseline, and a
     correction changes the setpoints by exactly the inverse model's image of the twist
     correction, so it has no component in the wheels' null space (wheels fighting)."""
-    env = MecanumEnv(EnvConfig(residual_space="twist"))
+    env = MecanumEnv(EnvConfig(**{**WHEEL, "residual_space": "twist"}))
     assert env.action_size == 3
     assert dict(env.layout)["last_action"] == 3
     cmd = jnp.array([0.3, -0.2, 0.5])  # well within reach: nothing clips
@@ -315,8 +320,8 @@ def test_action_filter_applies_and_observes_the_low_passed_action():
     """action_filter = f: the action applied is f·previous + (1 − f)·new, it is what the
     next observation's last_action carries, and the setpoints are those of that action."""
     f = 0.75
-    env = MecanumEnv(EnvConfig(action_filter=f).nominal())
-    plain = MecanumEnv(EnvConfig().nominal())
+    env = MecanumEnv(EnvConfig(**{**WHEEL, "action_filter": f}).nominal())
+    plain = MecanumEnv(EnvConfig(**WHEEL).nominal())
     state = env.reset(jax.random.PRNGKey(4))
     state = env.set_command(state, jnp.array([0.3, 0.0, 0.0]))
     twin = plain.set_command(plain.reset(jax.random.PRNGKey(4)), jnp.array([0.3, 0.0, 0.0]))

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from loops import network_free
+from tasks import WHEEL
 
 from mecanum_jax.deploy import policy as deploy
 from mecanum_jax.task import EnvConfig, MecanumEnv
@@ -106,7 +107,7 @@ def test_exported_file_errors(tmp_path):
 
 def test_exported_twist_residual_setpoints_match_the_environment():
     """The NumPy control loop applies a twist-space residual as the environment does."""
-    env = MecanumEnv(EnvConfig(residual_space="twist"))
+    env = MecanumEnv(EnvConfig(**{**WHEEL, "residual_space": "twist"}))
     policy = network_free(env)
     rng = np.random.default_rng(3)
     for _ in range(20):
@@ -125,7 +126,7 @@ def test_exported_action_filter_matches_the_environment_in_numpy_and_onnx():
     """action_filter = f: the NumPy policy and its ONNX graph return f·last_action (read
     from the observation) + (1 − f)·network, the action the environment applies."""
     f = 0.8
-    env = MecanumEnv(EnvConfig(action_filter=f).nominal())
+    env = MecanumEnv(EnvConfig(**{**WHEEL, "action_filter": f}).nominal())
     policy = network_free(env)  # no hidden layer: network = tanh(first entries)
     rng = np.random.default_rng(6)
     obs = rng.normal(size=(64, env.observation_size["state"][0])).astype(np.float32)
@@ -155,7 +156,7 @@ def test_exported_action_filter_matches_the_environment_in_numpy_and_onnx():
 def test_yaw_error_integral_observation_matches_the_control_loop():
     """yaw_integral_tau > 0: the environment integrates the measured yaw-rate error as a
     robot-side loop would (deploy.yaw_integral_step), and observes it last."""
-    env = MecanumEnv(EnvConfig(yaw_integral_tau=0.5).nominal())
+    env = MecanumEnv(EnvConfig(**WHEEL, yaw_integral_tau=0.5).nominal())
     assert env.layout[-1] == ("yaw_error_integral", 1)
     policy = network_free(env)
     state = env.reset(jax.random.PRNGKey(2))

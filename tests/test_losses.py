@@ -74,9 +74,11 @@ def test_positive_for_a_policy_that_follows_its_input():
 
 def test_terms_off_cost_nothing_and_bad_weights_are_rejected():
     obs, nxt = _batch(jax.random.PRNGKey(1))
-    total, _ = smoothness_loss(_policy(False), obs, nxt, jax.random.PRNGKey(2), SmoothnessConfig())
+    off = SmoothnessConfig(temporal=0.0, spatial=0.0)
+    total, _ = smoothness_loss(_policy(False), obs, nxt, jax.random.PRNGKey(2), off)
     assert float(total) == 0.0
-    assert not SmoothnessConfig().enabled
+    assert not off.enabled
+    assert SmoothnessConfig().enabled  # the shipped recipe's are on
     with pytest.raises(ConfigError, match=r"ppo\.smoothness\.temporal = -1"):
         SmoothnessConfig(temporal=-1.0).validate()
     with pytest.raises(ConfigError, match=r"ppo\.smoothness\.sigma = 0"):

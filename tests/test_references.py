@@ -8,21 +8,23 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from tasks import PLAIN_FEEDBACK, WHEEL
 
 from mecanum_jax.evaluation import episodes, metrics, scenarios
 from mecanum_jax.evaluation import rollout as evaluation
 from mecanum_jax.kinematics import model as kinematics
-from mecanum_jax.task import REFERENCES, EnvConfig, MecanumEnv, references
+from mecanum_jax.task import REFERENCES, EnvConfig, FeedbackConfig, MecanumEnv, references
 from train.cli.evaluate import main as eval_main
 from train.learner.policy import PROVENANCE, restore_policy
 
 pytestmark = pytest.mark.full
 
 MODEL = "models/o_rectangle"
+PLAIN = EnvConfig(**WHEEL, feedback=FeedbackConfig(**PLAIN_FEEDBACK))  # quick.toml's task
 
 
 def test_reference_rates_select_the_named_controller():
-    env = MecanumEnv(EnvConfig().nominal())
+    env = MecanumEnv(PLAIN.nominal())
     s = env.set_command(env.reset(jax.random.PRNGKey(0)), jnp.asarray([0.3, 0.1, 0.5]))
     fb = env.config.feedback
     traced = [
@@ -60,7 +62,7 @@ def test_feedback_removes_the_steady_yaw_error_of_a_slipping_spin(tmp_path):
     loop cannot (the target is the true robot's feasible twist, still 2 rad/s)."""
     (tmp_path / "slip.toml").write_text(SLIP)
     sset = scenarios.load_scenarios(tmp_path / "slip.toml")
-    env = MecanumEnv(episodes.eval_env_config(EnvConfig(), sset))
+    env = MecanumEnv(episodes.eval_env_config(PLAIN, sset))
     batch = episodes.prepare(env, sset.scenarios[0])
     ev = evaluation.Evaluator(env)
     jac = kinematics.jacobian(env.geometry)

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from loops import network_free
+from tasks import PLAIN_FEEDBACK, WHEEL
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.deploy.loop import Controller
@@ -23,8 +24,11 @@ DT = EnvConfig().control_dt
 @pytest.fixture(scope="module")
 def env():
     # wheels 4% small: the yaw rate falls short, so the integrator has work to do
-    rand = RandomizationConfig(enabled=True, radius_scale=(0.96, 0.96), latency_steps=(1, 1))
-    cfg = EnvConfig(residual_space="twist", residual_base="feedback", randomization=rand)
+    rand = RandomizationConfig(
+        enabled=True, radius_scale=(0.96, 0.96), latency_steps=(1, 1), nominal_share=0.0
+    )
+    twist = {**WHEEL, "residual_space": "twist", "residual_base": "feedback"}
+    cfg = EnvConfig(**twist, randomization=rand, feedback=FeedbackConfig(**PLAIN_FEEDBACK))
     return MecanumEnv(cfg)
 
 
@@ -92,7 +96,10 @@ def test_a_residual_changes_the_setpoints_around_the_feedback_controller(env, re
     ("kwargs", "message"),
     [
         ({"residual_base": "pid"}, r"env\.residual_base = 'pid'"),
-        ({"residual_base": "feedback", "residual": False}, r"env\.residual_base = 'feedback'"),
+        (
+            {**WHEEL, "residual_base": "feedback", "residual": False},
+            r"env\.residual_base = 'feedback'",
+        ),
     ],
 )
 def test_bad_residual_base_is_rejected(kwargs, message):
@@ -185,10 +192,11 @@ def test_the_integrator_restarts_at_each_command_change_with_reset(env):
 
 
 def _hold_env(hold_s: float, deadband: float = 0.0, reset: bool = False) -> MecanumEnv:
-    rand = RandomizationConfig(enabled=True, radius_scale=(0.95, 0.95), latency_steps=(0, 0))
+    rand = RandomizationConfig(
+        enabled=True, radius_scale=(0.95, 0.95), latency_steps=(0, 0), nominal_share=0.0
+    )
     cfg = EnvConfig(
-        residual_space="twist",
-        residual_base="feedback",
+        **{**WHEEL, "residual_space": "twist", "residual_base": "feedback"},
         randomization=rand,
         feedback=FeedbackConfig(hold_s=hold_s, deadband=deadband, reset=reset),
     )

@@ -11,12 +11,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from loops import network_free
+from tasks import PLAIN_FEEDBACK, WHEEL
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.control import ControllerState, policy_layout
 from mecanum_jax.control import step as ctl
 from mecanum_jax.deploy.loop import Controller
-from mecanum_jax.task import EnvConfig, MecanumEnv, RandomizationConfig
+from mecanum_jax.task import EnvConfig, FeedbackConfig, MecanumEnv, RandomizationConfig
 
 
 @pytest.mark.parametrize("value", [-1, 51])
@@ -41,9 +42,15 @@ def test_the_history_is_the_frames_before_the_observed_one_newest_first():
 
 def _student_env(history: int) -> MecanumEnv:
     # wheels 5% small and no latency: the robot-side loop reads the newest frames
-    rand = RandomizationConfig(enabled=True, radius_scale=(0.95, 0.95), latency_steps=(0, 0))
+    rand = RandomizationConfig(
+        enabled=True, radius_scale=(0.95, 0.95), latency_steps=(0, 0), nominal_share=0.0
+    )
+    twist = {**WHEEL, "residual_space": "twist", "residual_base": "feedback"}
     cfg = EnvConfig(
-        residual_space="twist", residual_base="feedback", randomization=rand, obs_history=history
+        **twist,
+        randomization=rand,
+        obs_history=history,
+        feedback=FeedbackConfig(**PLAIN_FEEDBACK),
     )
     return MecanumEnv(dataclasses.replace(cfg, noise=dataclasses.replace(cfg.noise, scale=0.0)))
 

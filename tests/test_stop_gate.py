@@ -10,10 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from loops import constant
+from tasks import PLAIN_FEEDBACK, WHEEL
 
 from mecanum_jax.config import ConfigError, from_mapping
 from mecanum_jax.deploy.policy import NumpyPolicy
-from mecanum_jax.task import EnvConfig, MecanumEnv, RandomizationConfig
+from mecanum_jax.task import EnvConfig, FeedbackConfig, MecanumEnv, RandomizationConfig
 from train.cli.export import task_meta
 
 FILTER = 0.5
@@ -22,13 +23,14 @@ BIAS = np.asarray([0.8, -0.6, 0.5], np.float32)  # the constant network's pre-ta
 
 @pytest.fixture(scope="module")
 def env():
-    rand = RandomizationConfig(enabled=True, radius_scale=(0.97, 0.97), latency_steps=(0, 0))
+    rand = RandomizationConfig(
+        enabled=True, radius_scale=(0.97, 0.97), latency_steps=(0, 0), nominal_share=0.0
+    )
     cfg = EnvConfig(
-        residual_space="twist",
-        residual_base="feedback",
-        residual_at_stop=False,
-        action_filter=FILTER,
+        **{**WHEEL, "residual_space": "twist", "residual_base": "feedback"}
+        | {"residual_at_stop": False, "action_filter": FILTER},
         randomization=rand,
+        feedback=FeedbackConfig(**PLAIN_FEEDBACK),
     )
     return MecanumEnv(dataclasses.replace(cfg, noise=dataclasses.replace(cfg.noise, scale=0.0)))
 
@@ -126,7 +128,7 @@ def test_the_environment_applies_what_the_numpy_policy_computes(env):
     ("mapping", "message"),
     [
         (
-            {"residual": False, "residual_at_stop": False},
+            {**WHEEL, "residual": False, "residual_at_stop": False},
             r"env\.residual_at_stop = False: needs residual = true",
         ),
         ({"residual_at_stop": 1}, r"env\.residual_at_stop = 1"),

@@ -4,6 +4,7 @@ import ast
 import dataclasses
 import inspect
 import itertools
+import json
 import re
 import textwrap
 import tomllib
@@ -11,7 +12,6 @@ import tomllib
 import pytest
 
 from mecanum_jax.config import ConfigError, validated_once
-from mecanum_jax.task import EnvConfig
 from train import config as train_config
 from train.cli import train as cli
 from train.config import TrainConfig
@@ -108,30 +108,56 @@ def test_mecanum_train_validates_its_config_once(tmp_path, monkeypatch):
         assert len(checked) == 1, f"{argv}: validated {len(checked)} times"
 
 
-def _nested_keys(cls, where=""):
-    """Dotted paths of every leaf field of a config dataclass."""
-    out = []
-    for f in dataclasses.fields(cls):
-        default = getattr(cls(), f.name)
-        path = f"{where}.{f.name}" if where else f.name
-        out += _nested_keys(type(default), path) if dataclasses.is_dataclass(default) else [path]
-    return out
+def _leaves(table, prefix=""):
+    for key, value in table.items():
+        if isinstance(value, dict):
+            yield from _leaves(value, f"{prefix}{key}.")
+        else:
+            yield f"{prefix}{key}", value
 
 
-def test_shipped_configs_validate_and_spell_out_the_task():
-    """Each shipped config states every task setting: the file a user reads is what runs."""
-    task_keys = _nested_keys(EnvConfig)
+def _default(dotted):
+    value = TrainConfig()
+    for part in dotted.split("."):
+        value = getattr(value, part)
+    return value
+
+
+def test_shipped_configs_state_only_what_they_change():
+    """The defaults are the shipped recipe: gpu.toml names it and sets back only the path
+    integrator its policy was trained with; every config states a key only where it
+    differs from the default (a key stated at its default would hide what the file changes)."""
     names = sorted(p.stem for p in TRAIN_CONFIG_DIR.glob("*.toml"))
     assert {"quick", "tiny", "gpu", "scratch"} <= set(names)
     for name in names:
         cfg = load_train_config(name)
         assert cfg.name == name
         raw = tomllib.loads((TRAIN_CONFIG_DIR / f"{name}.toml").read_text())
-        for key in task_keys:
-            table = raw["env"]
-            for part in key.split("."):
-                assert part in table, f"{name}.toml: env.{key} is not spelled out"
-                table = table[part]
+        for key, value in _leaves(raw):
+            if key != "name":
+                same = tuple(value) if isinstance(value, list) else value
+                assert same != _default(key), f"{name}.toml: {key} = {value!r} is the default"
+    gpu = tomllib.loads((TRAIN_CONFIG_DIR / "gpu.toml").read_text())
+    assert dict(_leaves(gpu)) == {"name": "gpu", "env.path_integrator": "euler"}
+
+
+def test_a_saved_config_without_a_field_runs_as_it_was_saved():
+    """A run's config.json or checkpoint meta written before a field existed ran with the
+    field off; with_absent fills it so, not with today's default (the shipped recipe), and
+    leaves every field a file states alone. Each filled field exists and differs from its
+    default (else the entry would be dead)."""
+    from train.config_loading import SAVED_ABSENT, parse_train_config, with_absent
+
+    for key, value in _leaves(SAVED_ABSENT):
+        assert value != _default(key), key
+    full = json.loads(json.dumps(dataclasses.asdict(load_train_config("gpu"))))
+    assert with_absent(full) == full
+    older = {k: v for k, v in full.items() if k != "network"}
+    older["ppo"] = {k: v for k, v in full["ppo"].items() if k != "anchor"}
+    cfg = parse_train_config(with_absent(older), "old config.json")
+    assert cfg.ppo.anchor.weight == 0.0
+    assert cfg.network.init_noise_std == 0.5
+    assert cfg.ppo.smoothness.temporal == 1.0  # stated in the file: kept
 
 
 def _field_docs(cls):

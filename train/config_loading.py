@@ -21,6 +21,47 @@ from train.config import TrainConfig
 TRAIN_CONFIG_DIR = CONFIG_DIR / "train"
 
 
+SAVED_ABSENT: dict[str, Any] = {
+    "env": {
+        "residual_scale": 0.1, "residual_space": "wheel", "residual_base": "analytic",
+        "action_filter": 0.0, "residual_deadband": 0.0, "residual_ramp_s": 0.0,
+        "path_tau": 0.0,
+        "commands": {"p_zero": 0.1, "p_translation": 0.3, "resample_min_s": 1.0,
+                     "resample_max_s": 4.0},
+        "randomization": {"nominal_share": 0.0},
+        "reward": {"sigma_ang": 1.0, "error_ang": 0.1, "path_lin": 0.0, "path_ang": 0.0,
+                   "target": "command"},
+        "feedback": {"hold_s": 0.0, "reset": False, "deadband": 0.0},
+    },
+    "network": {"init_noise_std": 0.5},
+    "ppo": {
+        "num_timesteps": 400_000, "num_envs": 64, "batch_size": 64, "num_minibatches": 4,
+        "learning_rate": 3e-4, "learning_rate_final": 1.0, "update_precision": "run",
+        "smoothness": {"temporal": 0.0, "spatial": 0.0},
+        "anchor": {"weight": 0.0, "spins": False, "translations": False},
+    },
+    "run": {"epoch_iterations": 10, "eval_every": 1, "checkpoint_every": 1,
+            "num_eval_envs": 32, "eval_episode_length": 250},
+}  # fmt: skip
+"""What a saved config (a run's ``config.json``, a checkpoint's meta) that lacks a field ran
+with, where the field's default has since become the shipped recipe's: each field was added
+off (or small), and a file written before it existed means that value, not today's
+default. Saved configs written since spell every field; TOML files mean today's defaults."""
+
+
+def with_absent(data: Any, absent: Any = SAVED_ABSENT) -> Any:
+    """``data`` (a saved config's mapping) with every field of ``absent`` it lacks filled in."""
+    if not isinstance(data, dict):
+        return data
+    out = dict(data)
+    for key, value in absent.items():
+        if key not in out:
+            out[key] = value
+        elif isinstance(value, dict):
+            out[key] = with_absent(out[key], value)
+    return out
+
+
 def parse_train_config(data: Any, source: str, validate: bool = True) -> TrainConfig:
     """The config of the mapping ``data``; errors name ``source``. ``validate=False``: the
     types checked, the values left to :func:`apply_flags` (given ``source``)."""
@@ -51,7 +92,7 @@ def load_train_config(
     """
     p = find_config(path, TRAIN_CONFIG_DIR, "config", "built-in config")
     try:
-        data = json.loads(p.read_text()) if p.suffix == ".json" else load_toml(p)
+        data = with_absent(json.loads(p.read_text())) if p.suffix == ".json" else load_toml(p)
     except json.JSONDecodeError as err:
         raise ConfigError(f"config file {str(p)!r}: invalid JSON: {err}") from None
     except UnicodeDecodeError:
@@ -108,9 +149,11 @@ def config_diff(a: Any, b: Any, where: str = "") -> list[str]:
 
 
 __all__ = [
+    "SAVED_ABSENT",
     "TRAIN_CONFIG_DIR",
     "apply_flags",
     "config_diff",
     "load_train_config",
     "parse_train_config",
+    "with_absent",
 ]

@@ -23,7 +23,7 @@ class NetworkConfig:
     """Hidden layer sizes of the policy MLP (at least one, each >= 1)."""
     value_hidden: tuple[int, ...] = (256, 256, 256)
     """Hidden layer sizes of the value MLP (at least one, each >= 1)."""
-    init_noise_std: float = 0.5
+    init_noise_std: float = 0.075
     """Initial exploration standard deviation of the policy's actions (> 0)."""
 
 
@@ -36,21 +36,21 @@ class PPOConfig:
     num_updates_per_batch passes of num_minibatches gradient steps.
     """
 
-    num_timesteps: int = 400_000
+    num_timesteps: int = 85_000_000
     """Environment steps to train for, over all environments (>= 1)."""
-    num_envs: int = 64
+    num_envs: int = 32_768
     """Parallel environments (>= 1; divides batch_size · num_minibatches)."""
     unroll_length: int = 20
     """Control steps per collected trajectory (>= 1)."""
-    batch_size: int = 64
+    batch_size: int = 4096
     """Trajectories per minibatch (>= 1)."""
-    num_minibatches: int = 4
+    num_minibatches: int = 16
     """Minibatches per pass over the collected data (>= 1)."""
     num_updates_per_batch: int = 4
     """Passes over the collected data per iteration (>= 1)."""
-    learning_rate: float = 3e-4
+    learning_rate: float = 1e-3
     """Adam learning rate (> 0)."""
-    learning_rate_final: float = 1.0
+    learning_rate_final: float = 0.1
     """The learning rate at num_timesteps, as a fraction of learning_rate, reached by a
     cosine decay over the run's updates (in [0, 1]; 1: constant)."""
     entropy_cost: float = 1e-3
@@ -68,15 +68,15 @@ class PPOConfig:
     clip_observations: float = 5.0
     """Clip the observations, normalized by their running mean and standard deviation, to
     ± this many standard deviations (>= 0; 0: off)."""
-    update_precision: Literal["run", "default", "high", "highest"] = "run"
+    update_precision: Literal["run", "default", "high", "highest"] = "default"
     """Matmul precision of the update's forward and backward passes (train/learner/losses.py
     at_precision): run keeps run.matmul_precision; default lets an
     NVIDIA GPU use TF32 there. Rollouts and evaluations keep the run's precision."""
     smoothness: SmoothnessConfig = SmoothnessConfig()
-    """CAPS-style smoothness terms in the policy loss (train/learner/losses.py; off by default)."""
+    """CAPS-style smoothness terms in the policy loss (train/learner/losses.py)."""
     anchor: AnchorConfig = AnchorConfig()
-    """No yaw correction where the base controller is exact (train/learner/losses.py; off by
-    default; needs env.residual_space = "twist")."""
+    """No correction where the base controller is exact (train/learner/losses.py; needs
+    env.residual_space = "twist": a direct-rate config sets weight = 0)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,22 +99,22 @@ class RunConfig:
 
     seeds: tuple[int, ...] = (0,)
     """Training seeds, trained side by side in one program (distinct, 0 <= seed < 2**32)."""
-    epoch_iterations: int = 10
+    epoch_iterations: int = 5
     """Training iterations per compiled call; logging happens between calls (>= 1)."""
-    eval_every: int = 1
+    eval_every: int = 8
     """Evaluate every this many epochs, and at the end (>= 1)."""
-    checkpoint_every: int = 1
+    checkpoint_every: int = 10
     """Checkpoint every this many epochs, and at the end (>= 1)."""
     max_checkpoints: int = 3
     """Checkpoints kept in the run directory (>= 1)."""
     eval_seed: int = 20_261_122
     """Seed of the held-out evaluation episodes (not one of the training seeds)."""
-    num_eval_envs: int = 32
+    num_eval_envs: int = 2048
     """Episodes per periodic evaluation scenario (>= 1)."""
     eval_fidelity: Literal["fast", "reference"] = "fast"
     """Physics model of the periodic evaluation: "fast" (the training model) or "reference"
     (the roller model at its own timestep; slower, docs/evaluation.md)."""
-    eval_episode_length: int = 250
+    eval_episode_length: int = 500
     """Control steps per evaluation episode (>= 1)."""
     max_devices: int = 0
     """Use at most this many local devices (>= 0; 0: all, but one GPU under MuJoCo Warp on

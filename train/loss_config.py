@@ -13,9 +13,9 @@ from mecanum_jax.config import require
 class SmoothnessConfig:
     """Weights of the CAPS-style terms (0: off) and the spatial perturbation's scale."""
 
-    temporal: float = 0.0
+    temporal: float = 1.0
     """Weight of ‖μ(s_t) − μ(s_{t+1})‖² (>= 0; 0: off)."""
-    spatial: float = 0.0
+    spatial: float = 10.0
     """Weight of ‖μ(s) − μ(s + ε)‖² (>= 0; 0: off)."""
     sigma: float = 0.02
     """Standard deviation of ε, in the policy observation's scaled units (> 0)."""
@@ -35,13 +35,13 @@ class AnchorConfig:
     """Weight of anchor_loss (0: off) and where it applies; needs a twist-space
     residual."""
 
-    weight: float = 0.0
+    weight: float = 1000.0
     """Weight of the mean of μ_k(s)² over the states and components where the base is
     exact (>= 0; 0: off)."""
-    spins: bool = False
+    spins: bool = True
     """Also every component on the nominal robot's steady pure spins (within reach) and
     stops, where the base holds v and ωz exactly; off: only ωz on steady no-yaw commands."""
-    translations: bool = False
+    translations: bool = True
     """Also every component on the nominal robot's steady pure translations within reach,
     where the base's setpoints are analytic's; off: only their ωz."""
 

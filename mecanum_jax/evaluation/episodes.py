@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mecanum_jax.config import invalid
-from mecanum_jax.evaluation.scenarios import Scenario, ScenarioSet
+from mecanum_jax.evaluation.scenarios import JUDGE_COMMANDS, Scenario, ScenarioSet
 from mecanum_jax.host import host_side
 from mecanum_jax.kinematics import limits, singularity
 from mecanum_jax.kinematics.modes import SIX_MODES
@@ -140,9 +140,9 @@ def prepare(env: MecanumEnv, scenario: Scenario) -> EpisodeBatch:
     if scenario.scripted:
         commands = jnp.broadcast_to(jnp.asarray(scripted_commands(env, scenario)), (E, T, 3))
     else:
-        # the default mix, not the target's: a variant trained on another command mix is
+        # the judge's mix, not the target's: a variant trained on another command mix is
         # judged on the same episodes as every other target
-        mix = scenario.command_config(CommandConfig())
+        mix = scenario.command_config(JUDGE_COMMANDS)
         commands = samplers[1](jax.random.split(k_cmd, E), _as_arrays(mix))
     noise = jnp.broadcast_to(env.noise_std(scenario.noise), (E, 3))
     return EpisodeBatch(jax.random.split(k_run, E), params, latency, noise, commands)

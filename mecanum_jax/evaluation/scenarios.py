@@ -119,6 +119,13 @@ class Scenario:
         return dataclasses.replace(task, **self.mix)
 
 
+JUDGE_COMMANDS = CommandConfig(
+    p_zero=0.1, p_translation=0.3, resample_min_s=1.0, resample_max_s=4.0
+)
+"""The command mix every drawn scenario starts from, whatever the training recipe's: the
+judge does not move when a recipe (or the defaults, which are the shipped recipe) does."""
+
+
 def _fixed_nominal(friction: float) -> dict[str, Any]:
     """Randomization ranges that pin every parameter to its nominal value: the floor's
     ``friction``, scale factors 1, everything else (spreads, payload, latency) 0."""
@@ -205,7 +212,7 @@ def parse_scenario(name: str, table: object, defaults: Defaults) -> Scenario:
     _validate_commands(scenario, where)
     # value checks shared with the training config (ranges ordered, > 0, ...)
     EnvConfig(
-        commands=scenario.command_config(CommandConfig()),
+        commands=scenario.command_config(JUDGE_COMMANDS),
         randomization=scenario.randomization_config(1.0),
         noise=noise,
     ).validate(where)
@@ -339,6 +346,7 @@ def load_scenarios(
 
 
 __all__ = [
+    "JUDGE_COMMANDS",
     "Scenario",
     "ScenarioCommands",
     "ScenarioSet",

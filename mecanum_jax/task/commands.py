@@ -32,9 +32,9 @@ class CommandConfig:
     The kind of each command is drawn with the relative weights p_*.
     """
 
-    p_zero: float = 0.1
+    p_zero: float = 0.15
     """Relative weight of the zero command (standing still) (>= 0)."""
-    p_translation: float = 0.3
+    p_translation: float = 0.5
     """Relative weight of pure translations in a uniform direction (>= 0)."""
     p_spin: float = 0.15
     """Relative weight of pure spins (>= 0)."""
@@ -50,9 +50,9 @@ class CommandConfig:
     """Smallest out-of-reach command, as a fraction of the feasible radius (>= 1)."""
     beyond_max_fraction: float = 1.5
     """Largest out-of-reach command, as a fraction of the feasible radius."""
-    resample_min_s: float = 1.0
+    resample_min_s: float = 0.5
     """Shortest time a command is held before a new one is drawn, s (> 0)."""
-    resample_max_s: float = 4.0
+    resample_max_s: float = 2.5
     """Longest time a command is held, s (>= resample_min_s)."""
     p_mirror: float = 0.0
     """Chance that a new command is the last one mirrored, left-right (vx, -vy, -ωz),

@@ -113,26 +113,26 @@ class EnvConfig:
     """Control steps per training episode (>= 1)."""
     residual: bool = True
     """Actions correct the analytic baseline's setpoints (false: actions are setpoints)."""
-    residual_scale: float = 0.1
+    residual_scale: float = 0.5
     """Largest residual correction, as a fraction of the largest wheel rate or twist (> 0)."""
-    residual_space: str = "wheel"
+    residual_space: str = "twist"
     """Where the residual acts: "wheel" (one per wheel) or "twist" (vx, vy, ωz)."""
-    residual_base: str = "analytic"
+    residual_base: str = "feedback"
     """What the residual corrects: "analytic" (the baseline) or "feedback" (the PI loop)."""
     yaw_integral_tau: float = 0.0
     """Time constant of the observed leaky yaw-rate error integral, s (>= 0; 0: off)."""
     residual_at_stop: bool = True
     """Whether the residual acts while the command is a stop (false: the base alone stops)."""
-    action_filter: float = 0.0
+    action_filter: float = 0.7
     """Low-pass factor of the actions, f in [0, 1): applied = f·previous + (1 − f)·new (0: off)."""
-    residual_deadband: float = 0.0
+    residual_deadband: float = 0.005
     """Soft threshold of the network's action, in its units, in [0, 1) (0: off)."""
-    residual_ramp_s: float = 0.0
+    residual_ramp_s: float = 0.5
     """Seconds over which the correction ramps in after a command change (>= 0; 0: off)."""
     obs_history: int = 0
     """Earlier sensor frames the policy observes, one control period apart (0 to
     MAX_OBS_HISTORY; 0: none)."""
-    path_tau: float = 0.0
+    path_tau: float = 3.0
     """Time constant of the observed leaky path error, s (>= 0; 0: off)."""
     path_integrator: str = "exact"
     """How the path error is kept: "exact" or "euler" (the shipped policy's; see above)."""

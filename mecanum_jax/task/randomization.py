@@ -51,7 +51,7 @@ class RandomizationConfig:
     """Wheel servo gain / nominal gain, range (> 0)."""
     latency_steps: tuple[int, int] = (0, 2)
     """Observation latency in whole control steps, range (0 <= lo <= hi <= 10)."""
-    nominal_share: float = 0.0
+    nominal_share: float = 0.25
     """Share of robots that are the nominal robot instead (the description's friction, no
     payload, nominal radii, motors and gains, no latency), in [0, 1]."""
 

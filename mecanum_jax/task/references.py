@@ -56,15 +56,15 @@ class FeedbackConfig:
     """Integrator clamp, rad/s (>= 0)."""
     omega_weight: float = 0.1
     """Nearest-feasible metric: (m/s)² per (rad/s)² of yaw-rate error (> 0)."""
-    hold_s: float = 0.0
+    hold_s: float = 0.4
     """The integrator holds for this long after each command change, s (>= 0, whole control
     periods; 0: it integrates through the transient)."""
-    reset: bool = False
+    reset: bool = True
     """The integrator restarts at 0 at each command change: it estimates the bias of the
     command it tracks, and a slippery floor's yaw deficit belongs to that command. Carried
     into the next one, it pushes a new spin or a stop the wrong way for seconds, bleeding
     off at ki (docs/evaluation.md, the settling of ωz on slippery floors)."""
-    deadband: float = 0.0
+    deadband: float = 0.02
     """The correction shrinks by this much towards 0, rad/s (>= 0; 0: none). The integrator
     grows through it, so a steady bias is still corrected in full, but the gyro noise's
     corrections of a few mrad/s vanish and a nominal robot's wheels get exactly

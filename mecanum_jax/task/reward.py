@@ -27,22 +27,22 @@ class RewardConfig:
     """Scale of exp(−ω_err²/sigma_ang) (>= 0)."""
     sigma_lin: float = 0.25
     """Width of the linear tracking kernel, (m/s)² (> 0)."""
-    sigma_ang: float = 1.0
+    sigma_ang: float = 0.25
     """Width of the yaw-rate tracking kernel, (rad/s)² (> 0)."""
     error_lin: float = 1.0
     """Scale of the quadratic penalty −|v_err|², per (m/s)² (>= 0; 0: off)."""
-    error_ang: float = 0.1
+    error_ang: float = 0.5
     """Scale of the quadratic penalty −ω_err², per (rad/s)² (>= 0; 0: off)."""
     action_rate: float = 0.01
     """Scale of −|a_t − a_(t−1)|², actions in [-1, 1] (>= 0)."""
     energy: float = 0.0005
     """Scale of −Σ|τ·ω|, the wheels' mechanical power in W (>= 0)."""
-    path_lin: float = 0.0
+    path_lin: float = 4.0
     """Scale of −|e_xy|², the true path error's position part, per m² (>= 0; needs
     env.path_tau > 0, whose leak it shares)."""
-    path_ang: float = 0.0
+    path_ang: float = 2.0
     """Scale of −e_θ², the true path error's heading part, per rad² (>= 0; as path_lin)."""
-    target: str = "command"
+    target: str = "feasible"
     """What the twist error is measured against: "command", or "feasible", the nearest
     feasible twist of the robot as it is (the evaluation's steady-state target,
     MecanumEnv.feasible_target), so that beyond reach the reward asks for what the

@@ -76,7 +76,7 @@ def restore_policy(
     checkpoint whose robot description or observation layout differs from what this code
     builds from the checkpoint's own config (e.g. the robot's TOML file changed since).
     """
-    from train.config_loading import parse_train_config
+    from train.config_loading import parse_train_config, with_absent
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -96,7 +96,9 @@ def restore_policy(
     epoch, items = read_checked(run_dir, epoch, ("train", "meta"))
     meta = dict(items["meta"])
     try:
-        saved = inputs.use_copies(meta["config"], run_dir)  # the robot it trained on, if copied
+        saved = inputs.use_copies(
+            with_absent(meta["config"]), run_dir
+        )  # the robot it trained on, if copied
         cfg = parse_train_config(saved, f"{run_dir}/checkpoint meta")
     except (KeyError, ConfigError) as err:
         raise CheckpointError(
