@@ -3,8 +3,8 @@
 import numpy as np
 
 from mecanum_jax.deploy.policy import NumpyPolicy
+from mecanum_jax.deploy.write import task_meta
 from mecanum_jax.task import MecanumEnv
-from train.cli.export import task_meta
 
 
 def network_free(env: MecanumEnv) -> NumpyPolicy:

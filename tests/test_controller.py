@@ -108,7 +108,7 @@ def test_a_symmetric_policy_is_exactly_equivariant():
 
 
 def test_the_model_folder_holds_what_the_export_writes_today():
-    from train.cli.export import robot_side_files
+    from mecanum_jax.deploy.write import robot_side_files
 
     files = robot_side_files()
     for name, src in files.items():

@@ -14,8 +14,8 @@ from tasks import PLAIN_FEEDBACK, WHEEL
 
 from mecanum_jax.config import ConfigError, from_mapping
 from mecanum_jax.deploy.policy import NumpyPolicy
+from mecanum_jax.deploy.write import task_meta
 from mecanum_jax.task import EnvConfig, FeedbackConfig, MecanumEnv, RandomizationConfig
-from train.cli.export import task_meta
 
 DEADBAND = 0.5
 FILTER = 0.5

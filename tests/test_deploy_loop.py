@@ -283,7 +283,7 @@ def test_plant_steps_as_the_mjx_robot(shipped_task):
 
 def test_the_copied_loop_runs_beside_the_export_without_jax(tmp_path):
     """What mecanum-export writes beside policy.npz runs on its own: NumPy only."""
-    from train.cli.export import robot_side_files
+    from mecanum_jax.deploy.write import robot_side_files
 
     shutil.copy(MODEL / "policy.npz", tmp_path)
     for name, src in robot_side_files().items():

@@ -14,8 +14,8 @@ from tasks import PLAIN_FEEDBACK, WHEEL
 
 from mecanum_jax.config import ConfigError, from_mapping
 from mecanum_jax.deploy.policy import NumpyPolicy
+from mecanum_jax.deploy.write import task_meta
 from mecanum_jax.task import EnvConfig, FeedbackConfig, MecanumEnv, RandomizationConfig
-from train.cli.export import task_meta
 
 FILTER = 0.5
 BIAS = np.asarray([0.8, -0.6, 0.5], np.float32)  # the constant network's pre-tanh output

@@ -1,15 +1,45 @@
-"""Writing a policy export (the trainer's side; the robot reads it with :mod:`.policy`)."""
+"""Writing a policy export (the trainer's side; the robot reads it with :mod:`.policy`):
+``policy.npz`` with the robot-side files beside it (:func:`export_policy`), or one ONNX
+graph (:func:`export_onnx`), from a policy's arrays and its task's :func:`task_meta`."""
 
 from __future__ import annotations
 
 import json
 from collections.abc import Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from mecanum_jax import atomic
-from mecanum_jax.deploy.policy import FORMAT
+from mecanum_jax.deploy.policy import FORMAT, NumpyPolicy
+
+if TYPE_CHECKING:  # the task's modules load MJX: imported where an export is written
+    from mecanum_jax.sim.description import RobotDescription
+    from mecanum_jax.task.config import EnvConfig
+    from mecanum_jax.task.constants import RobotConstants
+
+Layers = list[tuple[np.ndarray, np.ndarray]]
+
+
+class Task(Protocol):
+    """What an export reads of a task: a ``MecanumEnv`` or its ``TaskShapes`` (which builds
+    no MJX model)."""
+
+    @property
+    def config(self) -> EnvConfig: ...
+    @property
+    def desc(self) -> RobotDescription: ...
+    @property
+    def constants(self) -> RobotConstants: ...
+
+
+def task_meta(task: Task) -> dict[str, object]:
+    """What an exported policy's control loop needs of ``task``
+    (:func:`mecanum_jax.task.controller.controller_meta`)."""
+    from mecanum_jax.task.controller import controller_meta
+
+    return controller_meta(task.config, task.desc, task.constants)
 
 
 def save(
@@ -28,3 +58,49 @@ def save(
     with atomic.open_atomic(path, "wb") as f:
         np.savez(f, allow_pickle=True, **arrays)  # numpy's default, named: all else is arrays
     return path
+
+
+def robot_side_files() -> dict[str, Path]:
+    """What the robot needs beside ``policy.npz``, by its name there: the NumPy policy, the
+    control loop and the controller package (``mecanum_control/``), from the library."""
+    from mecanum_jax import control
+    from mecanum_jax.deploy import policy
+
+    source = Path(policy.__file__)
+    files = {"mecanum_policy.py": source, "mecanum_loop.py": source.with_name("loop.py")}
+    package = Path(control.__file__).parent
+    for src in sorted(package.glob("*.py")):
+        files[f"mecanum_control/{src.name}"] = src
+    return files
+
+
+def export_policy(
+    layers: Layers, mean: np.ndarray, std: np.ndarray, meta: Mapping[str, object], path: Path
+) -> Path:
+    """Write ``policy.npz`` (weights, normalizer, control-loop constants) and copy the
+    robot-side files beside it (:func:`robot_side_files`). Each file atomically; on an
+    error, those it had written are removed again."""
+    modules = robot_side_files()
+    new = [p for p in (path, *(path.parent / n for n in modules)) if not p.exists()]
+    try:
+        save(path, layers, mean, std, meta)
+        for name, src in modules.items():
+            (path.parent / name).parent.mkdir(exist_ok=True)
+            atomic.copy_file(src, path.parent / name)
+    except BaseException:
+        for p in new:
+            p.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def export_onnx(
+    layers: Layers, mean: np.ndarray, std: np.ndarray, meta: Mapping[str, object], path: Path
+) -> Path:
+    """Write the policy and its control loop as one ONNX graph (:mod:`.onnx`)."""
+    from mecanum_jax.deploy import onnx as onnx_export
+
+    return onnx_export.write_onnx(NumpyPolicy(layers, mean, std, dict(meta)), path)
+
+
+__all__ = ["Task", "export_onnx", "export_policy", "robot_side_files", "save", "task_meta"]

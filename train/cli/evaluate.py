@@ -24,7 +24,7 @@ that looks finished; an existing ``<out>`` is never overwritten. Exit codes: 2 b
 the path), 130 interrupted.
 
 The console tables and the plots are drawn by :mod:`train.cli.eval_output`; ``--export`` writes
-the deployable policy as ``mecanum-export`` does (:mod:`train.cli.export`).
+the deployable policy as ``mecanum-export`` does (:mod:`mecanum_jax.deploy.write`).
 """
 
 from __future__ import annotations
@@ -46,6 +46,7 @@ from rich.console import Console  # noqa: E402
 from mecanum_jax import atomic  # noqa: E402
 from mecanum_jax._checks import require_platform  # noqa: E402
 from mecanum_jax.config import ConfigError  # noqa: E402
+from mecanum_jax.deploy.write import export_policy  # noqa: E402
 from mecanum_jax.evaluation import (  # noqa: E402
     compare,
     episodes,
@@ -64,7 +65,6 @@ from train.cli.eval_output import (  # noqa: E402
     write_plots,
 )
 from train.cli.eval_target import Target, default_out  # noqa: E402
-from train.cli.export import export_policy  # noqa: E402
 from train.cli.paths import check_output, resolve_model  # noqa: E402
 from train.loop import compilation_cache  # noqa: E402
 from train.loop.progress import print_error, rollout_progress  # noqa: E402
@@ -263,7 +263,7 @@ def _evaluate_into(
     if args.video:
         files += write_videos(target, traces, args, partial)
     if args.export and target.restored is not None:
-        files.append(export_policy(target.restored, partial / "policy.npz"))
+        files.append(export_policy(*target.restored.export_arrays(), partial / "policy.npz"))
     report = {
         "target": args.target,
         "label": target.label,

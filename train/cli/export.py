@@ -25,17 +25,13 @@ import sys
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import numpy as np
 import tyro
 from rich.console import Console
 
 from mecanum_jax import atomic
 from mecanum_jax._checks import require_platform
 from mecanum_jax.config import ConfigError
-from mecanum_jax.deploy import policy as deploy
-from mecanum_jax.deploy.write import save
-from mecanum_jax.task import MecanumEnv
-from mecanum_jax.task.controller import controller_meta
+from mecanum_jax.deploy.write import export_onnx, export_policy, robot_side_files
 from train.cli.paths import check_output, resolve_model
 from train.learner.policy import RestoredPolicy, package_model, restore_policy, split_target
 from train.loop.progress import print_error
@@ -106,13 +102,14 @@ def main(argv: list[str] | None = None) -> int:
 
 def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) -> int:
     if args.model:
-        fill = lambda folder: export_policy(restored, folder / "policy.npz")  # noqa: E731
+        arrays = restored.export_arrays()
+        fill = lambda folder: export_policy(*arrays, folder / "policy.npz")  # noqa: E731
         out = package_model(restored, Path(args.out), extra, fill)
         console.log(f"wrote model directory {out}")
         return 0
     if args.format == "onnx":
         try:
-            path = export_onnx(restored, Path(args.out))
+            path = export_onnx(*restored.export_arrays(), Path(args.out))
         except ImportError as err:
             _error(
                 ConfigError(
@@ -122,77 +119,11 @@ def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) ->
             return 2
         console.log(f"wrote {path}")
         return 0
-    path = export_policy(restored, Path(args.out))
+    path = export_policy(*restored.export_arrays(), Path(args.out))
     modules = sorted({name.split("/")[0] for name in robot_side_files()})  # the package once
     beside = ", ".join(str(path.with_name(m)) for m in modules)
     console.log(f"wrote {path} and beside it {beside}")
     return 0
-
-
-def robot_side_files() -> dict[str, Path]:
-    """What the robot needs beside ``policy.npz``, by its name there: the NumPy policy, the
-    control loop and the controller package (``mecanum_control/``), from the library."""
-    from mecanum_jax import control
-
-    source = Path(deploy.__file__)
-    files = {"mecanum_policy.py": source, "mecanum_loop.py": source.with_name("loop.py")}
-    package = Path(control.__file__).parent
-    for src in sorted(package.glob("*.py")):
-        files[f"mecanum_control/{src.name}"] = src
-    return files
-
-
-def export_policy(restored: RestoredPolicy, path: Path) -> Path:
-    """Write ``policy.npz`` (weights, normalizer, control-loop constants) and copy the
-    NumPy inference module beside it as ``mecanum_policy.py``. Each file atomically; on an
-    error, those it had written are removed again."""
-    modules = robot_side_files()
-    new = [p for p in (path, *(path.parent / n for n in modules)) if not p.exists()]
-    try:
-        save(path, *_policy_arrays(restored))
-        for name, src in modules.items():
-            (path.parent / name).parent.mkdir(exist_ok=True)
-            atomic.copy_file(src, path.parent / name)
-    except BaseException:
-        for p in new:
-            p.unlink(missing_ok=True)
-        raise
-    return path
-
-
-def export_onnx(restored: RestoredPolicy, path: Path) -> Path:
-    """Write the policy and its control loop as one ONNX graph (``mecanum_jax.deploy.onnx``)."""
-    from mecanum_jax.deploy import onnx as onnx_export
-
-    return onnx_export.write_onnx(deploy.NumpyPolicy(*_policy_arrays(restored)), path)
-
-
-def task_meta(env: MecanumEnv) -> dict[str, Any]:
-    """What an exported policy's control loop needs of ``env``'s task
-    (:func:`mecanum_jax.task.controller.controller_meta`)."""
-    return controller_meta(env.config, env.desc, env.constants)
-
-
-def _policy_arrays(
-    restored: RestoredPolicy,
-) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray, np.ndarray, dict[str, Any]]:
-    """The exported policy's layers, normalizer mean and std, and metadata."""
-    cfg = restored.cfg
-    env = MecanumEnv(dataclasses.replace(cfg.env, physics_impl="jax"))  # shapes only
-    layers_tree = restored.params["params"]
-    names = sorted(layers_tree, key=lambda n: int(n.rsplit("_", 1)[-1]))
-    layers = [
-        (np.asarray(layers_tree[n]["kernel"]), np.asarray(layers_tree[n]["bias"])) for n in names
-    ]
-    mean = np.asarray(restored.normalizer.mean["state"])
-    std = np.asarray(restored.normalizer.std["state"])
-    meta = {
-        **task_meta(env),
-        "activation": "swish",  # the trainer's (train/learner/state.py)
-        "clip_observations": cfg.ppo.clip_observations,
-        "source": {"run": str(restored.run_dir), "epoch": restored.epoch, "seed": restored.seed},
-    }
-    return layers, mean, std, meta
 
 
 def _error(err: BaseException) -> None:
@@ -202,7 +133,7 @@ def _error(err: BaseException) -> None:
 export_main = main
 """``main`` under the name the device runner's ``package`` step imports."""
 
-__all__ = ["ExportArgs", "export_main", "export_onnx", "export_policy", "main", "task_meta"]
+__all__ = ["ExportArgs", "export_main", "main"]
 
 
 if __name__ == "__main__":

@@ -26,12 +26,13 @@ from train.store.checkpoint import CHECKPOINT_DIR, checkpoint_path, read_checked
 from train.store.leaves import CheckpointError
 
 if TYPE_CHECKING:
+    import numpy as np
     from brax.training.acme.running_statistics import RunningStatisticsState
     from brax.training.agents.ppo.networks import PPONetworks
     from brax.training.types import Params, PolicyParams
     from jax.typing import ArrayLike
 
-    from mecanum_jax.task.shapes import Shaped
+    from mecanum_jax.task.shapes import Shaped, TaskShapes
     from train.config import TrainConfig
 
 
@@ -47,12 +48,34 @@ class RestoredPolicy:
     normalizer: RunningStatisticsState  # (host arrays)
     params: Params  # policy network parameters (host arrays)
     meta: dict[str, Any]
+    shapes: TaskShapes  # the task's, from its config and robot description (no MJX model)
 
     def apply(self, params: PolicyParams, obs: dict[str, jax.Array]) -> jax.Array:
         """The deterministic action for ``params = (normalizer, policy params)``."""
         from train.learner.periodic import deterministic_apply
 
         return deterministic_apply(self.networks)(params, obs)
+
+    def export_arrays(
+        self,
+    ) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray, np.ndarray, dict[str, Any]]:
+        """The policy as an export holds it (:mod:`mecanum_jax.deploy.write`): the layers in
+        order (Flax's ``hidden_K``), the normalizer's mean and std, and the metadata."""
+        import numpy as np
+
+        from mecanum_jax.deploy.write import task_meta
+
+        tree = self.params["params"]
+        names = sorted(tree, key=lambda n: int(n.rsplit("_", 1)[-1]))
+        layers = [(np.asarray(tree[n]["kernel"]), np.asarray(tree[n]["bias"])) for n in names]
+        meta = {
+            **task_meta(self.shapes),
+            "activation": "swish",  # the trainer's (train/learner/state.py)
+            "clip_observations": self.cfg.ppo.clip_observations,
+            "source": {"run": str(self.run_dir), "epoch": self.epoch, "seed": self.seed},
+        }
+        mean = np.asarray(self.normalizer.mean["state"])
+        return layers, mean, np.asarray(self.normalizer.std["state"]), meta
 
 
 def split_target(path: str | Path) -> tuple[Path, int | None]:
@@ -129,6 +152,7 @@ def restore_policy(
         normalizer=one.normalizer_params,
         params=one.params.policy,
         meta=meta,
+        shapes=shapes,
     )
 
 
