@@ -353,6 +353,19 @@ def test_twist_residual_needs_residual_actions():
         EnvConfig(residual_space="joint").validate()
 
 
+def test_direct_rates_on_the_defaults_name_every_residual_setting_at_once():
+    """The defaults are a twist residual on feedback: residual = false alone is refused
+    with every setting it must also turn back, not one per attempt; the plain direct task
+    validates."""
+    with pytest.raises(ConfigError) as err:
+        EnvConfig(residual=False).validate()
+    message = str(err.value)
+    assert message.startswith("env.residual_space = 'twist': needs residual = true")
+    assert "residual_deadband = 0.005" in message
+    assert "residual_base = 'feedback'" in message
+    EnvConfig(**{**WHEEL, "residual": False}).validate()
+
+
 def test_a_config_is_validated_once(monkeypatch):
     """The layers a config passes through each ask for it to be valid; it is checked once.
     A changed copy is checked anew, and a bad config is refused at every ask."""

@@ -149,6 +149,26 @@ class EnvConfig:
     feedback: FeedbackConfig = FeedbackConfig()
     """The feedback reference controller's gains."""
 
+    def _validate_direct(self, where: str) -> None:
+        """residual = false: every residual-only setting must be off. The first one set is
+        named, with the others set beside it (the defaults are the shipped twist residual on
+        ``feedback``: a direct-rate config sets several back, as quick.toml does)."""
+        on = [
+            (name, value)
+            for name, value, off in (
+                ("residual_space", self.residual_space, "wheel"),
+                ("residual_at_stop", self.residual_at_stop, True),
+                ("residual_deadband", self.residual_deadband, 0.0),
+                ("residual_base", self.residual_base, "analytic"),
+            )
+            if value != off
+        ]
+        if on:
+            name, value = on[0]
+            also = ", ".join(f"{n} = {v!r}" for n, v in on[1:])
+            more = f" (so do {also}: configs/train/quick.toml sets them back)" if also else ""
+            raise invalid(f"{where}.{name}", value, "needs residual = true" + more)
+
     @validated_once  # each config once, however many layers ask
     def validate(self, where: str = "env") -> EnvConfig:
         """Check values (not only types); raise :class:`ConfigError` naming the field."""
@@ -161,22 +181,12 @@ class EnvConfig:
             raise invalid(
                 f"{where}.residual_space", self.residual_space, f"expected one of {RESIDUAL_SPACES}"
             )
-        if self.residual_space == "twist" and not self.residual:
-            raise invalid(f"{where}.residual_space", self.residual_space, "needs residual = true")
         if self.residual_base not in RESIDUAL_BASES:
             raise invalid(
                 f"{where}.residual_base", self.residual_base, f"expected one of {RESIDUAL_BASES}"
             )
-        if not self.residual_at_stop and not self.residual:
-            raise invalid(
-                f"{where}.residual_at_stop", self.residual_at_stop, "needs residual = true"
-            )
-        if self.residual_deadband > 0 and not self.residual:
-            raise invalid(
-                f"{where}.residual_deadband", self.residual_deadband, "needs residual = true"
-            )
-        if self.residual_base == "feedback" and not self.residual:
-            raise invalid(f"{where}.residual_base", self.residual_base, "needs residual = true")
+        if not self.residual:
+            self._validate_direct(where)
         self.commands.validate(f"{where}.commands")
         self.randomization.validate(f"{where}.randomization")
         self.noise.validate(f"{where}.noise")
