@@ -1,0 +1,73 @@
+"""The environment's config: a bad one is refused naming the field, and one is checked once."""
+
+import dataclasses
+
+import pytest
+from tasks import WHEEL
+
+from mecanum_jax.config import ConfigError, from_mapping
+from mecanum_jax.task import EnvConfig, MecanumEnv
+
+
+@pytest.mark.parametrize(
+    ("table", "message"),
+    [
+        ({"randomization": {"nominal_share": 1.5}}, "env.randomization.nominal_share = 1.5"),
+        ({"control_dt": 0.021}, "env.control_dt = 0.021"),
+        ({"episode_length": 0}, "env.episode_length = 0"),
+        ({"randomization": {"friction": [1.0, 0.5]}}, "env.randomization.friction"),
+        ({"randomization": {"friction": [0.0, 0.5]}}, "must be > 0"),
+        ({"commands": {"p_zero": -1}}, "env.commands.p_zero = -1"),
+        ({"reward": {"sigma_lin": 0}}, "env.reward.sigma_lin = 0"),
+        ({"reward": {"energy": -1}}, "env.reward.energy = -1"),
+        ({"reward": {"target": "goal"}}, "env.reward.target = 'goal'"),
+        ({"robot": "no_such_robot"}, "env.robot = 'no_such_robot'"),
+        ({"noise": {"gyro": "big"}}, "env.noise.gyro = 'big'"),
+        ({"action_filter": 1.0}, "env.action_filter = 1.0"),
+        ({"action_filter": -0.1}, "env.action_filter = -0.1"),
+        ({"colour": "red"}, "env.colour = 'red': unknown key"),
+    ],
+)
+def test_bad_env_config_names_field(table, message):
+    with pytest.raises(ConfigError, match=message.replace(".", r"\.").replace("[", r"\[")):
+        from_mapping(EnvConfig, table, "env").validate()
+
+
+def test_twist_residual_needs_residual_actions():
+    with pytest.raises(ConfigError, match=r"env\.residual_space"):
+        EnvConfig(residual=False, residual_space="twist").validate()
+    with pytest.raises(ConfigError, match=r"env\.residual_space = 'joint'"):
+        EnvConfig(residual_space="joint").validate()
+
+
+def test_direct_rates_on_the_defaults_name_every_residual_setting_at_once():
+    """The defaults are a twist residual on feedback: residual = false alone is refused
+    with every setting it must also turn back, not one per attempt; the plain direct task
+    validates."""
+    with pytest.raises(ConfigError) as err:
+        EnvConfig(residual=False).validate()
+    message = str(err.value)
+    assert message.startswith("env.residual_space = 'twist': needs residual = true")
+    assert "residual_deadband = 0.005" in message
+    assert "residual_base = 'feedback'" in message
+    EnvConfig(**{**WHEEL, "residual": False}).validate()
+
+
+def test_a_config_is_validated_once(monkeypatch):
+    """The layers a config passes through each ask for it to be valid; it is checked once.
+    A changed copy is checked anew, and a bad config is refused at every ask."""
+    checks = []
+    real = EnvConfig._validate_timing
+    monkeypatch.setattr(
+        EnvConfig, "_validate_timing", lambda self, where: checks.append(1) or real(self, where)
+    )
+    cfg = EnvConfig(obs_history=2)
+    assert cfg.validate() is cfg
+    assert cfg.validate("elsewhere") is cfg
+    assert len(checks) == 1
+    dataclasses.replace(cfg, obs_history=3).validate()
+    assert len(checks) == 2
+    bad = EnvConfig(residual_space="joint")
+    for _ in range(2):
+        with pytest.raises(ConfigError, match=r"env\.residual_space = 'joint'"):
+            MecanumEnv(bad)
