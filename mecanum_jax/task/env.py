@@ -65,12 +65,12 @@ class MecanumEnv(Env):
         together), for MuJoCo Warp's shared contact buffer (:class:`Robot`). ``fidelity``:
         the physics model, "fast" or "reference" (:mod:`.fidelity`)."""
         self.config = config = (config or EnvConfig()).validate()
-        self.robot = Robot(*fid.model(config, fidelity), robots=robots)
-        self.substeps = fid.substeps(config, self.robot.desc, self.robot.fidelity)
-        # the task's description, what its parts read of the robot (built once and handed
-        # to them), the controller and the layouts: a restored policy's (.shapes)
+        # the task's description, what its parts read of the robot (derived once and
+        # handed to them), the controller and the layouts: a restored policy's (.shapes)
         self.shapes = shapes = task_shapes(config)
         self.desc = shapes.desc
+        self.robot = Robot(*fid.model(config, fidelity, shapes.desc), robots=robots)
+        self.substeps = fid.substeps(config, self.robot.desc, self.robot.fidelity)
         c = self.constants = shapes.constants
         self.geometry, self.n_wheels, self.max_rates = c.geometry, c.n_wheels, c.max_rates
         self.command_scale, self.nominal_params = c.command_scale, c.nominal_params

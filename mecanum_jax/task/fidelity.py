@@ -34,20 +34,24 @@ def check_fidelity(value: object, field: str) -> Fidelity:
     return value
 
 
-def simulated_description(config: EnvConfig, fidelity: Fidelity) -> RobotDescription:
-    """The description the ``fidelity`` model is built from (see the module docstring)."""
-    task = config.description()
+def simulated_description(
+    config: EnvConfig, fidelity: Fidelity, task: RobotDescription
+) -> RobotDescription:
+    """The description the ``fidelity`` model is built from (see the module docstring):
+    ``task``, the task's own (:meth:`EnvConfig.description`), or the robot's."""
     if fidelity == "fast":
         return task
     own = resolve_description(config.robot)
     return dataclasses.replace(own, sim=dataclasses.replace(own.sim, impl=task.sim.impl))
 
 
-def model(config: EnvConfig, fidelity: object) -> tuple[RobotDescription, Fidelity]:
+def model(
+    config: EnvConfig, fidelity: object, task: RobotDescription
+) -> tuple[RobotDescription, Fidelity]:
     """The description and the checked fidelity a :class:`~mecanum_jax.sim.physics.Robot`
-    of ``config``'s task at ``fidelity`` is built from."""
+    of ``config``'s task (whose description is ``task``) at ``fidelity`` is built from."""
     checked = check_fidelity(fidelity, "fidelity")
-    return simulated_description(config, checked), checked
+    return simulated_description(config, checked, task), checked
 
 
 def substeps(config: EnvConfig, desc: RobotDescription, fidelity: Fidelity) -> int:
@@ -107,7 +111,8 @@ def check_task(config: EnvConfig, fidelity: object, field: str) -> None:
     before a model is compiled (the value, then the timestep); raises :class:`ConfigError`."""
     fidelity = check_fidelity(fidelity, field)
     try:
-        substeps(config, simulated_description(config, fidelity), fidelity)
+        desc = simulated_description(config, fidelity, config.description())
+        substeps(config, desc, fidelity)
     except ConfigError as err:
         raise ConfigError(f"{field} = {fidelity!r}: {err}") from None
 

@@ -67,11 +67,15 @@ from train.store import leaves
 
 
 class Learner(Iteration):
-    """The compiled pieces of a run: init, the per-epoch training program, evaluation."""
+    """The compiled pieces of a run: init, the per-epoch training program, evaluation.
+
+    ``cfg`` comes validated, as every way in gives it (``train.config_loading`` loads a
+    config validated, :class:`~train.loop.run.Run` checks the one it is given): the
+    learner does not check it again."""
 
     @host_side  # its constants and set-up on the CPU (mecanum_jax.host)
     def __init__(self, cfg: TrainConfig, devices: list[jax.Device] | None = None):
-        self.cfg = cfg.validate()
+        self.cfg = cfg
         self.devices = devices or parallel.devices_for(cfg)
         self.n_devices = len(self.devices)
         self.n_processes = jax.process_count()
