@@ -143,3 +143,26 @@ def test_the_shipped_model_is_found_by_name_from_anywhere(here):
     for name in ("shipped", "o_rectangle", "models/o_rectangle"):
         assert Path(resolve_model(name)) == MODEL
     assert resolve_model("afile") == "afile"  # an existing path is itself
+
+
+def test_a_refused_training_config_never_imports_the_trainer():
+    """``mecanum-train`` checks its input before it imports the learner and the physics
+    (MJX, Brax): a refusal comes in the seconds the config takes (a fresh interpreter)."""
+    import json
+    import subprocess
+    import sys
+
+    script = (
+        "import json, sys\n"
+        "from train.cli import train\n"
+        "code = train.main(['--config', 'tiny', '--ppo.num-envs', '0'])\n"
+        "print(json.dumps([code, sorted(sys.modules)]))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    code, modules = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert code == 2
+    assert "ppo.num_envs = 0" in proc.stderr
+    assert "jax" in modules  # the config's checks ran
+    heavy = [m for m in modules if m.startswith(("brax", "mujoco.mjx", "train.learner.ppo"))]
+    assert not heavy, heavy

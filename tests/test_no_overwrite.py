@@ -9,6 +9,7 @@ import pytest
 from mecanum_jax.deploy import ros2
 from train.cli import deploy_sim, evaluate, export, train
 from train.cli.paths import shipped_dir
+from train.loop.run import Run
 
 MODEL = shipped_dir() / "o_rectangle"
 
@@ -80,7 +81,7 @@ def test_an_empty_folder_may_take_a_batch(earlier, monkeypatch):
     """An existing but empty --out is used (as an empty --run-dir is): nothing to lose."""
     (earlier / "empty").mkdir()
     created = []
-    monkeypatch.setattr(train.Run, "create", lambda cfg, d, **kw: created.append(d) or 1 / 0)
+    monkeypatch.setattr(Run, "create", lambda cfg, d, **kw: created.append(d) or 1 / 0)
     with pytest.raises(ZeroDivisionError):
         train.batch_main(["--configs", "tiny", "--out", "empty"])
     assert created == [Path("empty") / "tiny"]

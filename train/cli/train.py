@@ -25,7 +25,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Protocol, TypedDict
+from typing import TYPE_CHECKING, Protocol, TypedDict
 
 import jax
 from rich.console import Console
@@ -40,11 +40,14 @@ from train.config import TrainConfig
 from train.config_loading import TRAIN_CONFIG_DIR, apply_flags, load_train_config
 from train.loop import compilation_cache, curve
 from train.loop.distributed import init_distributed
+from train.loop.divergence import TrainingDiverged
 from train.loop.progress import print_error
-from train.loop.run import Run, RunDirError
+from train.loop.run_dir import RunDirError
 from train.loop.run_records import Summary, write_json
-from train.loop.run_steps import TrainingDiverged
 from train.store import checkpoint, inputs, lock
+
+if TYPE_CHECKING:  # the trainer (the learner, MJX, Brax) is imported once the input passed
+    from train.loop.run import Run
 
 console = Console(stderr=True)
 
@@ -191,6 +194,8 @@ def main(argv: list[str] | None = None) -> int:
             else:  # Run.resume names the missing config.json
                 cfg = apply_flags(TrainConfig(), rest, prog, description)
             require_impl(cfg.env.physics_impl, "env.physics_impl")
+            from train.loop.run import Run
+
             run = _hold(Run.resume(meta.resume, overrides=cfg, console=console))
             done = checkpoint.latest_epoch(run.dir)
             if done is not None and done >= run.cfg.num_epochs:
@@ -220,6 +225,8 @@ def main(argv: list[str] | None = None) -> int:
             run_dir = meta.run_dir or f"runs/{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
             check_output(run_dir, "--run-dir", empty_dir_ok=True)
             config_file = _config_file(meta.config or "quick")
+            from train.loop.run import Run
+
             run = _hold(Run.create(cfg, run_dir, config_file=config_file, console=console))
         console.log(f"run directory: {run.dir}")
         limit = None if meta.max_minutes is None else 60 * meta.max_minutes
@@ -281,6 +288,8 @@ def batch_main(argv: list[str] | None = None) -> int:
         names = [n for n, _ in variants]
         if len(set(names)) != len(names):
             raise ConfigError(f"--configs = {meta.configs}: variant names must be distinct")
+        from train.loop.run import Run
+
         runs = [
             _hold(Run.create(cfg, out / name, config_file=_config_file(c), console=console))
             for (name, cfg), c in zip(variants, meta.configs, strict=True)

@@ -19,6 +19,10 @@ if TYPE_CHECKING:
 LOSS_FIRST = "loss/total_loss"
 
 
+class TrainingDiverged(RuntimeError):  # noqa: N818 (reads as the event it reports)
+    """Loss or parameters went non-finite; the last good checkpoint was kept."""
+
+
 def _kind(x: np.ndarray) -> str:
     return "nan" if np.isnan(x).any() else "inf"
 
@@ -80,4 +84,4 @@ def message(epoch: int, what: str, last_good: int, run_dir: Path, checkpoint: Pa
     )
 
 
-__all__ = ["bad_seeds", "first_non_finite", "message"]
+__all__ = ["TrainingDiverged", "bad_seeds", "first_non_finite", "message"]

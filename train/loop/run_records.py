@@ -16,12 +16,13 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from mecanum_jax import atomic
-from train.learner.periodic import Comparison, Result
 from train.loop.progress import TrainLines, evaluation_text, wants_lines
 from train.loop.progress import count as _si
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # (the learner's evaluation imports the physics: a command line that
+    # refuses its input before training need not)
     from train.config import TrainConfig
+    from train.learner.periodic import Comparison, Result
 
 Evals = Mapping[str, Mapping[str, np.ndarray]]
 """Per scenario and metric, the seeds' values (:func:`stacked`)."""

@@ -28,6 +28,7 @@ from train.loop import aot, divergence, warm_start
 from train.loop import run_records as records
 from train.loop.aot import first_runs_alone
 from train.loop.distributed import barrier
+from train.loop.divergence import TrainingDiverged
 from train.loop.loggers import EpochLog
 from train.loop.run_records import stacked, write_json
 from train.loop.session import Session
@@ -37,10 +38,6 @@ from train.store import checkpoint
 LOGGING_ONLY = {"run.wandb_project", "run.progress_every_s"}
 
 Ts = TypeVarTuple("Ts")
-
-
-class TrainingDiverged(RuntimeError):  # noqa: N818 (reads as the event it reports)
-    """Loss or parameters went non-finite; the last good checkpoint was kept."""
 
 
 class RunSteps:
