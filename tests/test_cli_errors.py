@@ -2,8 +2,11 @@
 never a traceback; all of these fail before anything compiles. The command lines run in
 process, from a folder holding the bad inputs."""
 
+import json
 import re
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -148,10 +151,6 @@ def test_the_shipped_model_is_found_by_name_from_anywhere(here):
 def test_a_refused_training_config_never_imports_the_trainer():
     """``mecanum-train`` checks its input before it imports the learner and the physics
     (MJX, Brax): a refusal comes in the seconds the config takes (a fresh interpreter)."""
-    import json
-    import subprocess
-    import sys
-
     script = (
         "import json, sys\n"
         "from train.cli import train\n"
