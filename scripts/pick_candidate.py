@@ -13,7 +13,7 @@ them as ``/tmp/tune-reports/tune_NAME.json``) and ranks every candidate against
    closed path's ss ωz and final drift; the spins' ss ωz and energy; the motion modes' ss ωz
    and final drift; the slippery floors' ss ωz and settling of ωz; the settling of v and ωz
    with noisy sensors; the transients' final drift, the slalom's RMSE ωz, the bursts' and
-   stop-and-go's ss v and the zigzag's RMSE v.
+   stop-and-go's ss v, the zigzag's RMSE v and the weave's RMSE ωz.
 
 Prints one row per candidate and, last, the path of the chosen one's model (the report's
 ``target``), so that a device call can evaluate it on held-out scenarios next::
@@ -65,6 +65,8 @@ FIGURES = (
     ("tuning_bursts", "ss_lin"),
     ("tuning_zigzag", "rmse_lin"),
     ("tuning_zigzag", "drift_m"),
+    ("tuning_weave", "rmse_wz"),
+    ("tuning_weave", "drift_m"),
     ("tuning_stop_go", "drift_m"),
     ("tuning_stop_go", "ss_lin"),
 )

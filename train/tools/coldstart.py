@@ -42,7 +42,7 @@ import sys  # noqa: E402
 from collections import Counter  # noqa: E402
 from collections.abc import Iterator  # noqa: E402
 from pathlib import Path  # noqa: E402
-from typing import TYPE_CHECKING, Any  # noqa: E402
+from typing import TYPE_CHECKING, Any, cast  # noqa: E402
 
 from train.tools.compile_log import CompileLog, Program  # noqa: E402
 
@@ -139,6 +139,12 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             "evaluation at once before any runs, as mecanum-train does "
             "(train.loop.aot.compile_together)",
         )
+        parser.add_argument(
+            "--import-floor",
+            action="store_true",
+            help='then time `python -c "import jax, mujoco, brax"` in a fresh interpreter '
+            "and print the first policy evaluation's time as a multiple of it",
+        )
         args, flags = parser.parse_known_args(argv)
         try:
             if args.json_out and not Path(args.json_out).absolute().parent.is_dir():
@@ -213,7 +219,17 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         if store is None
         else {"loaded": store.loaded, "written": store.written, "dir": str(store.directory)},
         "compiled_together": together,
+        "import_floor": args.import_floor,
     }
+
+
+def import_floor_s() -> float:
+    """Wall seconds of ``python -c "import jax, mujoco, brax"`` in a fresh interpreter."""
+    import subprocess
+
+    t = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "import jax, mujoco, brax"], check=True)
+    return time.perf_counter() - t
 
 
 def summarize(result: dict[str, Any], programs: list[Program]) -> dict[str, Any]:
@@ -295,6 +311,14 @@ def main(argv: list[str] | None = None, top: int = 15) -> int:
         f"names compiled more than once{': ' + shown if again else ''}"
         f"{' ...' if len(again) > 6 else ''}"
     )
+    if report.pop("import_floor"):
+        floor = report["import_floor_s"] = import_floor_s()
+        at = [p["at_s"] for p in clock.phases if p["phase"] == "first evaluation: policy"]
+        first = cast(float, at[0])
+        console.print(
+            f"first policy evaluation at {first:.2f} s = {first / floor:.2f}x "
+            f'`python -c "import jax, mujoco, brax"` ({floor:.2f} s)'
+        )
     if report["json_out"]:
         write_json(Path(report["json_out"]), report)
         console.log(f"wrote {report['json_out']}")
