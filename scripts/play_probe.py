@@ -1,0 +1,61 @@
+"""A probe at play time: ``mecanum-eval`` of a trained policy with fields of its task's
+``[env]`` changed (what it was not trained with), e.g. the base's integrator hold::
+
+    python scripts/play_probe.py base_hold_extra_s=0.26 -- models/o_rectangle \
+        --scenarios tuning --only tuning_weave --no-plots --out /tmp/probe
+
+Each ``FIELD=VALUE`` (a float, an int or true/false) replaces ``env.FIELD`` of the
+checkpoint's config as it is restored; the references play the same changed task. A
+probe says whether a lever is worth training, never what a trained policy would do.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from typing import Any
+
+import train.config_loading as config_loading
+from mecanum_jax.task.config import EnvConfig
+
+
+def _value(text: str) -> Any:
+    if text.lower() in ("true", "false"):
+        return text.lower() == "true"
+    return int(text) if text.lstrip("-").isdigit() else float(text)
+
+
+def main(argv: list[str]) -> int:
+    if "--" not in argv:
+        print(__doc__, file=sys.stderr)
+        return 2
+    cut = argv.index("--")
+    fields = {f.name for f in dataclasses.fields(EnvConfig) if f.type in ("float", "int", "bool")}
+    env_changes = {}
+    for item in argv[:cut]:
+        name, eq, text = item.partition("=")
+        if not eq or name not in fields:
+            print(f"error: {item!r}: expected FIELD=VALUE, FIELD one of env's {sorted(fields)}")
+            return 2
+        try:
+            env_changes[name] = _value(text)
+        except ValueError:
+            print(f"error: env.{name} = {text!r}: expected a number or true/false")
+            return 2
+    parse = config_loading.parse_train_config
+
+    def changed(data: Any, source: str, validate: bool = True) -> Any:
+        cfg = parse(data, source, validate)
+        if "checkpoint meta" not in source:
+            return cfg
+        env = dataclasses.replace(cfg.env, **env_changes).validate("env")
+        return dataclasses.replace(cfg, env=env)
+
+    config_loading.parse_train_config = changed
+    from train.cli import evaluate
+
+    return evaluate.main(argv[cut + 1 :])
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,42 @@
+"""scripts/play_probe.py: a trained policy's task changed at play time, bad input refused."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+import train.config_loading as config_loading
+from scripts import play_probe
+
+MODEL = Path(__file__).resolve().parents[1] / "models" / "o_rectangle"
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["bogus=1", "--", "m"], "'bogus=1': expected FIELD=VALUE"),
+        (["commands=1", "--", "m"], "'commands=1': expected FIELD=VALUE"),
+        (["base_hold_extra_s", "--", "m"], "'base_hold_extra_s': expected FIELD=VALUE"),
+        (["base_hold_extra_s=abc", "--", "m"], "env.base_hold_extra_s = 'abc': expected a number"),
+    ],
+)
+def test_bad_changes_are_refused_naming_them(argv, message, capsys):
+    assert play_probe.main(argv) == 2
+    assert message in capsys.readouterr().out
+
+
+def test_the_restored_policy_plays_the_changed_task(monkeypatch):
+    from train.cli import evaluate
+    from train.learner.policy import restore_policy
+
+    monkeypatch.setattr(config_loading, "parse_train_config", config_loading.parse_train_config)
+    seen = []
+
+    def fake_main(argv):
+        seen.append((argv, restore_policy(MODEL).cfg.env.base_hold_extra_s))
+        return 0
+
+    monkeypatch.setattr(evaluate, "main", fake_main)
+    assert play_probe.main(["base_hold_extra_s=0.26", "--", str(MODEL), "--no-plots"]) == 0
+    assert seen == [([str(MODEL), "--no-plots"], 0.26)]
