@@ -17,9 +17,9 @@
 #                           each packaged as /tmp/model_sK/o_rectangle and $OUT/model_sK.tgz
 #   tune [MODEL...]         each MODEL (default /tmp/model/o_rectangle) and models/o_rectangle
 #                           on the tuning episodes (configs/eval/tuning.toml, a seed of its own),
-#                           TUNE_JOBS at a time (default: one per GPU, round robin; with the
-#                           seven tuning scenarios 4 at once ran on one H200; with six, 3 on
-#                           one H100 ran out of memory, 2 fit); TUNE_SHIPPED=0 leaves
+#                           TUNE_JOBS at a time (default: one per GPU, round robin; with
+#                           twelve tuning scenarios 4 at once ran on one H200 in 124 s for 7
+#                           models; with six, 3 on one H100 ran out of memory, 2 fit); TUNE_SHIPPED=0 leaves
 #                           models/o_rectangle out, e.g. for a screen whose recipe variant
 #                           stands in for it; then
 #                           scripts/pick_candidate.py ranks
