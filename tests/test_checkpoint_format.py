@@ -239,6 +239,19 @@ def test_the_shipped_model_restores():
     assert restored.params["params"]
 
 
+def test_the_shipped_model_plays_the_task_its_config_json_states():
+    """Its checkpoint's config predates fields whose defaults have since changed
+    (``SAVED_ABSENT``): restored, it is the task config.json states, which is how it was
+    trained (``env.path_integrator = "euler"`` was once filled as today's "exact")."""
+    from train.config_loading import config_diff
+    from train.store.inputs import load_saved_config
+
+    model = ROOT / "models" / "o_rectangle"
+    restored = restore_policy(model)
+    assert config_diff(load_saved_config(model, warn=False), restored.cfg) == []
+    assert restored.cfg.env.path_integrator == "euler"
+
+
 def test_restoring_builds_no_model(monkeypatch):
     """Restoring the shipped model builds no MJCF or MJX model (issue 66): its shapes and
     checks come from the config and the robot description, and its parameters are those

@@ -25,7 +25,7 @@ SAVED_ABSENT: dict[str, Any] = {
     "env": {
         "residual_scale": 0.1, "residual_space": "wheel", "residual_base": "analytic",
         "action_filter": 0.0, "residual_deadband": 0.0, "residual_ramp_s": 0.0,
-        "path_tau": 0.0,
+        "path_tau": 0.0, "path_integrator": "euler",
         "commands": {"p_zero": 0.1, "p_translation": 0.3, "resample_min_s": 1.0,
                      "resample_max_s": 4.0},
         "randomization": {"nominal_share": 0.0},
