@@ -30,17 +30,25 @@ def main(argv: list[str]) -> int:
         print(__doc__, file=sys.stderr)
         return 2
     cut = argv.index("--")
-    fields = {f.name for f in dataclasses.fields(EnvConfig) if f.type in ("float", "int", "bool")}
+    defaults = EnvConfig()
+    fields = {
+        f.name
+        for f in dataclasses.fields(EnvConfig)
+        if isinstance(getattr(defaults, f.name), (float, int, bool))
+    }
     env_changes = {}
     for item in argv[:cut]:
         name, eq, text = item.partition("=")
         if not eq or name not in fields:
-            print(f"error: {item!r}: expected FIELD=VALUE, FIELD one of env's {sorted(fields)}")
+            print(
+                f"error: {item!r}: expected FIELD=VALUE, FIELD one of env's {sorted(fields)}",
+                file=sys.stderr,
+            )
             return 2
         try:
             env_changes[name] = _value(text)
         except ValueError:
-            print(f"error: env.{name} = {text!r}: expected a number or true/false")
+            print(f"error: env.{name} = {text!r}: expected a number or true/false", file=sys.stderr)
             return 2
     parse = config_loading.parse_train_config
 

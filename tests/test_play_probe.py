@@ -23,7 +23,7 @@ MODEL = Path(__file__).resolve().parents[1] / "models" / "o_rectangle"
 )
 def test_bad_changes_are_refused_naming_them(argv, message, capsys):
     assert play_probe.main(argv) == 2
-    assert message in capsys.readouterr().out
+    assert message in capsys.readouterr().err
 
 
 def test_the_restored_policy_plays_the_changed_task(monkeypatch):
