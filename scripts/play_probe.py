@@ -1,7 +1,7 @@
 """A probe at play time: ``mecanum-eval`` of a trained policy with fields of its task's
-``[env]`` changed (what it was not trained with), e.g. the base's integrator hold::
+``[env]`` changed (what it was not trained with), e.g. a wider deadband on the network's action::
 
-    python scripts/play_probe.py base_hold_extra_s=0.26 -- models/o_rectangle \
+    python scripts/play_probe.py residual_deadband=0.01 -- models/o_rectangle \
         --scenarios tuning --only tuning_weave --no-plots --out /tmp/probe
 
 Each ``FIELD=VALUE`` (a float, an int or true/false) replaces ``env.FIELD`` of the

@@ -17,8 +17,8 @@ MODEL = Path(__file__).resolve().parents[1] / "models" / "o_rectangle"
     [
         (["bogus=1", "--", "m"], "'bogus=1': expected FIELD=VALUE"),
         (["commands=1", "--", "m"], "'commands=1': expected FIELD=VALUE"),
-        (["base_hold_extra_s", "--", "m"], "'base_hold_extra_s': expected FIELD=VALUE"),
-        (["base_hold_extra_s=abc", "--", "m"], "env.base_hold_extra_s = 'abc': expected a number"),
+        (["residual_deadband", "--", "m"], "'residual_deadband': expected FIELD=VALUE"),
+        (["residual_deadband=abc", "--", "m"], "env.residual_deadband = 'abc': expected a number"),
     ],
 )
 def test_bad_changes_are_refused_naming_them(argv, message, capsys):
@@ -34,9 +34,9 @@ def test_the_restored_policy_plays_the_changed_task(monkeypatch):
     seen = []
 
     def fake_main(argv):
-        seen.append((argv, restore_policy(MODEL).cfg.env.base_hold_extra_s))
+        seen.append((argv, restore_policy(MODEL).cfg.env.residual_deadband))
         return 0
 
     monkeypatch.setattr(evaluate, "main", fake_main)
-    assert play_probe.main(["base_hold_extra_s=0.26", "--", str(MODEL), "--no-plots"]) == 0
-    assert seen == [([str(MODEL), "--no-plots"], 0.26)]
+    assert play_probe.main(["residual_deadband=0.01", "--", str(MODEL), "--no-plots"]) == 0
+    assert seen == [([str(MODEL), "--no-plots"], 0.01)]

@@ -70,41 +70,6 @@ def test_the_zero_residual_is_the_feedback_controller(env, reset, step):
     assert abs(float(state.info["feedback_integral"])) > 0.02  # it integrated something
 
 
-def test_a_longer_base_hold_leaves_the_feedback_reference_as_it_was(env, reset, step):
-    """``base_hold_extra_s``: the policy's base holds its integrator longer after a command
-    change; the ``feedback`` reference (the evaluation's judge) is unchanged."""
-    extra = 10 * DT
-    held = MecanumEnv(dataclasses.replace(env.config, base_hold_extra_s=extra))
-    assert held.control.feedback.hold_steps == env.control.feedback.hold_steps + 10
-    held_step = jax.jit(held.step)
-    zero = jnp.zeros(env.action_size)
-    cmd = jnp.asarray([0.3, 0.1, 1.5])
-    ref = env.set_command(reset(jax.random.PRNGKey(3)), cmd)
-    ref_held = held.set_command(held.reset(jax.random.PRNGKey(3)), cmd)
-    ref_held = jax.tree.map(lambda a, b: jnp.asarray(a, b.dtype), ref_held, ref)
-    policy = ref_held
-    integrals = []
-    for _ in range(20):
-        ref = step(ref, zero, FEEDBACK)
-        ref_held = held_step(ref_held, zero, FEEDBACK)
-        policy = held_step(policy, zero, POLICY)
-        np.testing.assert_allclose(
-            ref.info["feedback_integral"], ref_held.info["feedback_integral"], rtol=1e-5, atol=1e-6
-        )
-        np.testing.assert_allclose(
-            ref.pipeline_state.data.qpos, ref_held.pipeline_state.data.qpos, atol=1e-6
-        )
-        integrals.append(float(policy.info["feedback_integral"]))
-    assert all(i == 0.0 for i in integrals[:10])  # held (PLAIN_FEEDBACK: no hold of its own)
-    assert integrals[-1] != 0.0
-    assert float(ref.info["feedback_integral"]) != integrals[-1]  # the reference started sooner
-
-
-def test_a_longer_base_hold_needs_the_feedback_base():
-    with pytest.raises(ConfigError, match=r"env\.base_hold_extra_s = 0\.2"):
-        EnvConfig(**WHEEL, base_hold_extra_s=0.2).validate()
-
-
 def test_the_policy_observes_the_integrator(env, reset, step):
     names = [name for name, _ in env.layout]
     assert names[-1] == "feedback_integral"

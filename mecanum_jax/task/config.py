@@ -74,11 +74,6 @@ class EnvConfig:
     its gain grows from 0 to 1 over T s of the new command (the filter's memory with it),
     so that through a transient the base acts alone, as `feedback` does, and the learned
     correction only where a command is held (mecanum_jax.control.step.act).
-    base_hold_extra_s = E > 0 holds the `feedback` base's integrator E s longer after each
-    command change than the `feedback` reference's (feedback.hold_s): released 0.4 s into
-    a leg, it integrates the start's yaw transient and turns the next start
-    (docs/evaluation.md, the zigzag). The reference, and so the evaluation's judge, keeps
-    feedback.hold_s.
 
     obs_history = H > 0 appends the H sensor frames before the observed one (encoders,
     gyro, accelerometer, odometry twist, as observed: noisy and as delayed as the current
@@ -134,9 +129,6 @@ class EnvConfig:
     """Soft threshold of the network's action, in its units, in [0, 1) (0: off)."""
     residual_ramp_s: float = 0.5
     """Seconds over which the correction ramps in after a command change (>= 0; 0: off)."""
-    base_hold_extra_s: float = 0.0
-    """Seconds the `feedback` base's integrator holds beyond feedback.hold_s (>= 0; 0: as
-    the reference; whole control periods)."""
     obs_history: int = 0
     """Earlier sensor frames the policy observes, one control period apart (0 to
     MAX_OBS_HISTORY; 0: none)."""
@@ -229,15 +221,10 @@ class EnvConfig:
         require(
             self,
             where,
-            ("yaw_integral_tau", "path_tau", "residual_ramp_s", "base_hold_extra_s"),
+            ("yaw_integral_tau", "path_tau", "residual_ramp_s"),
             lambda v: v >= 0,
             "must be >= 0 (0: off)",
         )
-        if self.base_hold_extra_s > 0 and not (self.residual and self.residual_base == "feedback"):
-            raise invalid(
-                f"{where}.base_hold_extra_s", self.base_hold_extra_s,
-                'only for a residual on the "feedback" base (residual_base)',
-            )  # fmt: skip
         require(self, where, ("symmetric",), lambda v: isinstance(v, bool), "must be true or false")
         require(
             self, where, ("path_integrator",), lambda v: v in ("exact", "euler"),

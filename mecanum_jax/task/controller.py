@@ -60,8 +60,6 @@ class ControllerConfig(Protocol):
     @property
     def residual_ramp_s(self) -> float: ...
     @property
-    def base_hold_extra_s(self) -> float: ...
-    @property
     def control_dt(self) -> float: ...
 
 
@@ -102,7 +100,7 @@ def controller_meta(
         "residual_scale": config.residual_scale,
         "residual_space": config.residual_space,
         "residual_base": config.residual_base,
-        "feedback": base_feedback(config),
+        "feedback": dataclasses.asdict(config.feedback),
         "yaw_integral_tau": config.yaw_integral_tau,
         "path_tau": config.path_tau,
         "path_integrator": config.path_integrator,
@@ -120,14 +118,6 @@ def controller_meta(
         "gravity": GRAVITY,
         "control_dt": config.control_dt,
     }
-
-
-def base_feedback(config: ControllerConfig) -> dict[str, object]:
-    """The `feedback` settings of the controller the robot runs: the reference's, its
-    integrator held ``base_hold_extra_s`` longer (the export's ``meta["feedback"]``)."""
-    out = dataclasses.asdict(config.feedback)
-    out["hold_s"] += config.base_hold_extra_s
-    return out
 
 
 def controller_spec(

@@ -24,7 +24,6 @@ drive it unchanged. Its parts live beside it:
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 # isort: split
@@ -86,15 +85,6 @@ class MecanumEnv(Env):
         # the sensor frames kept: the latest latency_steps[1] + 1 and the observed history
         self.history_frames = self.max_latency + 1 + config.obs_history
         self.feedback_base = spec.feedback_base
-        # the `feedback` reference's own integrator hold (the base's may be longer)
-        hold = config.feedback.hold_steps(config.control_dt)
-        self.reference_control = (
-            spec
-            if hold == spec.feedback.hold_steps
-            else dataclasses.replace(
-                spec, feedback=dataclasses.replace(spec.feedback, hold_steps=hold)
-            )
-        )
         self.layout = spec.layout
         tau = config.path_tau
         self.path_scale = jnp.asarray(tau * np.asarray(c.command_scale)) if tau > 0 else None
@@ -167,16 +157,13 @@ class MecanumEnv(Env):
         if reference is not None:
             chosen = refs.reference_rates(c, reference, state.info, cfg.feedback, spec)
             rates = jnp.where(reference >= 0, chosen, rates)
-            ref_spec = self.reference_control
-            if not self.feedback_base or ref_spec is not spec:  # the reference's integrator
+            if not self.feedback_base:  # the feedback reference's integrator runs too
                 gyro = ctl.measured_yaw_rate(spec, before, latency, jnp)
                 integral = ctl.feedback_integral_step(
-                    ref_spec, before.command, gyro, before.feedback_integral[None],
+                    spec, before.command, gyro, before.feedback_integral[None],
                     before.feedback_gains, before.command_age[..., None], jnp,
-                )[0]  # fmt: skip
-                if self.feedback_base:  # the policy's own base keeps its integrator
-                    integral = jnp.where(reference >= 0, integral, after.feedback_integral)
-                after = after._replace(feedback_integral=integral)
+                )  # fmt: skip
+                after = after._replace(feedback_integral=integral[0])
         action = after.last_action
         params: RobotParams = info["params"]
         command = before.command

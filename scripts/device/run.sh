@@ -21,7 +21,8 @@
 #                           twelve tuning scenarios 4 at once ran on one H200 in 124 s for 7
 #                           models; with six, 3 on one H100 ran out of memory, 2 fit); TUNE_SHIPPED=0 leaves
 #                           models/o_rectangle out, e.g. for a screen whose recipe variant
-#                           stands in for it; then
+#                           stands in for it; TUNE_PROBE='FIELD=VALUE ...' adds the shipped
+#                           weights played so (scripts/play_probe.py) as "probe"; then
 #                           scripts/pick_candidate.py ranks
 #                           them by its fixed rule and prints the chosen model's path last;
 #                           every report comes back in $OUT/tuning.json (per-episode data
@@ -315,6 +316,13 @@ case "$TASK" in
         > "/tmp/tune-$name.log" 2>&1 &
       throttle "${TUNE_JOBS:-$ngpu}"
     done
+    if [ -n "${TUNE_PROBE:-}" ]; then  # the shipped weights played with env fields changed
+      names+=(probe); i=$((i + 1)); rm -rf /tmp/tune-probe
+      # shellcheck disable=SC2086  # TUNE_PROBE is a list of FIELD=VALUE words
+      CUDA_VISIBLE_DEVICES=$((i % ngpu)) python3 scripts/play_probe.py $TUNE_PROBE -- \
+        models/o_rectangle --scenarios tuning --out /tmp/tune-probe --no-plots \
+        > /tmp/tune-probe.log 2>&1 &
+    fi
     wait
     for name in "${names[@]}"; do
       echo "== $name on the tuning episodes"; quiet < "/tmp/tune-$name.log" | tail -34

@@ -63,7 +63,7 @@ def state_extras(
     :func:`~mecanum_jax.task.anchor.exact_components` on the states acted from (``info``)."""
     extras = {"truncation": next_info["truncation"]}
     if anchor.enabled:
-        hold = env.control.feedback.hold_steps  # the base's
+        hold = env.config.feedback.hold_steps(env.config.control_dt)
         exact = functools.partial(
             exact_components,
             env.constants,
