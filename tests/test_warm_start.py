@@ -4,6 +4,7 @@ from it gives the numbers of the one compiled, and a stale or corrupt entry is n
 import dataclasses
 import json
 import os
+import shutil
 import subprocess
 import sys
 from types import SimpleNamespace
@@ -13,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from train.loop import warm_start
+from train.loop import program_store, warm_start
 
 
 def _program():
@@ -86,13 +87,46 @@ def test_lowering_from_shapes_finds_the_stored_program_without_tracing(tmp_path)
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
-def test_a_stale_entry_is_not_used(tmp_path):
+def test_another_run_of_the_same_lowered_program_loads_it_after_tracing(tmp_path):
+    """After an edit that leaves the program as it was (another code hash), the index
+    misses: the program is traced, its executable found by the lowered text and loaded,
+    not compiled, and the next start of that run traces nothing."""
+    traced = []
+
+    def program():
+        f = _program()
+
+        def counted(state, x):
+            traced.append(1)
+            return f(state, x)
+
+        return jax.jit(counted)
+
+    cold = warm_start.Stored(program(), "f", _store(tmp_path, {"run": "a"}))(*_args())
+    edited = _store(tmp_path, {"run": "b"})
+    out = warm_start.Stored(program(), "f", edited)(*_args())
+    assert (edited.loaded, edited.written, len(traced)) == (["f"], [], 2)
+    again = _store(tmp_path, {"run": "b"})
+    warm_start.Stored(program(), "f", again)(*_args())
+    assert (again.loaded, again.written, len(traced)) == (["f"], [], 2)
+    for a, b in zip(jax.tree.leaves(cold), jax.tree.leaves(out), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_a_changed_program_is_never_served_the_old_one(tmp_path):
     warm_start.Stored(_program(), "f", _store(tmp_path, {"run": "a"}))(*_args())
-    other = _store(tmp_path, {"run": "b"})  # e.g. another code hash
-    warm_start.Stored(_program(), "f", other)(*_args())
-    assert other.loaded == []
-    assert other.written == ["f"]
-    # a file whose stored key differs from the one asked for (a collision, a rename)
+
+    def changed(state, x):  # the same signature, another computation
+        return _program()(state, x * 2)
+
+    store = _store(tmp_path, {"run": "b"})
+    out = warm_start.Stored(jax.jit(changed), "f", store)(*_args())
+    assert (store.loaded, store.written) == ([], ["f"])
+    np.testing.assert_array_equal(np.asarray(out[1]), np.asarray(jax.jit(changed)(*_args())[1]))
+
+
+def test_a_stale_entry_is_not_used(tmp_path):
+    """A file whose stored key differs from the one asked for (a collision, a rename)."""
     first = _store(tmp_path, {"run": "a"})
     full_key = {"run": "a", "program": "f", "signature": "s"}
     first.save("f", full_key, _program().lower(*_args()).compile())
@@ -105,10 +139,11 @@ def test_a_stale_entry_is_not_used(tmp_path):
     assert not moved.exists()
 
 
+@pytest.mark.parametrize("suffix", [warm_start.SUFFIX, warm_start.INDEX_SUFFIX])
 @pytest.mark.parametrize("damage", ["flip", "truncate", "garbage"])
-def test_a_corrupt_file_is_rebuilt(tmp_path, damage):
+def test_a_corrupt_file_is_rebuilt(tmp_path, damage, suffix):
     warm_start.Stored(_program(), "f", _store(tmp_path))(*_args())
-    (path,) = tmp_path.glob(f"*{warm_start.SUFFIX}")
+    (path,) = tmp_path.glob(f"*{suffix}")
     blob = bytearray(path.read_bytes())
     if damage == "flip":
         blob[len(blob) // 2] ^= 0xFF
@@ -120,16 +155,22 @@ def test_a_corrupt_file_is_rebuilt(tmp_path, damage):
     lines: list[str] = []
     store = _store(tmp_path, lines=lines)
     out = warm_start.Stored(_program(), "f", store)(*_args())
-    assert store.loaded == []
-    assert store.written == ["f"]
+    # a broken executable is compiled again; a broken index entry is traced again,
+    # and the intact executable it pointed at loads
+    assert (store.loaded, store.written) == (
+        ([], ["f"]) if suffix == warm_start.SUFFIX else (["f"], [])
+    )
     assert "unusable" in lines[0]
     np.testing.assert_array_equal(np.asarray(out[1]), np.asarray(_program()(*_args())[1]))
     assert _store(tmp_path).load("f", _key_of(path.parent)) is not None  # rewritten whole
+    warm = _store(tmp_path)
+    warm_start.Stored(_program(), "f", warm)(*_args())
+    assert (warm.loaded, warm.written) == (["f"], [])  # the index rewritten whole too
 
 
 def _key_of(directory):
     (path,) = directory.glob(f"*{warm_start.SUFFIX}")
-    header, _ = warm_start._unframe(path.read_bytes())
+    header, _ = program_store.unframe(path.read_bytes())
     return header
 
 
@@ -162,8 +203,13 @@ def test_it_is_off_where_it_cannot_serve(monkeypatch):
 
 @pytest.mark.full
 def test_a_warm_start_of_the_tiny_run_matches_a_cold_one_bit_for_bit(tmp_path):
-    """Two fresh processes on one cache: the second loads the reset, the epoch and the
-    rollout, traces none of them, and its epochs' metrics and evaluations are the first's."""
+    """Fresh processes on one cache. The second loads the reset, the epoch and the
+    rollout, traces none of them, and its epochs' metrics and evaluations are the first's.
+    With the index gone (as after an edit of the sources) the third loads them, compiling
+    none; with the store gone and JAX's persistent cache kept, the fourth
+    compiles and writes them (never from that cache, whose executables XLA:CPU
+    re-serializes broken), and each runs as written."""
+    logs = []
 
     def start(name):
         out = tmp_path / f"{name}.json"
@@ -174,20 +220,31 @@ def test_a_warm_start_of_the_tiny_run_matches_a_cold_one_bit_for_bit(tmp_path):
             "--xla_force_host_platform_device_count=2", ""
         )
         env = {**os.environ, "XLA_FLAGS": flags}
-        subprocess.run(cmd, check=True, capture_output=True, text=True, env=env)
+        run = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env)
+        logs.append(run.stderr)
         return json.loads(out.read_text())
 
+    names = ["epoch", "reset", "rollout"]
     cold, warm = start("cold"), start("warm")
-    assert sorted(warm["warm_start"]["loaded"]) == ["epoch", "reset", "rollout"]
+    assert sorted(warm["warm_start"]["loaded"]) == names
     assert warm["warm_start"]["written"] == []
     assert not any(p["name"] == "jit(_rollout)" for p in warm["programs"])  # not traced
+    store = tmp_path / "cache" / warm_start.SUBDIR
+    for index in store.glob(f"*{warm_start.INDEX_SUFFIX}"):
+        index.unlink()
+    edited = start("edited")
+    assert (sorted(edited["warm_start"]["loaded"]), edited["warm_start"]["written"]) == (names, [])
+    shutil.rmtree(store)
+    rebuilt = start("rebuilt")
+    assert sorted(rebuilt["warm_start"]["written"]) == names
+    assert not any("failed to run" in log for log in logs), logs
 
     def figures(report):
         return [
             {k: v for k, v in p.items() if k in ("metrics", "values")} for p in report["phases"]
         ]
 
-    assert figures(cold) == figures(warm)
+    assert figures(cold) == figures(warm) == figures(edited) == figures(rebuilt)
 
 
 TRAINER_MODULES = (

@@ -10,12 +10,20 @@ without tracing. A cold start compiles each as ``jit(...).lower(...).compile()``
 and writes it; a warm one runs the executable it wrote, so the two give the same numbers
 bit for bit.
 
-Each entry is keyed by everything its program depends on (:func:`run_key`): the resolved
-config, the robot, the versions of jax, jaxlib, MuJoCo, MJX, Warp, Brax, Flax and optax,
-the devices, ``XLA_FLAGS``, JAX's numerics flags, a hash of the ``mecanum_jax`` and
-``train`` sources, and the program's name and argument signature. A file is trusted only
-if its checksum, its stored key and its deserialization all pass; else it is compiled
-again and rewritten, with a log line.
+Two kinds of file. An executable is keyed by what compiles it: a hash of the lowered
+program's text, its argument signature, the versions of jax, jaxlib, MuJoCo, MJX, Warp,
+Brax, Flax and optax, the devices, ``XLA_FLAGS`` and JAX's numerics flags. An index entry
+maps a run's program to its executable's key, keyed by everything the program depends on
+(:func:`run_key`): the resolved config, the robot, those versions, devices and flags, a
+hash of the ``mecanum_jax`` and ``train`` sources, and the program's name and argument
+signature. A warm start reads the index and loads, tracing nothing; after an edit of the
+sources or the config the index misses, the program is traced and lowered, and where the
+lowered text is unchanged its executable loads without compiling (and the index learns
+the new key). On the CPU the store's programs compile outside JAX's persistent cache:
+XLA:CPU of jaxlib 0.10.2 re-serializes an executable it read from that cache without all
+its functions, which left every start after an edit tracing again. A file is trusted only if
+its checksum, its stored key and its deserialization all pass; else it is compiled again
+and rewritten, with a log line.
 
 Off (:func:`why_not`), with a log line, where the store cannot serve: no persistent
 cache, several processes, several CPU devices, ``run.parallel = "split"``, or
@@ -26,13 +34,12 @@ makes them first (train/loop/warp_targets.py).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.metadata
-import json
 import os
-import pickle
 import threading
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -44,13 +51,12 @@ from jax.tree_util import PyTreeDef
 import mecanum_jax
 import train
 from train.loop import warp_targets
+from train.loop.program_store import INDEX_SUFFIX, SUFFIX, Key, Log, Store, digest
 
 if TYPE_CHECKING:
     from train.config import TrainConfig
     from train.learner.ppo import Learner
 
-MAGIC = b"mecanum-jax executable 2\n"
-SUFFIX = ".jaxexe"
 SUBDIR = "mecanum-programs"
 ENV_VAR = "MECANUM_WARM_START"
 PACKAGES = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "warp-lang", "brax", "flax", "optax")
@@ -60,9 +66,6 @@ JAX_FLAGS = (
     "jax_threefry_partitionable",
     "jax_default_prng_impl",
 )
-Log = Callable[[str], None]
-Key = dict[str, object]
-"""A program's key: JSON-ready values (:func:`run_key`, plus the program's own)."""
 Aval = tuple[tuple[int, ...], str, bool]
 """An argument's shape, dtype and weak type (:func:`_aval`)."""
 Signature = tuple[PyTreeDef, tuple[Aval, ...]]
@@ -86,15 +89,11 @@ def code_hash() -> str:
     return h.hexdigest()
 
 
-def _digest(obj: object) -> str:
-    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=repr).encode()).hexdigest()
-
-
 def run_key(cfg: TrainConfig, devices: Sequence[jax.Device]) -> Key:
     """What a run's programs depend on, as JSON-ready values (see the module docstring)."""
     return {
-        "config": _digest(cfg.to_dict()),
-        "robot": _digest(repr(cfg.env.description())),
+        "config": digest(cfg.to_dict()),
+        "robot": digest(repr(cfg.env.description())),
         "versions": {p: _version(p) for p in PACKAGES},
         "devices": [f"{d.platform}:{d.device_kind}:{d.id}" for d in devices],
         "backend_devices": jax.device_count(),
@@ -102,110 +101,6 @@ def run_key(cfg: TrainConfig, devices: Sequence[jax.Device]) -> Key:
         "jax_flags": {f: str(getattr(jax.config, f, None)) for f in JAX_FLAGS},
         "code": code_hash(),
     }
-
-
-class Store:
-    """Compiled programs in a directory, each file keyed, checksummed and checked on load."""
-
-    def __init__(
-        self, directory: Path, key: Key, log: Log, tracers: Sequence[warp_targets.Tracer] = ()
-    ):
-        """``tracers``: where the programs call MuJoCo Warp, what makes its FFI targets in
-        a fresh process (:func:`train.loop.warp_targets.register`)."""
-        self.directory = directory
-        self.key = key
-        self.log = log
-        self.tracers = tuple(tracers)
-        self.loaded: list[str] = []
-        self.written: list[str] = []
-
-    def path(self, full_key: Key) -> Path:
-        return self.directory / f"{_digest(full_key)[:40]}{SUFFIX}"
-
-    def _payload(self, full_key: Key) -> bytes | None:
-        """The payload kept under ``full_key`` (``None``: none); raises if the file is not
-        this key's intact entry."""
-        try:
-            blob = self.path(full_key).read_bytes()
-        except FileNotFoundError:
-            return None
-        header, payload = _unframe(blob)
-        if header != json.loads(json.dumps(full_key, default=repr)):
-            raise ValueError("its key differs (a stale entry)")
-        return payload
-
-    def _write(self, name: str, full_key: Key, payload: bytes) -> None:
-        path = self.path(full_key)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".tmp{os.getpid()}")
-        tmp.write_bytes(_frame(full_key, payload))
-        os.replace(tmp, path)  # atomically: never a partial file under the final name
-        self.written.append(name)
-
-    def _unusable(self, name: str, full_key: Key, err: Exception) -> None:
-        path = self.path(full_key)
-        self.log(f"warm start: {name}: {path.name} unusable ({err}); made again")
-        path.unlink(missing_ok=True)
-
-    def load(self, name: str, full_key: Key, read_back: bool = False) -> Compiled | None:
-        """The program stored under ``full_key``, or ``None`` (absent, stale or corrupt:
-        logged, and the file removed); ``read_back``: just written, not counted as loaded."""
-        try:
-            payload = self._payload(full_key)
-            if payload is None:
-                return None
-            serialized, in_tree, out_tree, devices, targets = pickle.loads(payload)
-            if targets and not warp_targets.register(targets, self.tracers):
-                raise ValueError("its MuJoCo Warp FFI targets cannot be made here")
-            compiled = _deserialize(serialized, in_tree, out_tree, devices)
-        except Exception as err:  # anything wrong with the file: never trusted
-            self._unusable(name, full_key, err)
-            return None
-        if not read_back:
-            self.loaded.append(name)
-        return compiled
-
-    def save(self, name: str, full_key: Key, compiled: Any) -> None:
-        """Write ``compiled`` (atomically); a program that cannot be serialized is logged."""
-        from jax.experimental import serialize_executable
-
-        try:
-            devices = [d.id for d in compiled.runtime_executable().local_devices()]
-            targets = warp_targets.used(compiled.as_text()) if self.tracers else []
-            payload = pickle.dumps((*serialize_executable.serialize(compiled), devices, targets))
-        except Exception as err:
-            self.log(f"warm start: {name} cannot be stored ({err}); it compiles on each start")
-            return
-        self._write(name, full_key, payload)
-
-
-def _deserialize(
-    serialized: bytes, in_tree: PyTreeDef, out_tree: PyTreeDef, device_ids: list[int]
-) -> Compiled:
-    """The executable, loaded onto the devices it was compiled for."""
-    from jax.experimental import serialize_executable
-
-    by_id = {d.id: d for d in jax.local_devices()}
-    devices = [by_id[i] for i in device_ids]
-    return serialize_executable.deserialize_and_load(
-        serialized, in_tree, out_tree, backend=devices[0].client, execution_devices=devices
-    )
-
-
-def _frame(key: Key, payload: bytes) -> bytes:
-    header = json.dumps(key, sort_keys=True, default=repr).encode()
-    body = len(header).to_bytes(8, "little") + header + payload
-    return MAGIC + hashlib.sha256(body).digest() + body
-
-
-def _unframe(blob: bytes) -> tuple[object, bytes]:
-    if not blob.startswith(MAGIC):
-        raise ValueError("not a stored program")
-    digest, body = blob[len(MAGIC) : len(MAGIC) + 32], blob[len(MAGIC) + 32 :]
-    if hashlib.sha256(body).digest() != digest:
-        raise ValueError("checksum mismatch")
-    n = int.from_bytes(body[:8], "little")
-    return json.loads(body[8 : 8 + n]), body[8 + n :]
 
 
 class Stored:
@@ -219,6 +114,7 @@ class Stored:
         self.name = name
         self.store = store
         self._programs: dict[Signature, Compiled] = {}
+        self._keys: dict[Signature, Key] = {}  # each program's executable's key
         self._checked: set[Signature] = set()
         self._lock = threading.Lock()  # (the baseline's evaluation runs in a thread)
 
@@ -230,7 +126,7 @@ class Stored:
         with self._lock:
             program = self._programs.get(sig)
             if program is None:
-                program = self.load(sig) or self.adopt(sig, self.fn.lower(*args).compile())
+                program = self.load(sig) or self.adopt(sig, self.fn.lower(*args))
             if sig not in self._checked:
                 return self._first_run(program, args, sig)
         return program(*args)
@@ -239,18 +135,31 @@ class Stored:
         return {**self.store.key, "program": self.name, "signature": repr(sig)}
 
     def load(self, sig: Signature) -> Compiled | None:
-        """The stored program for ``sig`` (``None``: not stored, or unusable)."""
-        program = self._programs.get(sig) or self.store.load(self.name, self.full_key(sig))
+        """The stored program for ``sig``, found through the index, nothing traced
+        (``None``: not stored, or unusable)."""
+        program = self._programs.get(sig)
+        if program is None:
+            program_key = self.store.indexed(self.name, self.full_key(sig))
+            if program_key is not None:
+                program = self.store.load(self.name, program_key)
+                self._keys[sig] = program_key
         if program is not None:
             self._programs[sig] = program
         return program
 
-    def adopt(self, sig: Signature, compiled: Compiled) -> Compiled:
-        """``compiled``, just compiled for ``sig``, written and read back, so a cold start
-        runs what a warm one will."""
-        full_key = self.full_key(sig)
-        self.store.save(self.name, full_key, compiled)
-        program = self.store.load(self.name, full_key, read_back=True) or compiled
+    def adopt(self, sig: Signature, lowered: Any) -> Compiled:
+        """The program ``lowered`` for ``sig``: the executable kept for the same lowered
+        text, else compiled now outside the persistent cache, written and read back, so a
+        cold start runs what a warm one will; the index then points at it."""
+        program_key = self._keys[sig] = self.store.program_key(lowered.as_text(), sig)
+        program = self.store.load(self.name, program_key)
+        if program is None:
+            with _outside_persistent_cache() if self.store.fresh else contextlib.nullcontext():
+                compiled = lowered.compile()
+            self.store.save(self.name, program_key, compiled)
+            program = self.store.load(self.name, program_key, read_back=True) or compiled
+        if self.store.path(program_key).exists():
+            self.store.index(self.full_key(sig), program_key)
         self._programs[sig] = program
         return program
 
@@ -262,19 +171,39 @@ class Stored:
             out = jax.block_until_ready(program(*args))
         except Exception as err:  # the stored executable is broken: never used again
             self.store.log(f"warm start: {self.name} failed to run ({err}); compiled instead")
-            self.store.path(self.full_key(sig)).unlink(missing_ok=True)
+            if sig in self._keys:
+                self.store.path(self._keys[sig]).unlink(missing_ok=True)
             program = self._programs[sig] = self.fn.lower(*args).compile()
             out = program(*args)
         self._checked.add(sig)
         return out
 
 
+def _outside_persistent_cache() -> contextlib.ExitStack:
+    """This thread's compilations kept out of JAX's persistent cache: keyed apart from its
+    entries (with the metadata) and never written there. JAX decides once per process
+    whether the cache is used, so its on-switch cannot do this; these settings have no
+    public context manager, and where one is missing nothing changes for it."""
+    from jax._src import config as jax_config
+
+    stack = contextlib.ExitStack()
+    for name, value in (
+        ("compilation_cache_include_metadata_in_key", True),
+        ("persistent_cache_min_compile_time_secs", float("inf")),
+    ):
+        state = getattr(jax_config, name, None)
+        if callable(state):
+            stack.enter_context(state(value))
+    return stack
+
+
 class StoredLowering:
     """What :meth:`Stored.lower` gives for arguments (arrays or ``ShapeDtypeStruct``s):
     the stored program where there is one, nothing traced; else the function traced and
     lowered now, on this thread (MuJoCo Warp numbers its calls in trace order). Its
-    :meth:`compile` (on any thread) compiles and writes what is not stored, and returns
-    the :class:`Stored` function, whose first call runs it, checked."""
+    :meth:`compile` (on any thread) loads the executable of the same lowered text or
+    compiles and writes it, and returns the :class:`Stored` function, whose first call
+    runs it, checked."""
 
     def __init__(self, stored: Stored, args: tuple[Any, ...]):
         self.stored = stored
@@ -283,7 +212,7 @@ class StoredLowering:
 
     def compile(self) -> Stored:
         if self.lowered is not None:
-            self.stored.adopt(self.sig, self.lowered.compile())
+            self.stored.adopt(self.sig, self.lowered)
         return self.stored
 
 
@@ -337,7 +266,10 @@ def attach(learner: Any, log: Log = print) -> Any:
     env = learner.env
     warp = env.robot.impl == "warp"
     tracers = [warp_targets.step_tracer(env.robot, env.substeps)] if warp else []
-    store = Store(directory / SUBDIR, run_key(learner.cfg, learner.devices), log, tracers)
+    key = run_key(learner.cfg, learner.devices)
+    # on a GPU an executable read from JAX's persistent cache serializes whole
+    fresh = learner.devices[0].platform == "cpu"
+    store = Store(directory / SUBDIR, key, log, tracers, fresh)
     # the learner's and the evaluator's jitted programs, wrapped in place (their calls
     # and lowerings go through the wrappers unchanged)
     learner._reset = Stored(learner._reset, "reset", store)
@@ -352,4 +284,15 @@ def store_of(learner: object) -> Store | None:
     return getattr(learner, "warm_store", None)
 
 
-__all__ = ["ENV_VAR", "Store", "Stored", "attach", "code_hash", "run_key", "store_of", "why_not"]
+__all__ = [
+    "ENV_VAR",
+    "INDEX_SUFFIX",
+    "SUFFIX",
+    "Store",
+    "Stored",
+    "attach",
+    "code_hash",
+    "run_key",
+    "store_of",
+    "why_not",
+]

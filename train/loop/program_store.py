@@ -1,0 +1,166 @@
+"""The warm-start store's files (train/loop/warm_start.py): compiled programs and the
+index that points a run's programs at them, each keyed, checksummed and checked on load;
+written atomically, so a killed writer leaves nothing partial under a final name."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import pickle
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+from jax.stages import Compiled
+from jax.tree_util import PyTreeDef
+
+from train.loop import warp_targets
+
+MAGIC = b"mecanum-jax executable 2\n"
+SUFFIX = ".jaxexe"
+INDEX_SUFFIX = ".index"
+Log = Callable[[str], None]
+Key = dict[str, object]
+"""A program's key: JSON-ready values (warm_start.run_key, plus the program's own)."""
+COMPILER_FIELDS = ("versions", "devices", "backend_devices", "xla_flags", "jax_flags")
+"""The fields of a run's key that an executable's key holds too: what compiles it."""
+
+
+def digest(obj: object) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=repr).encode()).hexdigest()
+
+
+class Store:
+    """Compiled programs in a directory, each file keyed, checksummed and checked on load."""
+
+    def __init__(
+        self,
+        directory: Path,
+        key: Key,
+        log: Log,
+        tracers: Sequence[warp_targets.Tracer] = (),
+        fresh: bool = True,
+    ):
+        """``tracers``: where the programs call MuJoCo Warp, what makes its FFI targets in
+        a fresh process (:func:`train.loop.warp_targets.register`); ``fresh``: compile
+        outside JAX's persistent cache (XLA:CPU serializes its hits broken)."""
+        self.directory = directory
+        self.key = key
+        self.log = log
+        self.tracers = tuple(tracers)
+        self.fresh = fresh
+        self.loaded: list[str] = []
+        self.written: list[str] = []
+
+    def path(self, full_key: Key, suffix: str = SUFFIX) -> Path:
+        return self.directory / f"{digest(full_key)[:40]}{suffix}"
+
+    def program_key(self, lowered_text: str, sig: object) -> Key:
+        """An executable's key: the lowered program and what compiles it."""
+        compiler = {f: self.key[f] for f in COMPILER_FIELDS if f in self.key}
+        text = hashlib.sha256(lowered_text.encode()).hexdigest()
+        return {**compiler, "lowered": text, "signature": repr(sig)}
+
+    def _payload(self, full_key: Key, suffix: str = SUFFIX) -> bytes | None:
+        """The payload kept under ``full_key`` (``None``: none); raises if the file is not
+        this key's intact entry."""
+        try:
+            blob = self.path(full_key, suffix).read_bytes()
+        except FileNotFoundError:
+            return None
+        header, payload = unframe(blob)
+        if header != json.loads(json.dumps(full_key, default=repr)):
+            raise ValueError("its key differs (a stale entry)")
+        return payload
+
+    def _write(self, full_key: Key, payload: bytes, suffix: str = SUFFIX) -> None:
+        path = self.path(full_key, suffix)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".tmp{os.getpid()}")
+        tmp.write_bytes(frame(full_key, payload))
+        os.replace(tmp, path)  # atomically: never a partial file under the final name
+
+    def _unusable(self, name: str, full_key: Key, err: Exception, suffix: str = SUFFIX) -> None:
+        path = self.path(full_key, suffix)
+        self.log(f"warm start: {name}: {path.name} unusable ({err}); made again")
+        path.unlink(missing_ok=True)
+
+    def indexed(self, name: str, full_key: Key) -> Key | None:
+        """The executable's key the index keeps for a run's program (``None``: none, or
+        an unusable entry: logged, and removed)."""
+        try:
+            payload = self._payload(full_key, INDEX_SUFFIX)
+            found = None if payload is None else json.loads(payload)
+            if found is not None and not isinstance(found, dict):
+                raise ValueError("not an executable's key")
+        except Exception as err:
+            self._unusable(name, full_key, err, INDEX_SUFFIX)
+            return None
+        return found
+
+    def index(self, full_key: Key, program_key: Key) -> None:
+        """Point a run's program at its executable."""
+        self._write(full_key, json.dumps(program_key, sort_keys=True).encode(), INDEX_SUFFIX)
+
+    def load(self, name: str, full_key: Key, read_back: bool = False) -> Compiled | None:
+        """The program stored under ``full_key``, or ``None`` (absent, stale or corrupt:
+        logged, and the file removed); ``read_back``: just written, not counted as loaded."""
+        try:
+            payload = self._payload(full_key)
+            if payload is None:
+                return None
+            serialized, in_tree, out_tree, devices, targets = pickle.loads(payload)
+            if targets and not warp_targets.register(targets, self.tracers):
+                raise ValueError("its MuJoCo Warp FFI targets cannot be made here")
+            compiled = _deserialize(serialized, in_tree, out_tree, devices)
+        except Exception as err:  # anything wrong with the file: never trusted
+            self._unusable(name, full_key, err)
+            return None
+        if not read_back:
+            self.loaded.append(name)
+        return compiled
+
+    def save(self, name: str, full_key: Key, compiled: Any) -> None:
+        """Write ``compiled`` (atomically); a program that cannot be serialized is logged."""
+        from jax.experimental import serialize_executable
+
+        try:
+            devices = [d.id for d in compiled.runtime_executable().local_devices()]
+            targets = warp_targets.used(compiled.as_text()) if self.tracers else []
+            payload = pickle.dumps((*serialize_executable.serialize(compiled), devices, targets))
+        except Exception as err:
+            self.log(f"warm start: {name} cannot be stored ({err}); it compiles on each start")
+            return
+        self._write(full_key, payload)
+        self.written.append(name)
+
+
+def _deserialize(
+    serialized: bytes, in_tree: PyTreeDef, out_tree: PyTreeDef, device_ids: list[int]
+) -> Compiled:
+    """The executable, loaded onto the devices it was compiled for."""
+    from jax.experimental import serialize_executable
+
+    by_id = {d.id: d for d in jax.local_devices()}
+    devices = [by_id[i] for i in device_ids]
+    return serialize_executable.deserialize_and_load(
+        serialized, in_tree, out_tree, backend=devices[0].client, execution_devices=devices
+    )
+
+
+def frame(key: Key, payload: bytes) -> bytes:
+    header = json.dumps(key, sort_keys=True, default=repr).encode()
+    body = len(header).to_bytes(8, "little") + header + payload
+    return MAGIC + hashlib.sha256(body).digest() + body
+
+
+def unframe(blob: bytes) -> tuple[object, bytes]:
+    if not blob.startswith(MAGIC):
+        raise ValueError("not a stored program")
+    digest, body = blob[len(MAGIC) : len(MAGIC) + 32], blob[len(MAGIC) + 32 :]
+    if hashlib.sha256(body).digest() != digest:
+        raise ValueError("checksum mismatch")
+    n = int.from_bytes(body[:8], "little")
+    return json.loads(body[8 : 8 + n]), body[8 + n :]
