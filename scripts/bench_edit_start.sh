@@ -10,7 +10,7 @@ set -euo pipefail
 [ $# -ge 2 ] || { sed -n '2,8p' "$0"; exit 2; }
 root=$(git rev-parse --show-toplevel)
 py="$root/.venv/bin/python"
-before=$1 after=$2 rounds=${3:-2}
+before=$(git rev-parse --short "$1") after=$(git rev-parse --short "$2") rounds=${3:-2}
 work=$(mktemp -d)
 cleanup() {
   for r in a b; do git -C "$root" worktree remove --force "$work/$r" 2>/dev/null || true; done

@@ -2,6 +2,7 @@
 from it gives the numbers of the one compiled, and a stale or corrupt entry is never used."""
 
 import dataclasses
+import functools
 import json
 import os
 import shutil
@@ -26,6 +27,17 @@ def _program():
         return {"key": key, "sum": jnp.sum(jnp.sin(x) * noise)}, jnp.cumsum(x * noise)
 
     return jax.jit(f)
+
+
+def _counted_program(traced):
+    """:func:`_program`, each of its tracings counted in ``traced``."""
+    f = _program()
+
+    def counted(state, x):
+        traced.append(1)
+        return f(state, x)
+
+    return jax.jit(counted)
 
 
 def _args():
@@ -60,16 +72,8 @@ def test_lowering_from_shapes_finds_the_stored_program_without_tracing(tmp_path)
     """``Stored.lower`` (as train.loop.aot compiles ahead from shapes): cold, it traces,
     compiles and writes the program; warm, it traces nothing, and the placed arrays'
     first call runs the loaded program, with the same numbers."""
-    traced = []
-
-    def program():
-        f = _program()
-
-        def counted(state, x):
-            traced.append(1)
-            return f(state, x)
-
-        return jax.jit(counted)
+    traced: list[int] = []
+    program = functools.partial(_counted_program, traced)
 
     shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), x.dtype), _args())
     cold_store = _store(tmp_path)
@@ -91,16 +95,8 @@ def test_another_run_of_the_same_lowered_program_loads_it_after_tracing(tmp_path
     """After an edit that leaves the program as it was (another code hash), the index
     misses: the program is traced, its executable found by the lowered text and loaded,
     not compiled, and the next start of that run traces nothing."""
-    traced = []
-
-    def program():
-        f = _program()
-
-        def counted(state, x):
-            traced.append(1)
-            return f(state, x)
-
-        return jax.jit(counted)
+    traced: list[int] = []
+    program = functools.partial(_counted_program, traced)
 
     cold = warm_start.Stored(program(), "f", _store(tmp_path, {"run": "a"}))(*_args())
     edited = _store(tmp_path, {"run": "b"})
