@@ -130,6 +130,20 @@ def test_an_edited_robot_in_a_models_config_is_named(tmp_path, capsys):
     assert "env.robot = 'x_square', but the checkpoint was trained on robot 'o_rectangle'" in text
 
 
+def test_an_edited_task_in_a_models_config_is_named(tmp_path, capsys):
+    """config.json's [env] is what deploy-sim and a resumed run read: one that differs
+    from the checkpoint's task (the shipped model's was edited by hand once) is refused."""
+    model = tmp_path / "model"
+    shutil.copytree(MODEL, model)
+    config = json.loads((model / "config.json").read_text())
+    assert config["env"]["path_integrator"] == "euler"
+    config["env"]["path_integrator"] = "exact"
+    (model / "config.json").write_text(json.dumps(config))
+    assert evaluate.main([str(model), "--only", "nominal", "--episodes", "1"]) == 2
+    text = _one_error_line(capsys)
+    assert "env.path_integrator = 'exact' (trained: 'euler')" in text
+
+
 def _cli(
     code: str, env: dict[str, str], cwd: Path, cap_gib: float = 12
 ) -> subprocess.CompletedProcess:

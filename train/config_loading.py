@@ -137,6 +137,13 @@ def apply_flags(
         raise
 
 
+def config_value(cfg: object, dotted: str) -> object:
+    """The field of ``cfg`` at a dotted path (as :func:`config_diff` names it)."""
+    for part in dotted.split("."):
+        cfg = getattr(cfg, part)
+    return cfg
+
+
 def config_diff(a: Any, b: Any, where: str = "") -> list[str]:
     """Dotted paths of the fields that differ between two configs."""
     if dataclasses.is_dataclass(a) and dataclasses.is_dataclass(b):
@@ -153,6 +160,7 @@ __all__ = [
     "TRAIN_CONFIG_DIR",
     "apply_flags",
     "config_diff",
+    "config_value",
     "load_train_config",
     "parse_train_config",
     "with_absent",

@@ -22,8 +22,9 @@ from mecanum_jax.precision import set_matmul_precision
 from mecanum_jax.task import MecanumEnv
 from mecanum_jax.task import fidelity as fid
 from train.cli.eval_args import EvalArgs
-from train.config_loading import load_train_config
+from train.config_loading import config_diff, config_value, load_train_config
 from train.learner.policy import PROVENANCE, RestoredPolicy, restore_policy, split_target
+from train.store import inputs
 
 if TYPE_CHECKING:
     from brax.training.types import PolicyParams
@@ -68,7 +69,7 @@ class Target:
             if epoch is not None and args.epoch is not None and epoch != args.epoch:
                 raise ConfigError(f"--epoch = {args.epoch}: the target names epoch {epoch}")
             self.restored = restore_policy(run_dir, args.seed, epoch or args.epoch)
-            check_config_robot(self.restored)
+            check_config_task(self.restored)
             base = self.restored.cfg.env
             precision = self.restored.cfg.run.matmul_precision
             r = self.restored
@@ -121,10 +122,10 @@ def _require_memory(
     )
 
 
-def check_config_robot(restored: RestoredPolicy) -> None:
-    """Refuse a model whose config.json names another robot than its checkpoint was
-    trained on (an edit by hand): the checkpoint's config decides, so the edit would be
-    ignored silently."""
+def check_config_task(restored: RestoredPolicy) -> None:
+    """Refuse a model whose config.json states another task (``[env]``) than its
+    checkpoint was trained on (an edit by hand): the checkpoint's config decides, so the
+    edit would be ignored silently here, while deploy-sim and a resumed run read it."""
     path = restored.run_dir / "config.json"
     try:
         given = json.loads(path.read_text())["env"]["robot"]
@@ -136,6 +137,20 @@ def check_config_robot(restored: RestoredPolicy) -> None:
             f"{path}: env.robot = {given!r}, but the checkpoint was trained on robot "
             f"{trained!r}; a policy plays the robot it was trained on (config.json does not "
             f"change it): set env.robot back to {trained!r}, or train on {given!r}"
+        )
+    try:
+        stated = inputs.load_saved_config(restored.run_dir, warn=False)
+    except ValueError:  # check_saved_config's to report
+        return
+    differ = config_diff(stated, restored.cfg)
+    if fields := [f for f in differ if f.startswith("env.") and f != "env.robot"]:
+        pairs = ", ".join(
+            f"{f} = {config_value(stated, f)!r} (trained: {config_value(restored.cfg, f)!r})"
+            for f in fields
+        )
+        raise ConfigError(
+            f"{path}: {pairs}; a policy plays the task it was trained on: set config.json "
+            "back to the checkpoint's task, or train with it"
         )
 
 
@@ -149,4 +164,4 @@ def default_out(args: EvalArgs, target: Target) -> Path:
     return run_dir / "eval" / f"epoch{target.restored.epoch}-{stamp}"
 
 
-__all__ = ["Target", "check_config_robot", "default_impl", "default_out"]
+__all__ = ["Target", "check_config_task", "default_impl", "default_out"]

@@ -28,7 +28,7 @@ import jax
 from mecanum_jax.atomic import DiskError, disk_errors
 from mecanum_jax.config import ConfigError
 from train.config import TrainConfig
-from train.config_loading import config_diff
+from train.config_loading import config_diff, config_value
 from train.loop.distributed import barrier
 from train.loop.run_records import write_json
 from train.store import checkpoint, inputs, lock
@@ -129,21 +129,16 @@ def resumed_config(run_dir: Path, overrides: TrainConfig | None) -> TrainConfig:
         )
         changed = [f for f in config_diff(saved, overrides) if f not in allowed]
         if changed:
+            was, given = config_value(saved, changed[0]), config_value(overrides, changed[0])
             raise ConfigError(
                 f"{changed[0]}: cannot change when resuming {str(run_dir)!r} "
-                f"(saved {_get(saved, changed[0])!r}, given {_get(overrides, changed[0])!r}); "
+                f"(saved {was!r}, given {given!r}); "
                 f"only {sorted(allowed)} may change"
             )
         cfg = overrides.validate()
     barrier("run-resume")  # every process has read it before process 0 rewrites it
     if cfg is not saved and jax.process_index() == 0:
         write_json(path, inputs.as_given(cfg.to_dict(), json.loads(path.read_text())))
-    return cfg
-
-
-def _get(cfg: object, dotted: str) -> object:
-    for part in dotted.split("."):
-        cfg = getattr(cfg, part)
     return cfg
 
 
