@@ -4,8 +4,9 @@
     python scripts/play_probe.py residual_deadband=0.01 -- models/o_rectangle \
         --scenarios tuning --only tuning_weave --no-plots --out /tmp/probe
 
-Each ``FIELD=VALUE`` (a float, an int or true/false) replaces ``env.FIELD`` of the
-checkpoint's config as it is restored; the references play the same changed task. A
+Each ``FIELD=VALUE`` (a float, an int or true/false) replaces ``env.FIELD`` of every
+config read, the checkpoint's and its config.json alike (``mecanum-eval`` refuses the two
+when they differ); the references play the same changed task. A
 probe says whether a lever is worth training, never what a trained policy would do.
 """
 
@@ -54,8 +55,6 @@ def main(argv: list[str]) -> int:
 
     def changed(data: Any, source: str, validate: bool = True) -> Any:
         cfg = parse(data, source, validate)
-        if "checkpoint meta" not in source:
-            return cfg
         env = dataclasses.replace(cfg.env, **env_changes).validate("env")
         return dataclasses.replace(cfg, env=env)
 

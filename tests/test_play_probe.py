@@ -28,13 +28,16 @@ def test_bad_changes_are_refused_naming_them(argv, message, capsys):
 
 def test_the_restored_policy_plays_the_changed_task(monkeypatch):
     from train.cli import evaluate
+    from train.cli.eval_target import check_config_task
     from train.learner.policy import restore_policy
 
     monkeypatch.setattr(config_loading, "parse_train_config", config_loading.parse_train_config)
     seen = []
 
     def fake_main(argv):
-        seen.append((argv, restore_policy(MODEL).cfg.env.residual_deadband))
+        restored = restore_policy(MODEL)
+        check_config_task(restored)  # config.json read with the same change
+        seen.append((argv, restored.cfg.env.residual_deadband))
         return 0
 
     monkeypatch.setattr(evaluate, "main", fake_main)
