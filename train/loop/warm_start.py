@@ -39,7 +39,7 @@ import hashlib
 import importlib.metadata
 import os
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -154,7 +154,7 @@ class Stored:
         program_key = self._keys[sig] = self.store.program_key(lowered.as_text(), sig)
         program = self.store.load(self.name, program_key)
         if program is None:
-            with _outside_persistent_cache() if self.store.fresh else contextlib.nullcontext():
+            with _outside_persistent_cache(self.store.fresh):
                 compiled = lowered.compile()
             self.store.save(self.name, program_key, compiled)
             program = self.store.load(self.name, program_key, read_back=True) or compiled
@@ -179,22 +179,23 @@ class Stored:
         return out
 
 
-def _outside_persistent_cache() -> contextlib.ExitStack:
-    """This thread's compilations kept out of JAX's persistent cache: keyed apart from its
-    entries (with the metadata) and never written there. JAX decides once per process
-    whether the cache is used, so its on-switch cannot do this; these settings have no
-    public context manager, and where one is missing nothing changes for it."""
+@contextlib.contextmanager
+def _outside_persistent_cache(on: bool) -> Iterator[None]:
+    """With ``on``, this thread's compilations kept out of JAX's persistent cache: keyed
+    apart from its entries (with the metadata) and never written there. JAX decides once
+    per process whether the cache is used, so its on-switch cannot do this; these settings
+    have no public context manager, and where one is missing nothing changes for it."""
     from jax._src import config as jax_config
 
-    stack = contextlib.ExitStack()
-    for name, value in (
-        ("compilation_cache_include_metadata_in_key", True),
-        ("persistent_cache_min_compile_time_secs", float("inf")),
-    ):
-        state = getattr(jax_config, name, None)
-        if callable(state):
-            stack.enter_context(state(value))
-    return stack
+    with contextlib.ExitStack() as stack:
+        for name, value in (
+            ("compilation_cache_include_metadata_in_key", True),
+            ("persistent_cache_min_compile_time_secs", float("inf")),
+        ):
+            state = getattr(jax_config, name, None)
+            if on and callable(state):
+                stack.enter_context(state(value))
+        yield
 
 
 class StoredLowering:
