@@ -19,7 +19,9 @@
 #                           on the tuning episodes (configs/eval/tuning.toml, a seed of its own),
 #                           TUNE_JOBS at a time (default: one per GPU, round robin; with
 #                           twelve tuning scenarios 4 at once ran on one H200 in 124 s for 7
-#                           models; with six, 3 on one H100 ran out of memory, 2 fit); TUNE_SHIPPED=0 leaves
+#                           models, another time one of 7 ran out of memory; with six, 3
+#                           on one H100 ran out of memory, 2 fit; a model whose evaluation
+#                           ran out of GPU memory runs again, alone); TUNE_SHIPPED=0 leaves
 #                           models/o_rectangle out, e.g. for a screen whose recipe variant
 #                           stands in for it; TUNE_PROBE='FIELD=VALUE ...' adds the shipped
 #                           weights played so (scripts/play_probe.py) as "probe"; then
@@ -306,12 +308,12 @@ case "$TASK" in
   fidelity) fidelity "$@" ;;
   reference-table) reference_table "$@" ;;
   tune)  # TUNE_JOBS=N: N evaluations at once (they share the GPU; compiling is most of each)
-    i=0; names=(); rm -rf /tmp/tune-reports; mkdir -p /tmp/tune-reports; ngpu=$(gpus)
+    i=0; names=(); models=(); rm -rf /tmp/tune-reports; mkdir -p /tmp/tune-reports; ngpu=$(gpus)
     shipped=(models/o_rectangle); [ "${TUNE_SHIPPED:-1}" = 0 ] && shipped=()
     for model in "${@:-/tmp/model/o_rectangle}" "${shipped[@]}"; do
       i=$((i + 1)); name=$(basename "$(dirname "$model")")_$i
       [ "$model" = models/o_rectangle ] && name=shipped
-      names+=("$name")
+      names+=("$name"); models+=("$model")
       CUDA_VISIBLE_DEVICES=$((i % ngpu)) evaluate "$model" tuning "/tmp/tune-$name" --no-plots \
         > "/tmp/tune-$name.log" 2>&1 &
       throttle "${TUNE_JOBS:-$ngpu}"
@@ -324,6 +326,13 @@ case "$TASK" in
         > /tmp/tune-probe.log 2>&1 &
     fi
     wait
+    for k in "${!models[@]}"; do  # one that ran out of GPU memory beside the others: alone
+      name=${names[$k]}
+      [ -f "/tmp/tune-$name/report.json" ] || ! grep -q RESOURCE_EXHAUSTED "/tmp/tune-$name.log" \
+        && continue
+      echo "tune: $name ran out of GPU memory beside the others; again, alone"
+      evaluate "${models[$k]}" tuning "/tmp/tune-$name" --no-plots > "/tmp/tune-$name.log" 2>&1
+    done
     for name in "${names[@]}"; do
       echo "== $name on the tuning episodes"; quiet < "/tmp/tune-$name.log" | tail -34
       cp "/tmp/tune-$name/report.json" "/tmp/tune-reports/tune_$name.json" 2>/dev/null \
