@@ -328,8 +328,8 @@ case "$TASK" in
     wait
     for k in "${!models[@]}"; do  # one that ran out of GPU memory beside the others: alone
       name=${names[$k]}
-      [ -f "/tmp/tune-$name/report.json" ] || ! grep -q RESOURCE_EXHAUSTED "/tmp/tune-$name.log" \
-        && continue
+      if [ -f "/tmp/tune-$name/report.json" ] || ! grep -q RESOURCE_EXHAUSTED "/tmp/tune-$name.log"
+      then continue; fi
       echo "tune: $name ran out of GPU memory beside the others; again, alone"
       evaluate "${models[$k]}" tuning "/tmp/tune-$name" --no-plots > "/tmp/tune-$name.log" 2>&1
     done
