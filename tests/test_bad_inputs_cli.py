@@ -214,9 +214,10 @@ def test_gpu_config_on_a_cpu_warns_at_start(tmp_path, capsys):
 def test_export_names_both_modules(tmp_path, capsys):
     assert export.main([str(MODEL), str(tmp_path / "p.npz")]) == 0
     err = capsys.readouterr().err.replace("\n", " ")
+    assert "mecanum_robot.zip" in err
     assert "mecanum_policy.py" in err
     assert "mecanum_loop.py" in err
-    assert (tmp_path / "mecanum_loop.py").exists()
+    assert (tmp_path / "mecanum_robot.zip").exists()
 
 
 @pytest.mark.full

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import zipfile
 from pathlib import Path
 
 import jax
@@ -108,13 +109,25 @@ def test_a_symmetric_policy_is_exactly_equivariant():
 
 
 def test_the_model_folder_holds_what_the_export_writes_today():
-    from mecanum_jax.deploy.write import robot_side_files
+    from mecanum_jax.deploy.write import ARCHIVE, robot_archive, robot_side_files
 
-    files = robot_side_files()
-    for name, src in files.items():
-        assert (MODEL / name).read_bytes() == src.read_bytes(), name
-    kept = {str(p.relative_to(MODEL)) for p in MODEL.rglob("*.py")}
-    assert kept == set(files), kept ^ set(files)  # nothing stale beside them either
+    assert (MODEL / ARCHIVE).read_bytes() == robot_archive()
+    with zipfile.ZipFile(MODEL / ARCHIVE) as archive:
+        assert archive.namelist() == sorted(robot_side_files())
+    assert not list(MODEL.rglob("*.py"))  # no stale loose copy beside it either
+
+
+def test_the_robot_archive_is_the_same_bytes_for_the_same_sources(tmp_path):
+    from mecanum_jax.deploy import write
+
+    first = write.robot_archive()
+    assert write.robot_archive() == first
+    edited = tmp_path / "loop.py"
+    edited.write_bytes(write.robot_side_files()["mecanum_loop.py"].read_bytes() + b"# edit\n")
+    files = dict(write.robot_side_files(), **{"mecanum_loop.py": edited})
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(write, "robot_side_files", lambda: files)
+        assert write.robot_archive() != first  # an edited source is seen: the test can fail
 
 
 def test_an_asymmetric_robot_is_refused_for_a_symmetric_policy():

@@ -283,14 +283,12 @@ def test_plant_steps_as_the_mjx_robot(shipped_task):
 
 def test_the_copied_loop_runs_beside_the_export_without_jax(tmp_path):
     """What mecanum-export writes beside policy.npz runs on its own: NumPy only."""
-    from mecanum_jax.deploy.write import robot_side_files
+    from mecanum_jax.deploy.write import ARCHIVE, robot_archive
 
     shutil.copy(MODEL / "policy.npz", tmp_path)
-    for name, src in robot_side_files().items():
-        (tmp_path / name).parent.mkdir(exist_ok=True)
-        shutil.copy(src, tmp_path / name)
+    (tmp_path / ARCHIVE).write_bytes(robot_archive())
     script = (
-        "import sys; from mecanum_loop import Controller\n"
+        f"import sys; sys.path.insert(0, {ARCHIVE!r}); from mecanum_loop import Controller\n"
         "c = Controller.load('policy.npz'); c.reset()\n"
         "for _ in range(3): s, a = c.step([0.3, 0, 0.5], [0, 0, 0, 0], 0.0, [0, 0, 9.81])\n"
         "heavy = sorted(m for m in ('jax', 'mujoco', 'brax', 'mecanum_jax') if m in sys.modules)\n"

@@ -216,7 +216,7 @@ def test_eval_checkpoint_cli_with_video_and_export(full_run, tmp_path):
     frames = iio.imread(out / "video_six_modes.mp4")
     assert frames.shape[1:3] == (64, 4 * 96)  # policy | the three references side by side
     assert (out / "policy.npz").exists()
-    assert (out / "mecanum_policy.py").exists()
+    assert (out / "mecanum_robot.zip").exists()
 
 
 def test_bad_checkpoints_and_targets(full_run, tmp_path, capsys):

@@ -46,10 +46,8 @@ def test_export_round_trip_in_numpy_alone(full_run, tmp_path, learner):
                     raise ImportError("blocked: " + name)
 
         sys.meta_path.insert(0, Block())
-        module = {str(path.parent / "mecanum_policy.py")!r}
-        spec = importlib.util.spec_from_file_location("mp", module)
-        mp = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mp)
+        sys.path.insert(0, {str(path.parent / "mecanum_robot.zip")!r})
+        import mecanum_policy as mp
         policy = mp.load({str(path)!r})
         actions = policy.action(np.load({str(tmp_path / "obs.npy")!r}))
         np.save({str(tmp_path / "numpy_actions.npy")!r}, actions)

@@ -3,7 +3,8 @@
 (JAX in training, NumPy on the robot, an ONNX graph traced from the same code).
 
 Pure: NumPy and the standard library; nothing here imports JAX, MuJoCo or the task, so
-the export copies this package beside a policy as ``mecanum_control/``.
+the export packs this package beside a policy as ``mecanum_control/`` (in
+``mecanum_robot.zip``).
 """
 
 from .spec import (

@@ -1,10 +1,12 @@
 """The robot-side control loop around an exported policy: NumPy alone (onnxruntime for
 the ONNX backend), no JAX, MuJoCo or Brax.
 
-Copy it next to the export with the policy module (``mecanum-export`` writes it as
-``mecanum_loop.py`` beside ``policy.npz``, ``mecanum_policy.py`` and ``mecanum_control/``)
-and call it once per control period, ``meta["control_dt"]`` (0.02 s: 50 Hz)::
+``mecanum-export`` packs it as ``mecanum_loop.py``, with ``mecanum_policy.py`` and
+``mecanum_control/``, into ``mecanum_robot.zip`` beside ``policy.npz``. Put the archive on
+the import path and call the loop once per control period, ``meta["control_dt"]`` (0.02 s:
+50 Hz)::
 
+    import sys; sys.path.insert(0, "mecanum_robot.zip")
     from mecanum_loop import Controller        # this file, renamed on export
     ctrl = Controller.load("policy.npz")       # or "policy.onnx" (onnxruntime)
     ctrl.reset()                               # the robot at rest, before the first tick
@@ -39,8 +41,8 @@ if __package__:  # inside the mecanum_jax package
     from mecanum_jax.control import ControllerState
     from mecanum_jax.control import step as ctl
     from mecanum_jax.deploy.policy import ExportError, NumpyPolicy, load
-else:  # pragma: no cover - copied beside an export, next to mecanum_policy.py
-    import sys  # the folder holding this file, so that mecanum_control/ beside it imports
+else:  # pragma: no cover - in an export's archive, next to mecanum_policy.py
+    import sys  # the folder (or zip) holding this file, so that mecanum_control/ imports
 
     if str(Path(__file__).resolve().parent) not in sys.path:
         sys.path.insert(0, str(Path(__file__).resolve().parent))

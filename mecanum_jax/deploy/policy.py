@@ -1,9 +1,10 @@
 """Run an exported policy with NumPy alone: no JAX, MuJoCo or Brax on the robot.
 
 This file depends only on NumPy, the standard library and the controller package
-(``mecanum_jax.control``, which ``mecanum-export`` copies beside it as
-``mecanum_control/``). Copy them next to the exported ``policy.npz`` and::
+(``mecanum_jax.control``). ``mecanum-export`` packs them, as ``mecanum_policy.py`` and
+``mecanum_control/``, into ``mecanum_robot.zip`` beside the exported ``policy.npz``::
 
+    import sys; sys.path.insert(0, "mecanum_robot.zip")
     from mecanum_policy import load           # this file, renamed on export
     policy = load("policy.npz")
     obs = policy.observation(command, wheel_rate, gyro_z, accel, last_action)
@@ -32,8 +33,8 @@ if __package__:  # inside the mecanum_jax package
     from mecanum_jax.control import ControllerSpec
     from mecanum_jax.control import step as ctl
     from mecanum_jax.control.network import network_output
-else:  # pragma: no cover - copied beside an export, next to mecanum_control/
-    import sys  # the folder holding this file, so that mecanum_control/ beside it imports
+else:  # pragma: no cover - in an export's archive, next to mecanum_control/
+    import sys  # the folder (or zip) holding this file, so that mecanum_control/ imports
 
     if str(Path(__file__).resolve().parent) not in sys.path:
         sys.path.insert(0, str(Path(__file__).resolve().parent))

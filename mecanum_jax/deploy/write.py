@@ -1,10 +1,13 @@
 """Writing a policy export (the trainer's side; the robot reads it with :mod:`.policy`):
-``policy.npz`` with the robot-side files beside it (:func:`export_policy`), or one ONNX
-graph (:func:`export_onnx`), from a policy's arrays and its task's :func:`task_meta`."""
+``policy.npz`` with the robot-side code beside it as one archive, ``mecanum_robot.zip``
+(:func:`export_policy`), or one ONNX graph (:func:`export_onnx`), from a policy's arrays and
+its task's :func:`task_meta`."""
 
 from __future__ import annotations
 
+import io
 import json
+import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
@@ -60,9 +63,15 @@ def save(
     return path
 
 
+ARCHIVE = "mecanum_robot.zip"
+"""The robot-side code's file beside ``policy.npz``: put it on ``sys.path`` and import
+``mecanum_loop`` (or ``mecanum_policy``) from it."""
+
+
 def robot_side_files() -> dict[str, Path]:
-    """What the robot needs beside ``policy.npz``, by its name there: the NumPy policy, the
-    control loop and the controller package (``mecanum_control/``), from the library."""
+    """What the robot needs beside ``policy.npz``, by its name in :data:`ARCHIVE`: the NumPy
+    policy, the control loop and the controller package (``mecanum_control/``), from the
+    library."""
     from mecanum_jax import control
     from mecanum_jax.deploy import policy
 
@@ -74,19 +83,28 @@ def robot_side_files() -> dict[str, Path]:
     return files
 
 
+def robot_archive() -> bytes:
+    """:func:`robot_side_files` as one zip, the same bytes for the same sources: stored
+    uncompressed (no zlib version enters), in name order, every date 1980-01-01."""
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as archive:
+        for name, src in sorted(robot_side_files().items()):
+            info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+            info.external_attr = 0o644 << 16
+            archive.writestr(info, src.read_bytes())
+    return buffer.getvalue()
+
+
 def export_policy(
     layers: Layers, mean: np.ndarray, std: np.ndarray, meta: Mapping[str, object], path: Path
 ) -> Path:
-    """Write ``policy.npz`` (weights, normalizer, control-loop constants) and copy the
-    robot-side files beside it (:func:`robot_side_files`). Each file atomically; on an
+    """Write ``policy.npz`` (weights, normalizer, control-loop constants) and the robot-side
+    code beside it as :data:`ARCHIVE` (:func:`robot_archive`). Each file atomically; on an
     error, those it had written are removed again."""
-    modules = robot_side_files()
-    new = [p for p in (path, *(path.parent / n for n in modules)) if not p.exists()]
+    new = [p for p in (path, path.with_name(ARCHIVE)) if not p.exists()]
     try:
         save(path, layers, mean, std, meta)
-        for name, src in modules.items():
-            (path.parent / name).parent.mkdir(exist_ok=True)
-            atomic.copy_file(src, path.parent / name)
+        atomic.write_bytes(path.with_name(ARCHIVE), robot_archive())
     except BaseException:
         for p in new:
             p.unlink(missing_ok=True)
@@ -103,4 +121,13 @@ def export_onnx(
     return onnx_export.write_onnx(NumpyPolicy(layers, mean, std, dict(meta)), path)
 
 
-__all__ = ["Task", "export_onnx", "export_policy", "robot_side_files", "save", "task_meta"]
+__all__ = [
+    "ARCHIVE",
+    "Task",
+    "export_onnx",
+    "export_policy",
+    "robot_archive",
+    "robot_side_files",
+    "save",
+    "task_meta",
+]

@@ -76,7 +76,7 @@ class EvalArgs:
     bootstrap: int = 2000
     """Bootstrap resamples of the paired intervals."""
     export: bool = False
-    """Also write the deployable policy (policy.npz + mecanum_policy.py) to the output."""
+    """Also write the deployable policy (policy.npz + mecanum_robot.zip) to the output."""
     matmul_precision: Literal["default", "high", "highest"] | None = None
     """jax's matmul precision for the evaluation (default: the run's run.matmul_precision,
     highest unless the run chose otherwise). default is TF32 on A100/H100 GPUs and

@@ -8,9 +8,10 @@ Examples::
     mecanum-export runs/gpu-... models/mine --model         # a model directory, like a run
 
 ``policy.npz`` holds the policy network's weights, the observation normalizer and the
-control loop's constants; ``mecanum_policy.py`` (NumPy inference,
-``mecanum_jax.deploy.policy``) is copied beside it. ``--format onnx`` writes one ONNX graph
-from raw observations to actions and wheel-rate setpoints (``mecanum_jax.deploy.onnx``).
+control loop's constants; ``mecanum_robot.zip`` beside it the robot-side code (NumPy
+inference and the control loop, ``mecanum_jax.deploy.write.robot_archive``).
+``--format onnx`` writes one ONNX graph from raw observations to actions and wheel-rate
+setpoints (``mecanum_jax.deploy.onnx``).
 ``--model`` packs one checkpoint as a model directory that ``mecanum-eval`` and
 ``mecanum-export`` read like a run directory (:func:`train.learner.policy.package_model`).
 ``mecanum-eval ... --export`` writes the same ``policy.npz`` beside its report.
@@ -31,7 +32,7 @@ from rich.console import Console
 from mecanum_jax import atomic
 from mecanum_jax._checks import require_platform
 from mecanum_jax.config import ConfigError
-from mecanum_jax.deploy.write import export_onnx, export_policy, robot_side_files
+from mecanum_jax.deploy.write import ARCHIVE, export_onnx, export_policy
 from train.cli.paths import check_output, resolve_model
 from train.learner.policy import RestoredPolicy, package_model, restore_policy, split_target
 from train.loop.progress import print_error
@@ -48,8 +49,9 @@ class ExportArgs:
     run: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN")]
     """A run directory (latest checkpoint) or <run>/checkpoints/<epoch>."""
     out: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="OUT")]
-    """The file to write: .npz (mecanum_policy.py, NumPy inference, is copied beside
-    it) or, with --format onnx, .onnx; with --model, the directory to create."""
+    """The file to write: .npz (the robot-side code, NumPy inference and the control loop,
+    is written beside it as mecanum_robot.zip) or, with --format onnx, .onnx; with --model,
+    the directory to create."""
     format: Literal["npz", "onnx"] = "npz"
     """npz: weights and normalizer for the NumPy module; onnx: one ONNX graph from
     raw observations to actions and wheel-rate setpoints (normalizer, clip and the
@@ -120,9 +122,10 @@ def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) ->
         console.log(f"wrote {path}")
         return 0
     path = export_policy(*restored.export_arrays(), Path(args.out))
-    modules = sorted({name.split("/")[0] for name in robot_side_files()})  # the package once
-    beside = ", ".join(str(path.with_name(m)) for m in modules)
-    console.log(f"wrote {path} and beside it {beside}")
+    console.log(
+        f"wrote {path} and beside it {path.with_name(ARCHIVE)} (mecanum_loop.py, "
+        "mecanum_policy.py and mecanum_control/: put it on sys.path)"
+    )
     return 0
 
 
