@@ -1,12 +1,11 @@
 """The one controller (mecanum_jax.control) on its three backends: JAX, NumPy and the ONNX
 graph traced from the same code give the same actions, setpoints and integrator; a
-symmetric policy is exactly equivariant; the model folder holds the library's files."""
+symmetric policy is exactly equivariant (the model folder: test_robot_archive.py)."""
 
 from __future__ import annotations
 
 import dataclasses
 import itertools
-import zipfile
 from pathlib import Path
 
 import jax
@@ -106,28 +105,6 @@ def test_a_symmetric_policy_is_exactly_equivariant():
     (oi, os), (ai, sign) = mirrors(plain.spec)[0]
     gap = np.abs(plain.network(obs[:, oi] * os) - plain.network(obs)[:, ai] * sign).max()
     assert gap > 1e-3  # the unsymmetrized network is not: the check can fail
-
-
-def test_the_model_folder_holds_what_the_export_writes_today():
-    from mecanum_jax.deploy.write import ARCHIVE, robot_archive, robot_side_files
-
-    assert (MODEL / ARCHIVE).read_bytes() == robot_archive()
-    with zipfile.ZipFile(MODEL / ARCHIVE) as archive:
-        assert archive.namelist() == sorted(robot_side_files())
-    assert not list(MODEL.rglob("*.py"))  # no stale loose copy beside it either
-
-
-def test_the_robot_archive_is_the_same_bytes_for_the_same_sources(tmp_path):
-    from mecanum_jax.deploy import write
-
-    first = write.robot_archive()
-    assert write.robot_archive() == first
-    edited = tmp_path / "loop.py"
-    edited.write_bytes(write.robot_side_files()["mecanum_loop.py"].read_bytes() + b"# edit\n")
-    files = dict(write.robot_side_files(), **{"mecanum_loop.py": edited})
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(write, "robot_side_files", lambda: files)
-        assert write.robot_archive() != first  # an edited source is seen: the test can fail
 
 
 def test_an_asymmetric_robot_is_refused_for_a_symmetric_policy():

@@ -4,9 +4,6 @@ without JAX, and reproduces mecanum-eval's figures on the same episodes."""
 
 import dataclasses
 import json
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import jax
@@ -279,27 +276,6 @@ def test_plant_steps_as_the_mjx_robot(shipped_task):
             state = step(state, params)
             twist = plant.step(rates, 0.02).twist
             np.testing.assert_allclose(twist, robot.sensors(state).twist, atol=1e-3)
-
-
-def test_the_copied_loop_runs_beside_the_export_without_jax(tmp_path):
-    """What mecanum-export writes beside policy.npz runs on its own: NumPy only."""
-    from mecanum_jax.deploy.write import ARCHIVE, robot_archive
-
-    shutil.copy(MODEL / "policy.npz", tmp_path)
-    (tmp_path / ARCHIVE).write_bytes(robot_archive())
-    script = (
-        f"import sys; sys.path.insert(0, {ARCHIVE!r}); from mecanum_loop import Controller\n"
-        "c = Controller.load('policy.npz'); c.reset()\n"
-        "for _ in range(3): s, a = c.step([0.3, 0, 0.5], [0, 0, 0, 0], 0.0, [0, 0, 9.81])\n"
-        "heavy = sorted(m for m in ('jax', 'mujoco', 'brax', 'mecanum_jax') if m in sys.modules)\n"
-        "print(list(map(float, s)), heavy)"
-    )
-    done = subprocess.run(
-        [sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, check=True
-    )
-    setpoints, heavy = done.stdout.strip().rsplit(" ", 1)
-    assert heavy == "[]"
-    assert max(abs(x) for x in json.loads(setpoints)) > 1
 
 
 def test_deploy_sim_rejects_bad_input_naming_the_field(tmp_path, capsys):

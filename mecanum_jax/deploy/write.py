@@ -70,13 +70,17 @@ ARCHIVE = "mecanum_robot.zip"
 
 def robot_side_files() -> dict[str, Path]:
     """What the robot needs beside ``policy.npz``, by its name in :data:`ARCHIVE`: the NumPy
-    policy, the control loop and the controller package (``mecanum_control/``), from the
-    library."""
+    policy, the control loop, the controller package (``mecanum_control/``) and the
+    self-check the archive runs as a program (:mod:`.selfcheck`), from the library."""
     from mecanum_jax import control
     from mecanum_jax.deploy import policy
 
     source = Path(policy.__file__)
-    files = {"mecanum_policy.py": source, "mecanum_loop.py": source.with_name("loop.py")}
+    files = {
+        "__main__.py": source.with_name("selfcheck.py"),  # python mecanum_robot.zip
+        "mecanum_policy.py": source,
+        "mecanum_loop.py": source.with_name("loop.py"),
+    }
     package = Path(control.__file__).parent
     for src in sorted(package.glob("*.py")):
         files[f"mecanum_control/{src.name}"] = src

@@ -124,7 +124,8 @@ def _write(args: ExportArgs, restored: RestoredPolicy, extra: dict[str, Any]) ->
     path = export_policy(*restored.export_arrays(), Path(args.out))
     console.log(
         f"wrote {path} and beside it {path.with_name(ARCHIVE)} (mecanum_loop.py, "
-        "mecanum_policy.py and mecanum_control/: put it on sys.path)"
+        "mecanum_policy.py and mecanum_control/: put it on sys.path; run it to check the "
+        "export on the robot)"
     )
     return 0
 
