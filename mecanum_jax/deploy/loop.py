@@ -41,11 +41,7 @@ if __package__:  # inside the mecanum_jax package
     from mecanum_jax.control import ControllerState
     from mecanum_jax.control import step as ctl
     from mecanum_jax.deploy.policy import ExportError, NumpyPolicy, load
-else:  # pragma: no cover - in an export's archive, next to mecanum_policy.py
-    import sys  # the folder (or zip) holding this file, so that mecanum_control/ imports
-
-    if str(Path(__file__).resolve().parent) not in sys.path:
-        sys.path.insert(0, str(Path(__file__).resolve().parent))
+else:  # pragma: no cover - in an export's archive (on sys.path), next to mecanum_policy.py
     from mecanum_control import ControllerState  # type: ignore[no-redef]
     from mecanum_control import step as ctl  # type: ignore[no-redef]
     from mecanum_policy import ExportError, NumpyPolicy, load  # type: ignore[no-redef]

@@ -33,11 +33,7 @@ if __package__:  # inside the mecanum_jax package
     from mecanum_jax.control import ControllerSpec
     from mecanum_jax.control import step as ctl
     from mecanum_jax.control.network import network_output
-else:  # pragma: no cover - in an export's archive, next to mecanum_control/
-    import sys  # the folder (or zip) holding this file, so that mecanum_control/ imports
-
-    if str(Path(__file__).resolve().parent) not in sys.path:
-        sys.path.insert(0, str(Path(__file__).resolve().parent))
+else:  # pragma: no cover - in an export's archive (on sys.path), next to mecanum_control/
     from mecanum_control import ControllerSpec  # type: ignore[no-redef]
     from mecanum_control import step as ctl  # type: ignore[no-redef]
     from mecanum_control.network import network_output  # type: ignore[no-redef]
