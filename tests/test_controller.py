@@ -167,30 +167,3 @@ def test_the_exact_path_integrator_stays_within_the_leaks_bound(spin):
     assert heading == pytest.approx(-0.1 * 0.02 * a * (1 - a**400) / (1 - a), rel=1e-4)
     euler, _ = held("euler")
     assert (euler < bound) if spin == 2.0 else (euler > 5 * bound)
-
-
-def test_the_feasible_euler_path_follows_the_nearest_feasible_twist():
-    """``euler_feasible`` keeps the first-order path of the command's nearest feasible twist:
-    the same error as ``euler`` within reach, and beyond reach ``euler``'s on that twist."""
-    from mecanum_jax.control import step as ctl
-
-    base = dataclasses.replace(load(MODEL / "policy.npz").spec, path_tau=3.0)
-    fe = dataclasses.replace(base, path_integrator="euler_feasible")
-    eu = dataclasses.replace(base, path_integrator="euler")
-    scale = np.asarray(base.command_scale, np.float32)
-    for fraction, beyond in (([0.3, 0.2, 0.1], False), ([0.35, 0.4, 0.5], True)):
-        command = np.asarray(fraction, np.float32) * scale
-        feasible = np.asarray(ctl.nearest_feasible(base, command, np))
-        assert beyond == (not np.allclose(feasible, command, atol=1e-5))
-        frame = np.zeros(base.n_wheels + 7, np.float32)
-        frame[base.n_wheels + 4 : base.n_wheels + 7] = [0.1, -0.05, 0.0]
-        frame[base.n_wheels] = 0.2  # the gyro
-        errors = {}
-        for name, spec in (("fe", fe), ("eu", eu)):
-            state = ctl.initial_state(spec, frame, command, 1, np)
-            state = state._replace(command=command)
-            errors[name] = np.asarray(ctl.sense(spec, state, frame, command, 0, np).path_error)
-        measured = np.asarray([0.1, -0.05, 0.2], np.float32) * scale
-        on_feasible = ctl.path_step(eu, np.zeros(3, np.float32), measured, feasible, np)
-        np.testing.assert_allclose(errors["fe"], on_feasible, rtol=1e-5, atol=1e-7)
-        assert np.allclose(errors["fe"], errors["eu"], atol=1e-7) != beyond

@@ -257,10 +257,9 @@ def path_step(spec: ControllerSpec, error: Any, twist: Any, command: Any, xp: An
     twist ``twist`` (both (..., 3)), leaky with ``path_tau``: the position error in the
     commanded frame grows by the velocity error, rotated by the heading error, and turns
     with the commanded frame. ``path_integrator = "exact"`` turns it by the period's whole
-    angle; ``"euler"`` (the shipped policy's) and ``"euler_feasible"`` to first order, which
-    lengthens the error by sqrt(1 + (ωz·dt)²) a period and outgrows the leak above
-    ωz·dt ≈ 0.1 (5.8 rad/s at 50 Hz with τ = 3 s). ``"euler"`` tracks the command itself,
-    the others its nearest feasible twist (:func:`sense`)."""
+    angle; ``"euler"`` (the shipped policy's) to first order, which lengthens the error by
+    sqrt(1 + (ωz·dt)²) a period and outgrows the leak above ωz·dt ≈ 0.1 (5.8 rad/s at 50 Hz
+    with τ = 3 s)."""
     dt = spec.control_dt
     ex, ey, eh = error[..., 0:1], error[..., 1:2], error[..., 2:3]
     c, s = xp.cos(eh), xp.sin(eh)
@@ -318,8 +317,7 @@ def sense(
     if spec.path_tau > 0:
         odometry = now[..., n + 4 : n + 7] * xp.asarray(spec.command_scale)
         measured = xp.concat([odometry[..., 0:2], gyro[..., None]], axis=-1)
-        feasible = spec.path_integrator != "euler"  # "exact", "euler_feasible"
-        path = nearest_feasible(spec, tracked, xp) if feasible else tracked
+        path = nearest_feasible(spec, tracked, xp) if spec.path_integrator == "exact" else tracked
         out = out._replace(path_error=path_step(spec, state.path_error, measured, path, xp))
     return out
 

@@ -90,8 +90,7 @@ class EnvConfig:
     target), so the error stays within the leak's bound; "euler", the shipped policy's,
     turns it to first order against the command itself: on fast spins it outgrows the leak,
     so the error grows for as long as such a command is held, and beyond reach it counts the
-    part of the command no wheel can drive; "euler_feasible" turns it to first order against
-    the nearest feasible twist.
+    part of the command no wheel can drive.
 
     symmetric = true averages the policy over the robot's mirror group (left-right,
     front-back, half turn; mecanum_jax.control.symmetry): a command a mirror leaves
@@ -136,8 +135,7 @@ class EnvConfig:
     path_tau: float = 3.0
     """Time constant of the observed leaky path error, s (>= 0; 0: off)."""
     path_integrator: str = "exact"
-    """How the path error is kept: "exact", "euler" (the shipped policy's) or
-    "euler_feasible" (see above)."""
+    """How the path error is kept: "exact" or "euler" (the shipped policy's; see above)."""
     symmetric: bool = False
     """The policy is averaged over the robot's mirror group (exactly equivariant)."""
     commands: CommandConfig = CommandConfig()
@@ -229,8 +227,8 @@ class EnvConfig:
         )
         require(self, where, ("symmetric",), lambda v: isinstance(v, bool), "must be true or false")
         require(
-            self, where, ("path_integrator",), lambda v: v in ("exact", "euler", "euler_feasible"),
-            'must be "exact", "euler" or "euler_feasible"',
+            self, where, ("path_integrator",), lambda v: v in ("exact", "euler"),
+            'must be "exact" or "euler"',
         )  # fmt: skip
         in_unit = ("action_filter", "residual_deadband")
         require(self, where, in_unit, lambda v: 0 <= v < 1, "must be in [0, 1) (0: off)")

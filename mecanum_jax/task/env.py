@@ -174,7 +174,7 @@ class MecanumEnv(Env):
             target = self.feasible_target(command, params.radius_scale)
         path = info["true_path_error"]
         if cfg.path_tau > 0:  # the true twist against this step's command (exact: its target)
-            reference = command if cfg.path_integrator == "euler" else target
+            reference = target if cfg.path_integrator == "exact" else command
             path = ctl.path_step(spec, path, sens.twist, reference, jnp)
         reward, metrics = step_reward(
             cfg.reward, sens, target, action, before.last_action, params,
