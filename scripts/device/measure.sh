@@ -52,10 +52,13 @@ profile() {  # [--trace] [flags]: the epoch's parts (train/tools/profile.py)
 }
 
 coldstart() {  # [flags]: an empty compilation cache, then the same start with it warm
+  # (COLDSTART_PASSES, default "cold warm"; a pass "nobaseN" is a warm start with the stored
+  # baseline's figures removed first, train/loop/stored_baseline.py; warmN another warm one)
   local pass tree=${COLDSTART_TREE:-$PWD} mod=train.tools.coldstart
   [ -f "$tree/train/coldstart.py" ] && mod=train.coldstart  # a tree from before train/ had rooms
   rm -rf /tmp/coldstart-cache
-  for pass in cold warm; do
+  for pass in ${COLDSTART_PASSES:-cold warm}; do
+    [[ $pass == nobase* ]] && rm -f /tmp/coldstart-cache/mecanum-programs/*.baseline
     echo "== $pass compilation cache ${COLDSTART_TAG:-} (sources: $tree)"
     (cd "$tree" && PYTHONPATH=/tmp/site:$tree python3 -m "$mod" --config gpu \
       --compilation-cache /tmp/coldstart-cache \

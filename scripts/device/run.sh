@@ -73,7 +73,9 @@
 #                           (COLDSTART_TAG=T: coldstart_T_cold.json ...; e.g. the same call
 #                           with --compile-together off, then on; COLDSTART_TREE=DIR: the
 #                           start from the sources in DIR, e.g. an earlier commit's
-#                           `git archive`, to compare two versions on one machine)
+#                           `git archive`, to compare two versions on one machine;
+#                           COLDSTART_PASSES='cold warm nobase warm2 nobase2': more warm
+#                           starts, a "nobase" one without the stored baseline's figures)
 #   scaling [N...] [FLAGS...]      PPO env steps/s of the gpu config at N robots (default 1024
 #                           4096 16384 32768 65536; batch N/8: 2 unrolls per iteration as at
 #                           32768), one process each: $OUT/scaling.json, $OUT/scaling.png

@@ -25,6 +25,9 @@ its functions, which left every start after an edit tracing again. A file is tru
 its checksum, its stored key and its deserialization all pass; else it is compiled again
 and rewritten, with a log line.
 
+The baseline's first evaluation, whose figures the run's key fixes too, is kept beside
+them (train/loop/stored_baseline.py).
+
 Off (:func:`why_not`), with a log line, where the store cannot serve: no persistent
 cache, several processes, several CPU devices, ``run.parallel = "split"``, or
 ``MECANUM_WARM_START=off``. Under MJX's Warp implementation, whose FFI targets exist only
@@ -52,6 +55,7 @@ import mecanum_jax
 import train
 from train.loop import warp_targets
 from train.loop.program_store import INDEX_SUFFIX, SUFFIX, Key, Log, Store, digest
+from train.loop.stored_baseline import StoredBaseline
 
 if TYPE_CHECKING:
     from train.config import TrainConfig
@@ -251,8 +255,9 @@ def why_not(learner: Learner, environ: Mapping[str, str] = os.environ) -> str | 
 
 
 def attach(learner: Any, log: Log = print) -> Any:
-    """Serve ``learner``'s reset, epoch and evaluation rollout from a :class:`Store` in the
-    compilation cache's directory (once per learner; :func:`store_of` gives it), unless
+    """Serve ``learner``'s reset, epoch and evaluation rollout, and the baseline's figures
+    (train/loop/stored_baseline.py), from a :class:`Store` in the compilation cache's
+    directory (once per learner; :func:`store_of` gives it), unless
     :func:`why_not` (said in a log line). Returns ``learner``."""
     if store_of(learner) is not None:
         return learner
@@ -276,6 +281,7 @@ def attach(learner: Any, log: Log = print) -> Any:
     learner._reset = Stored(learner._reset, "reset", store)
     learner._parallel_epoch = Stored(learner._parallel_epoch, "epoch", store)
     learner.evaluation.store_programs(lambda fn: Stored(fn, "rollout", store))
+    learner.evaluate_baseline = StoredBaseline(learner.evaluate_baseline, store)
     learner.warm_store = store
     return learner
 
