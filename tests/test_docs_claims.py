@@ -1,6 +1,7 @@
 """The manual's claims about the shipped recipe match the recipe: every ``name = value``
 that docs/training.md's table "Why the settings are what they are" gives is what
-``--config gpu`` resolves to (a bare name is the one setting of that name)."""
+``--config gpu`` resolves to (a bare name is the one setting of that name); and its pages
+keep their length."""
 
 import re
 import tomllib
@@ -58,3 +59,11 @@ def test_a_wrong_claim_is_caught():
     assert _setting(leaves, name) != tomllib.loads(f"v = {text}")["v"]
     with pytest.raises(AssertionError, match="no setting"):
         _setting(leaves, "no_such_setting")
+
+
+@pytest.mark.parametrize(("page", "most"), [("docs/controller.md", 250), ("README.md", 200)])
+def test_the_manual_pages_stay_within_their_length(page, most):
+    """The controller's page and the README stay a manual, not a notebook: a finding goes
+    into the reasoning or one row of Levers tried, and a page over its length is cut."""
+    lines = (DOCS.parent / page).read_text().splitlines()
+    assert len(lines) <= most, f"{page}: {len(lines)} lines (at most {most})"

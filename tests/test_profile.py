@@ -88,8 +88,8 @@ def test_coldstart_lists_phases_and_compiled_programs(tmp_path, capsys):
         "first evaluation: policy",
     ):
         assert phase in phases
-    # mecanum-train's order under JAX physics: the baseline beside the first epoch (timed
-    # after it here), the policy evaluated after the session's first epoch
+    # mecanum-train's order under JAX physics: the baseline beside the first epoch (its
+    # phase the wait after it), the policy evaluated after the session's first epoch
     assert phases[-4:] == [
         "first epoch",
         "first evaluation: baseline",

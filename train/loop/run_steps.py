@@ -86,7 +86,7 @@ class RunSteps:
             barrier("epoch-compiled")
         self._logs.open(loop.steps(loop.epoch) + 1 if (self.dir / "tb").exists() else None)
         self._report(loop, "running")
-        loop.baseline_job = job = _in_thread(learner.evaluate_baseline, first_device(loop.state))
+        loop.baseline_job = job = in_thread(learner.evaluate_baseline, first_device(loop.state))
         if first_runs_alone(learner):
             job.result()
         loop.setup_s = time.time() - t_start
@@ -209,7 +209,7 @@ class RunSteps:
         return summary
 
 
-def _in_thread(fn: Callable[[*Ts], Result], *args: *Ts) -> Future[Result]:
+def in_thread(fn: Callable[[*Ts], Result], *args: *Ts) -> Future[Result]:
     """``fn(*args)`` begun in a thread of its own."""
     pool = ThreadPoolExecutor(1, thread_name_prefix="baseline-eval")
     job = pool.submit(fn, *args)
@@ -217,4 +217,4 @@ def _in_thread(fn: Callable[[*Ts], Result], *args: *Ts) -> Future[Result]:
     return job
 
 
-__all__ = ["LOGGING_ONLY", "RunSteps", "TrainingDiverged"]
+__all__ = ["LOGGING_ONLY", "RunSteps", "TrainingDiverged", "in_thread"]

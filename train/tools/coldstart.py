@@ -5,10 +5,10 @@ config, the model and environment build (:class:`train.learner.ppo.Learner`); wh
 runs first (``train.loop.aot.first_runs_alone``, as under Warp) the reset, the epoch and the
 evaluation compiled together before any of them runs (``train.loop.aot.compile_together``,
 unless ``--compile-together off``); the robots' reset; the evaluation of the analytic
-baseline (first where
-the baseline runs first; elsewhere ``mecanum-train`` overlaps it with the first epoch, and
-here it is timed after that epoch, alone); the first epoch; the policy's evaluation
-(``mecanum-train`` evaluates each session's first epoch); and then a second epoch
+baseline (first where the baseline runs first; elsewhere begun beside the first epoch, as
+``mecanum-train`` does, and its phase is the wait for it after that epoch); the first
+epoch; the policy's evaluation (``mecanum-train`` evaluates each session's first epoch);
+and then a second epoch
 (compiled already: the first one's compilation shows as the difference). With
 ``--to-end``, the rest of the run's epochs and the trained policy's evaluation follow: the
 time from a fresh process to a trained, evaluated policy.
@@ -47,9 +47,12 @@ from typing import TYPE_CHECKING, Any, cast  # noqa: E402
 from train.tools.compile_log import CompileLog, Program  # noqa: E402
 
 if TYPE_CHECKING:
+    from concurrent.futures import Future
+
     from jax.stages import Compiled
     from rich.table import Table
 
+    from train.learner.periodic import Result
     from train.learner.shapes import Host
 
 
@@ -161,6 +164,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
 
             warm_start.attach(learner, lambda line: print(line, file=sys.stderr))
     from train.loop.aot import can_compile_together, compile_together, first_runs_alone
+    from train.loop.run_steps import in_thread
 
     baseline_first = first_runs_alone(learner)  # as mecanum-train orders them
     on = args.compile_together == "on"
@@ -180,15 +184,17 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             extra["finite"] = bool(np.all(np.asarray(metrics["finite"]) > 0))
             extra["metrics"] = {k: np.asarray(v).tolist() for k, v in metrics.items()}
 
-    def baseline() -> None:
+    def baseline(job: Future[Result]) -> None:
         with clock.phase("first evaluation: baseline") as extra:
-            extra["values"] = learner.evaluate_baseline(first_device(ts)).values
+            extra["values"] = job.result().values
 
+    # as mecanum-train: first and alone, or begun beside the first epoch and awaited after it
+    job = in_thread(learner.evaluate_baseline, first_device(ts))
     if baseline_first:
-        baseline()
+        baseline(job)
     epoch("first epoch")
     if not baseline_first:
-        baseline()
+        baseline(job)
     with clock.phase("first evaluation: policy") as extra:
         extra["values"] = [r.values for r in learner.evaluate(first_device(ts))]
     epoch("second epoch")
