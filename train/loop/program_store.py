@@ -10,7 +10,7 @@ import os
 import pickle
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import jax
 from jax.stages import Compiled
@@ -26,6 +26,7 @@ Key = dict[str, object]
 """A program's key: JSON-ready values (warm_start.run_key, plus the program's own)."""
 COMPILER_FIELDS = ("versions", "devices", "backend_devices", "xla_flags", "jax_flags")
 """The fields of a run's key that an executable's key holds too: what compiles it."""
+T = TypeVar("T")
 
 
 def digest(obj: object) -> str:
@@ -75,7 +76,19 @@ class Store:
             raise ValueError("its key differs (a stale entry)")
         return payload
 
-    def _write(self, full_key: Key, payload: bytes, suffix: str = SUFFIX) -> None:
+    def read(self, name: str, full_key: Key, suffix: str, parse: Callable[[bytes], T]) -> T | None:
+        """``parse`` of the payload kept under ``full_key`` (``None``: none); a file that is
+        not this key's intact entry, or that ``parse`` refuses, is logged and removed, and
+        ``None`` returned: never trusted."""
+        try:
+            payload = self._payload(full_key, suffix)
+            return None if payload is None else parse(payload)
+        except Exception as err:  # anything wrong with the file
+            self._unusable(name, full_key, err, suffix)
+            return None
+
+    def write(self, full_key: Key, payload: bytes, suffix: str = SUFFIX) -> None:
+        """Keep ``payload`` under ``full_key``, framed with its key and checksum."""
         path = self.path(full_key, suffix)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".tmp{os.getpid()}")
@@ -90,33 +103,31 @@ class Store:
     def indexed(self, name: str, full_key: Key) -> Key | None:
         """The executable's key the index keeps for a run's program (``None``: none, or
         an unusable entry: logged, and removed)."""
-        try:
-            payload = self._payload(full_key, INDEX_SUFFIX)
-            found = None if payload is None else json.loads(payload)
+
+        def parse(payload: bytes) -> Key | None:
+            found = json.loads(payload)
             if found is not None and not isinstance(found, dict):
                 raise ValueError("not an executable's key")
-        except Exception as err:
-            self._unusable(name, full_key, err, INDEX_SUFFIX)
-            return None
-        return found
+            return found
+
+        return self.read(name, full_key, INDEX_SUFFIX, parse)
 
     def index(self, full_key: Key, program_key: Key) -> None:
         """Point a run's program at its executable."""
-        self._write(full_key, json.dumps(program_key, sort_keys=True).encode(), INDEX_SUFFIX)
+        self.write(full_key, json.dumps(program_key, sort_keys=True).encode(), INDEX_SUFFIX)
 
     def load(self, name: str, full_key: Key, read_back: bool = False) -> Compiled | None:
         """The program stored under ``full_key``, or ``None`` (absent, stale or corrupt:
         logged, and the file removed); ``read_back``: just written, not counted as loaded."""
-        try:
-            payload = self._payload(full_key)
-            if payload is None:
-                return None
+
+        def parse(payload: bytes) -> Compiled:
             serialized, in_tree, out_tree, devices, targets = pickle.loads(payload)
             if targets and not warp_targets.register(targets, self.tracers):
                 raise ValueError("its MuJoCo Warp FFI targets cannot be made here")
-            compiled = _deserialize(serialized, in_tree, out_tree, devices)
-        except Exception as err:  # anything wrong with the file: never trusted
-            self._unusable(name, full_key, err)
+            return _deserialize(serialized, in_tree, out_tree, devices)
+
+        compiled = self.read(name, full_key, SUFFIX, parse)
+        if compiled is None:
             return None
         if not read_back:
             self.loaded.append(name)
@@ -133,7 +144,7 @@ class Store:
         except Exception as err:
             self.log(f"warm start: {name} cannot be stored ({err}); it compiles on each start")
             return
-        self._write(full_key, payload)
+        self.write(full_key, payload)
         self.written.append(name)
 
 

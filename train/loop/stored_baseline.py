@@ -5,7 +5,7 @@ first epoch's comparison. Those figures are a pure function of what the run's ke
 (the config with its evaluation's episodes, the robot, the code, the versions, devices and
 flags), so :class:`StoredBaseline` keeps them beside the stored programs under that key: a
 later start of the same run reads them back instead of playing the baseline again (on one
-H200 under Warp 4.4 s of a 29.5 s warm start, docs/benchmarks.md). The file holds every
+H200 under Warp 3.3 s off a warm start of about 30 s, docs/benchmarks.md). The file holds every
 scenario's values and per-episode parts exactly as computed (float bits kept), is written
 atomically and checksummed by :class:`~train.loop.program_store.Store`, and a file that does
 not read back whole is logged, removed and made again, never trusted.
@@ -72,16 +72,12 @@ class StoredBaseline:
         self.key: Key = {**store.key, "program": NAME}
 
     def __call__(self, ts: Any) -> Result:
-        try:
-            payload = self.store._payload(self.key, SUFFIX)
-            if payload is not None:
-                result = decode(payload)
-                self.store.loaded.append(NAME)
-                return result
-        except Exception as err:  # anything wrong with the file: never trusted
-            self.store._unusable(NAME, self.key, err, SUFFIX)
+        result = self.store.read(NAME, self.key, SUFFIX, decode)
+        if result is not None:
+            self.store.loaded.append(NAME)
+            return result
         result = self.evaluate(ts)
-        self.store._write(self.key, encode(result), SUFFIX)
+        self.store.write(self.key, encode(result), SUFFIX)
         self.store.written.append(NAME)
         return result
 
