@@ -59,6 +59,9 @@ def test_a_loaded_program_gives_the_compiled_ones_numbers_bit_for_bit(tmp_path):
     warm = warm_start.Stored(_program(), "f", warm_store)(*_args())
     assert warm_store.loaded == ["f"]
     assert warm_store.written == []
+    assert cold_store.load_s == {}  # the read-back after writing is not a load
+    assert sorted(warm_store.load_s["f"]) == ["deserialize", "read", "targets"]
+    assert all(0 <= t < 60 for t in warm_store.load_s["f"].values())
     for a, b in zip(jax.tree.leaves(cold), jax.tree.leaves(warm), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
         assert np.asarray(a).dtype == np.asarray(b).dtype

@@ -8,6 +8,7 @@ import hashlib
 import json
 import os
 import pickle
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
@@ -54,6 +55,10 @@ class Store:
         self.fresh = fresh
         self.loaded: list[str] = []
         self.written: list[str] = []
+        self.load_s: dict[str, dict[str, float]] = {}
+        """Seconds each loaded program took: its file read and checked (``read``), its
+        Warp targets made (``targets``), the executable loaded onto the devices
+        (``deserialize``)."""
 
     def path(self, full_key: Key, suffix: str = SUFFIX) -> Path:
         return self.directory / f"{digest(full_key)[:40]}{suffix}"
@@ -120,17 +125,27 @@ class Store:
         """The program stored under ``full_key``, or ``None`` (absent, stale or corrupt:
         logged, and the file removed); ``read_back``: just written, not counted as loaded."""
 
+        t0 = time.perf_counter()
+        times: dict[str, float] = {}
+
         def parse(payload: bytes) -> Compiled:
+            t1 = time.perf_counter()
+            times["read"] = t1 - t0
             serialized, in_tree, out_tree, devices, targets = pickle.loads(payload)
             if targets and not warp_targets.register(targets, self.tracers):
                 raise ValueError("its MuJoCo Warp FFI targets cannot be made here")
-            return _deserialize(serialized, in_tree, out_tree, devices)
+            t2 = time.perf_counter()
+            times["targets"] = t2 - t1
+            compiled = _deserialize(serialized, in_tree, out_tree, devices)
+            times["deserialize"] = time.perf_counter() - t2
+            return compiled
 
         compiled = self.read(name, full_key, SUFFIX, parse)
         if compiled is None:
             return None
         if not read_back:
             self.loaded.append(name)
+            self.load_s[name] = times
         return compiled
 
     def save(self, name: str, full_key: Key, compiled: Any) -> None:

@@ -223,7 +223,12 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         "json_out": args.json_out,
         "warm_start": None
         if store is None
-        else {"loaded": store.loaded, "written": store.written, "dir": str(store.directory)},
+        else {
+            "loaded": store.loaded,
+            "written": store.written,
+            "load_s": store.load_s,
+            "dir": str(store.directory),
+        },
         "compiled_together": together,
         "import_floor": args.import_floor,
     }
@@ -317,6 +322,15 @@ def main(argv: list[str] | None = None, top: int = 15) -> int:
         f"names compiled more than once{': ' + shown if again else ''}"
         f"{' ...' if len(again) > 6 else ''}"
     )
+    if loads := (report["warm_start"] or {}).get("load_s"):
+        console.print(
+            "warm start, loaded (read / Warp targets / onto the devices, s): "
+            + "; ".join(
+                f"{n} {t.get('read', 0):.2f} / {t.get('targets', 0):.2f} / "
+                f"{t.get('deserialize', 0):.2f}"
+                for n, t in loads.items()
+            )
+        )
     if report.pop("import_floor"):
         floor = report["import_floor_s"] = import_floor_s()
         at = [p["at_s"] for p in clock.phases if p["phase"] == "first evaluation: policy"]
