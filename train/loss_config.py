@@ -5,7 +5,6 @@ terms (``ppo.smoothness``) and the anchor (``ppo.anchor``); sections of
 from __future__ import annotations
 
 import dataclasses
-import math
 
 from mecanum_jax.config import require
 
@@ -45,15 +44,10 @@ class AnchorConfig:
     translations: bool = True
     """Also every component on the nominal robot's steady pure translations within reach,
     where the base's setpoints are analytic's; off: only their ωz."""
-    after_s: float = 0.0
-    """A command is steady once this old, s, and never before the ``feedback`` hold window
-    (>= 0; 0: that window). Later leaves the correction free while the base's integrator
-    acts on a start's transient."""
 
     def validate(self, where: str = "ppo.anchor") -> None:
         """Check values; raise :class:`ConfigError` naming the field."""
         require(self, where, ("weight",), lambda v: v >= 0, "must be >= 0 (0: off)")
-        require(self, where, ("after_s",), lambda v: 0 <= v < math.inf, "must be >= 0 and finite")
         flags = ("spins", "translations")
         require(self, where, flags, lambda v: isinstance(v, bool), "must be true or false")
 

@@ -63,8 +63,7 @@ def state_extras(
     :func:`~mecanum_jax.task.anchor.exact_components` on the states acted from (``info``)."""
     extras = {"truncation": next_info["truncation"]}
     if anchor.enabled:
-        dt = env.config.control_dt
-        hold = max(env.config.feedback.hold_steps(dt), round(anchor.after_s / dt))
+        hold = env.config.feedback.hold_steps(env.config.control_dt)
         exact = functools.partial(
             exact_components,
             env.constants,
