@@ -39,6 +39,7 @@ OPTIONS = {
     },
     "direct_rates": {"residual": False, "action_filter": 0.0, "residual_deadband": 0.0},
     "path_ramp_history": {"path_tau": 3.0, "residual_ramp_s": 0.5, "obs_history": 2},
+    "feedback_margin": {"feedback": {"margin": 0.1}},
 }  # fmt: skip
 """Controller options as the configs use them, each on the shipped robot's export."""
 
@@ -47,7 +48,8 @@ def _policy(overrides: dict, seed: int = 0) -> NumpyPolicy:
     """The shipped export's controller with ``overrides``; the shipped weights where the
     layout is the shipped one, random ones (of the shipped scale) elsewhere."""
     shipped = load(MODEL / "policy.npz")
-    meta = {**shipped.meta, **overrides}
+    meta = {**shipped.meta, **{k: {**shipped.meta[k], **v} if isinstance(v, dict) else v
+                               for k, v in overrides.items()}}  # fmt: skip
     twist = meta["residual"] and meta["residual_space"] == "twist"
     n = len(shipped.max_rates)
     meta["action_size"] = 3 if twist else n

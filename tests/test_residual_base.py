@@ -127,6 +127,25 @@ def test_numpy_nearest_feasible_matches_the_library(env):
     np.testing.assert_allclose(jitted, expected, rtol=1e-4, atol=1e-4)
 
 
+def test_a_margin_projects_onto_the_limits_shrunk_by_it():
+    """``feedback.margin``: the twist the wheels reach at (1 − margin) of their limits,
+    read back from the export's metadata, on twists beyond and within the reach."""
+    from mecanum_jax.control import step as ctl
+    from mecanum_jax.kinematics import limits
+
+    cfg = EnvConfig(feedback=FeedbackConfig(margin=0.1))
+    menv = MecanumEnv(cfg)
+    spec = menv.control  # built from the metadata an export carries
+    assert spec.feedback.margin == 0.1
+    rng = np.random.default_rng(1)
+    twists = (rng.normal(size=(500, 3)) * np.asarray(menv.command_scale)).astype(np.float32)
+    w = cfg.feedback.omega_weight
+    shrunk = limits.nearest_feasible(menv.geometry, jnp.asarray(twists), 0.9 * menv.max_rates, w)
+    full = limits.nearest_feasible(menv.geometry, jnp.asarray(twists), menv.max_rates, w)
+    assert np.mean(np.any(np.abs(np.asarray(shrunk) - np.asarray(full)) > 1e-3, axis=1)) > 0.3
+    np.testing.assert_allclose(ctl.nearest_feasible(spec, twists, np), shrunk, rtol=1e-4, atol=1e-4)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
@@ -134,6 +153,8 @@ def test_numpy_nearest_feasible_matches_the_library(env):
         ({"ki": -1.0}, r"env\.feedback\.ki = -1\.0: must be >= 0"),
         ({"deadband": -0.01}, r"env\.feedback\.deadband = -0\.01: must be >= 0"),
         ({"reset": 1}, r"env\.feedback\.reset = 1: must be true or false"),
+        ({"margin": 1.0}, r"env\.feedback\.margin = 1\.0: must be in \[0, 1\)"),
+        ({"margin": -0.05}, r"env\.feedback\.margin = -0\.05: must be in \[0, 1\)"),
     ],
 )
 def test_bad_feedback_settings_name_the_field(kwargs, message):

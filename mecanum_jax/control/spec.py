@@ -81,6 +81,7 @@ class FeedbackSpec:
     hold_steps: int = 0
     reset: bool = False
     deadband: float = 0.0
+    margin: float = 0.0
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -136,7 +137,8 @@ class ControllerSpec:
     @functools.cached_property
     def nearest(self) -> NearestMaps:
         """The feasible-twist projection of the ``feedback`` controller's metric."""
-        return NearestMaps.build(self.jacobian, self.max_rates, self.feedback.omega_weight)
+        limits = self.max_rates * np.float32(1.0 - self.feedback.margin)
+        return NearestMaps.build(self.jacobian, limits, self.feedback.omega_weight)
 
     @classmethod
     def from_meta(cls, meta: dict[str, Any]) -> ControllerSpec:
@@ -151,6 +153,7 @@ class ControllerSpec:
             hold_steps=round(float(fb.get("hold_s") or 0.0) / dt),
             reset=bool(fb.get("reset") or False),
             deadband=float(fb.get("deadband") or 0.0),
+            margin=float(fb.get("margin") or 0.0),
         )
         f32 = functools.partial(np.asarray, dtype=np.float32)
         return cls(

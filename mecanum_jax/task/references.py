@@ -56,6 +56,10 @@ class FeedbackConfig:
     """Integrator clamp, rad/s (>= 0)."""
     omega_weight: float = 0.1
     """Nearest-feasible metric: (m/s)² per (rad/s)² of yaw-rate error (> 0)."""
+    margin: float = 0.0
+    """Headroom of the desaturation: the twist is projected onto the twists the wheels
+    reach at (1 − margin) of their rate limits (0 <= margin < 1; 0: the limits). A target
+    on the limits leaves the servos none to hold it with."""
     hold_s: float = 0.4
     """The integrator holds for this long after each command change, s (>= 0, whole control
     periods; 0: it integrates through the transient)."""
@@ -77,6 +81,7 @@ class FeedbackConfig:
         fields = ("kp", "ki", "i_max", "hold_s", "deadband")
         require(self, where, fields, lambda v: v >= 0, "must be >= 0")
         require(self, where, ("omega_weight",), lambda v: v > 0, "must be > 0")
+        require(self, where, ("margin",), lambda v: 0 <= v < 1, "must be in [0, 1)")
         require(self, where, ("reset",), lambda v: isinstance(v, bool), "must be true or false")
 
     def hold_steps(self, control_dt: float) -> int:
