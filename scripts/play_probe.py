@@ -4,10 +4,11 @@
     python scripts/play_probe.py residual_deadband=0.01 -- models/o_rectangle \
         --scenarios tuning --only tuning_weave --no-plots --out /tmp/probe
 
-Each ``FIELD=VALUE`` (a float, an int or true/false) replaces ``env.FIELD`` of every
-config read, the checkpoint's and its config.json alike (``mecanum-eval`` refuses the two
-when they differ); the references play the same changed task. A
-probe says whether a lever is worth training, never what a trained policy would do.
+Each ``FIELD=VALUE`` (a float, an int or true/false) replaces ``env.FIELD``, or a field of
+one of its sections (``feedback.margin=0.05``), of every config read, the checkpoint's and
+its config.json alike (``mecanum-eval`` refuses the two when they differ); the references
+play the same changed task. A probe says whether a lever is worth training, never what a
+trained policy would do.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import sys
 from typing import Any
 
 import train.config_loading as config_loading
+from mecanum_jax.config import ConfigError
 from mecanum_jax.task.config import EnvConfig
 
 
@@ -26,18 +28,36 @@ def _value(text: str) -> Any:
     return int(text) if text.lstrip("-").isdigit() else float(text)
 
 
+def _changed(env: EnvConfig, changes: dict[str, Any]) -> EnvConfig:
+    """``env`` with ``changes`` (``FIELD`` or ``SECTION.FIELD``: value), validated."""
+    for name, value in changes.items():
+        section, dot, field = name.rpartition(".")
+        if dot:
+            part = dataclasses.replace(getattr(env, section), **{field: value})
+            env = dataclasses.replace(env, **{section: part})
+        else:
+            env = dataclasses.replace(env, **{field: value})
+    return env.validate("env")
+
+
 def main(argv: list[str]) -> int:
     if "--" not in argv:
         print(__doc__, file=sys.stderr)
         return 2
     cut = argv.index("--")
     defaults = EnvConfig()
-    fields = {
-        f.name
-        for f in dataclasses.fields(EnvConfig)
-        if isinstance(getattr(defaults, f.name), (float, int, bool))
-    }
-    env_changes = {}
+    fields = set()
+    for f in dataclasses.fields(EnvConfig):
+        value = getattr(defaults, f.name)
+        if isinstance(value, (float, int, bool)):
+            fields.add(f.name)
+        elif dataclasses.is_dataclass(value):  # a section: its scalar fields
+            fields |= {
+                f"{f.name}.{g.name}"
+                for g in dataclasses.fields(value)
+                if isinstance(getattr(value, g.name), (float, int, bool))
+            }
+    env_changes: dict[str, Any] = {}
     for item in argv[:cut]:
         name, eq, text = item.partition("=")
         if not eq or name not in fields:
@@ -51,12 +71,16 @@ def main(argv: list[str]) -> int:
         except ValueError:
             print(f"error: env.{name} = {text!r}: expected a number or true/false", file=sys.stderr)
             return 2
+    try:
+        _changed(defaults, env_changes)
+    except ConfigError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     parse = config_loading.parse_train_config
 
     def changed(data: Any, source: str, validate: bool = True) -> Any:
         cfg = parse(data, source, validate)
-        env = dataclasses.replace(cfg.env, **env_changes).validate("env")
-        return dataclasses.replace(cfg, env=env)
+        return dataclasses.replace(cfg, env=_changed(cfg.env, env_changes))
 
     config_loading.parse_train_config = changed
     from train.cli import evaluate

@@ -17,6 +17,8 @@ MODEL = Path(__file__).resolve().parents[1] / "models" / "o_rectangle"
     [
         (["bogus=1", "--", "m"], "'bogus=1': expected FIELD=VALUE"),
         (["commands=1", "--", "m"], "'commands=1': expected FIELD=VALUE"),
+        (["feedback.bogus=1", "--", "m"], "'feedback.bogus=1': expected FIELD=VALUE"),
+        (["feedback.margin=1.5", "--", "m"], "env.feedback.margin = 1.5: must be in [0, 1)"),
         (["residual_deadband", "--", "m"], "'residual_deadband': expected FIELD=VALUE"),
         (["residual_deadband=abc", "--", "m"], "env.residual_deadband = 'abc': expected a number"),
     ],
@@ -43,3 +45,17 @@ def test_the_restored_policy_plays_the_changed_task(monkeypatch):
     monkeypatch.setattr(evaluate, "main", fake_main)
     assert play_probe.main(["residual_deadband=0.01", "--", str(MODEL), "--no-plots"]) == 0
     assert seen == [([str(MODEL), "--no-plots"], 0.01)]
+
+
+def test_a_sections_field_is_changed_too(monkeypatch):
+    from train.cli import evaluate
+    from train.learner.policy import restore_policy
+
+    monkeypatch.setattr(config_loading, "parse_train_config", config_loading.parse_train_config)
+    seen = []
+    monkeypatch.setattr(
+        evaluate, "main", lambda argv: seen.append(restore_policy(MODEL).cfg.env.feedback) or 0
+    )
+    assert play_probe.main(["feedback.margin=0.05", "--", str(MODEL)]) == 0
+    assert seen[0].margin == 0.05
+    assert seen[0].hold_s == 0.4  # the rest of the section kept
