@@ -326,8 +326,7 @@ def main(argv: list[str] | None = None, top: int = 15) -> int:
         console.print(
             "warm start, loaded (read / Warp targets / onto the devices, s): "
             + "; ".join(
-                f"{n} {t.get('read', 0):.2f} / {t.get('targets', 0):.2f} / "
-                f"{t.get('deserialize', 0):.2f}"
+                f"{n} {t['read']:.2f} / {t['targets']:.2f} / {t['deserialize']:.2f}"
                 for n, t in loads.items()
             )
         )
