@@ -109,7 +109,8 @@ def test_bad_residual_base_is_rejected(kwargs, message):
 
 def test_numpy_nearest_feasible_matches_the_library(env):
     """The controller's nearest feasible twist, in NumPy and jitted JAX over a 500-row
-    batch, is the library's (kinematics.limits) on twists beyond the reach."""
+    batch, is the library's (kinematics.limits) on twists beyond the reach (within the
+    limits less the default headroom, ``feedback.margin``)."""
     from mecanum_jax.control import step as ctl
     from mecanum_jax.kinematics import limits
 
@@ -117,7 +118,8 @@ def test_numpy_nearest_feasible_matches_the_library(env):
     w = env.config.feedback.omega_weight
     rng = np.random.default_rng(0)
     twists = (rng.normal(size=(500, 3)) * 1.5 * np.asarray(env.command_scale)).astype(np.float32)
-    expected = limits.nearest_feasible(env.geometry, jnp.asarray(twists), env.max_rates, w)
+    reach = env.max_rates * (1.0 - env.config.feedback.margin)
+    expected = limits.nearest_feasible(env.geometry, jnp.asarray(twists), reach, w)
     assert np.mean(np.any(np.abs(twists - np.asarray(expected)) > 1e-3, axis=1)) > 0.3
     np.testing.assert_allclose(
         ctl.nearest_feasible(spec, twists, np), expected, rtol=1e-4, atol=1e-4

@@ -31,7 +31,7 @@ SAVED_ABSENT: dict[str, Any] = {
         "randomization": {"nominal_share": 0.0},
         "reward": {"sigma_ang": 1.0, "error_ang": 0.1, "path_lin": 0.0, "path_ang": 0.0,
                    "target": "command"},
-        "feedback": {"hold_s": 0.0, "reset": False, "deadband": 0.0},
+        "feedback": {"hold_s": 0.0, "reset": False, "deadband": 0.0, "margin": 0.0},
     },
     "network": {"init_noise_std": 0.5},
     "ppo": {
