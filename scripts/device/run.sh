@@ -30,8 +30,9 @@
 #                           every report comes back in $OUT/tuning.json (per-episode data
 #                           left out; full reports stay in /tmp/tune-reports)
 #   eval [MODEL]            the evaluation table: MODEL (default models/o_rectangle) against the
-#                           references on the default scenarios and 1024 randomized episodes,
-#                           then `agree MODEL`
+#                           references on the default scenarios and 1024 randomized episodes
+#                           (EVAL_SETS='default randomized starts': other sets of configs/eval
+#                           too, each as $OUT/report_SET.json), then `agree MODEL`
 #   agree [MODEL [SET SCENARIO [N]]]  SCENARIO of configs/eval/SET.toml (default: default
 #                           nominal, its own episodes; N: that many) on the GPU and on the CPU
 #                           of the same machine: do the steady-state figures agree to 1%?
@@ -342,12 +343,14 @@ case "$TASK" in
     done  # one file back however many candidates ($OUT takes 8): $O/tuning.json
     python3 scripts/pick_candidate.py /tmp/tune-reports/tune_*.json --bundle "$O/tuning.json" ;;
   eval)
-    for set in default randomized; do
+    for set in ${EVAL_SETS:-default randomized}; do
       echo "== ${1:-models/o_rectangle}, scenarios: $set"
       evaluate "${1:-models/o_rectangle}" "$set" "/tmp/eval-$set" 2>&1 | quiet
       cp "/tmp/eval-$set/report.json" "$O/report_$set.json"
     done
-    (cd /tmp && tar czf "$O/plots.tgz" eval-default/*.png eval-randomized/*.png)
+    # shellcheck disable=SC2046  # the sets' plot globs, expanded in /tmp
+    (cd /tmp && tar czf "$O/plots.tgz" $(for set in ${EVAL_SETS:-default randomized}; do
+      echo "eval-$set/*.png"; done))
     [ "${AGREE:-1}" = 1 ] && agree "${1:-models/o_rectangle}" ;;  # AGREE=0: skip the check
   agree) agree "${1:-models/o_rectangle}" "${@:2}" ;;
   ab) ab "$@" ;;
