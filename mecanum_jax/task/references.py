@@ -4,7 +4,7 @@
   baseline the product is judged against;
 - ``analytic_nearest``: the same with the nearest feasible twist instead;
 - ``feedback``: inverse-model feedforward with a yaw-rate PI loop on the gyro and
-  nearest-feasible desaturation (:class:`FeedbackConfig`).
+  nearest-feasible desaturation onto (1 − margin) of the rate limits (:class:`FeedbackConfig`).
 
 :func:`baseline_policy` puts ``analytic`` behind a learned policy's interface.
 """
@@ -38,11 +38,12 @@ class FeedbackConfig:
 
     Yaw-rate correction u = kp·e + I with e = ωz_cmd − gyro and
     I ← clip(I + ki·e·dt, ±i_max); the integrator holds while the corrected twist is out
-    of the wheels' reach and e would drive it further (conditional-integration
-    anti-windup), and, with hold_s > 0, for hold_s after each command change, while
-    the servos' transient, not a steady bias, makes the error. With reset it restarts
-    at 0 at each command change. The gains come from a sweep on training-distribution
-    episodes (docs/evaluation.md): any proportional gain (even 0.02)
+    of the wheels' reach (their rate limits themselves, not less the margin: judged
+    against the shrunk limits no tuning figure moved by 0.5%) and e would drive it
+    further (conditional-integration anti-windup), and, with hold_s > 0, for hold_s after
+    each command change, while the servos' transient, not a steady bias, makes the error.
+    With reset it restarts at 0 at each command change. The gains come from a sweep on
+    training-distribution episodes (docs/evaluation.md): any proportional gain (even 0.02)
     raised the steady-state ωz error there, since the servos' own step response overshoots
     within one control step and the gyro arrives noisy and up to 2 steps late; integral
     gains above about 0.8/s oscillate.
