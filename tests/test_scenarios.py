@@ -232,3 +232,20 @@ def test_an_included_file_keeps_its_own_defaults_and_names_are_unique(tmp_path):
     )
     with pytest.raises(ConfigError, match="includes itself"):
         load_scenarios(tmp_path / "b.toml")
+
+
+def test_dashes_are_the_nominal_robot_on_the_tuning_seed():
+    """configs/eval/dashes.toml chooses in the reference roller model: the nominal robot with
+    the training's sensor noise, on the tuning seed (no held-out evaluation plays it), each
+    a straight dash or cruise from rest with no turn, standing at its end."""
+    dashes = scenarios.load_scenarios("dashes")
+    tuning_seed = scenarios.load_scenarios("tuning").scenarios[0].seed
+    assert dashes.names == ["tuning_dash", "tuning_dash_side", "tuning_cruise"]
+    for sc in dashes.scenarios:
+        assert sc.seed == tuning_seed, sc.name
+        assert not sc.randomization, sc.name
+        assert not sc.mix, sc.name
+        assert sc.noise.scale == 1.0, sc.name
+        legs = sc.commands.sequence
+        assert all(wz == 0.0 for _, _, wz, _ in legs), sc.name
+        assert sc.seconds - sum(s for *_, s in legs) >= 1.0, sc.name
