@@ -8,6 +8,7 @@ bit for bit, with the code of the day.
 
 import dataclasses
 import json
+import re
 import shutil
 import typing
 from pathlib import Path
@@ -352,3 +353,30 @@ def test_a_start_does_not_wait_for_orbax():
         [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True
     )
     assert out.stdout.strip().splitlines()[-1] == "False"
+
+
+def test_the_shipped_model_is_played_as_its_provenance_states_and_keeps_what_it_trained():
+    """``provenance.json``'s ``played_with`` sets a play-time field (the network's deadband);
+    the checkpoint's config still states what the policy was trained with."""
+    restored = restore_policy(ROOT / "models" / "o_rectangle")
+    assert restored.cfg.env.residual_deadband == 0.01
+    assert restored.meta["config"]["env"]["residual_deadband"] == 0.005
+
+
+@pytest.mark.parametrize(
+    ("played", "message"),
+    [
+        ({"env.action_filter": 0.5}, "played_with.env.action_filter = 0.5: only"),
+        ({"residual_deadband": 0.01}, "played_with.residual_deadband = 0.01: only"),
+        ({"env.residual_deadband": "wide"}, "played_with.env.residual_deadband = 'wide'"),
+        ({"env.residual_deadband": 2.0}, "env.residual_deadband = 2.0"),
+        ([0.01], "played_with = [0.01]"),
+    ],
+)
+def test_a_model_played_with_a_field_it_may_not_change_is_refused(tmp_path, played, message):
+    model = tmp_path / "model"
+    shutil.copytree(ROOT / "models" / "o_rectangle", model)
+    record = json.loads((model / "provenance.json").read_text())
+    (model / "provenance.json").write_text(json.dumps({**record, "played_with": played}))
+    with pytest.raises(checkpoint.CheckpointError, match=re.escape(message)):
+        restore_policy(model)

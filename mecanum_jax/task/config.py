@@ -261,6 +261,30 @@ class EnvConfig:
         )
 
 
+PLAYED_FIELDS = ("residual_deadband",)
+"""Fields a trained policy may be played with other than it was trained with: they shape the
+robot-side controller's output only, never the observations or the networks."""
+
+
+def played_with(env: EnvConfig, changes: object, where: str) -> EnvConfig:
+    """``env`` as a model is played (its ``provenance.json``'s ``played_with``, a table of
+    ``"env.FIELD": value`` over :data:`PLAYED_FIELDS`), validated; the checkpoint keeps the
+    task it was trained with."""
+    if not isinstance(changes, dict):
+        raise invalid(where, changes, 'expected a table of "env.FIELD": value')
+    fields: dict[str, object] = {}
+    for name, value in changes.items():
+        field = str(name).removeprefix("env.")
+        if not str(name).startswith("env.") or field not in PLAYED_FIELDS:
+            raise invalid(
+                f"{where}.{name}", value, f"only {[f'env.{f}' for f in PLAYED_FIELDS]} may differ"
+            )
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise invalid(f"{where}.{name}", value, "expected a number")
+        fields[field] = float(value)
+    return dataclasses.replace(env, **fields).validate("env")  # type: ignore[arg-type]
+
+
 def load_env_config(path: str | Path) -> EnvConfig:
     """An :class:`EnvConfig` from a TOML file (all keys optional, unknown keys rejected)."""
     return from_mapping(EnvConfig, load_toml(path), "env").validate()
@@ -268,6 +292,7 @@ def load_env_config(path: str | Path) -> EnvConfig:
 
 __all__ = [
     "MAX_OBS_HISTORY",
+    "PLAYED_FIELDS",
     "RESIDUAL_BASES",
     "RESIDUAL_SPACES",
     "CommandConfig",
@@ -277,4 +302,5 @@ __all__ = [
     "RandomizationConfig",
     "RewardConfig",
     "load_env_config",
+    "played_with",
 ]

@@ -5,7 +5,9 @@
 checkpoint of another robot or observation layout (:func:`check_compatible`);
 :func:`load_policy` makes of it a jitted deterministic ``obs -> action`` function for
 evaluation and deployment. :func:`package_model` writes a self-contained model directory
-(one checkpoint, the config and ``provenance.json``), which both read as a run directory.
+(one checkpoint, the config and ``provenance.json``), which both read as a run directory;
+a model's ``played_with`` there sets play-time fields (``PLAYED_FIELDS``) over the
+checkpoint's config, which keeps what the policy was trained with.
 """
 
 from __future__ import annotations
@@ -127,6 +129,14 @@ def restore_policy(
         raise CheckpointError(
             f"checkpoint {str(run_dir)!r}: bad config in metadata: {err}"
         ) from err
+    if "played_with" in packaged:  # a model played with a controller setting of its own
+        from mecanum_jax.task.config import played_with
+
+        where = f"{run_dir / PROVENANCE} played_with"
+        try:
+            cfg = dataclasses.replace(cfg, env=played_with(cfg.env, packaged["played_with"], where))
+        except ConfigError as err:
+            raise CheckpointError(str(err)) from None
     seeds = list(cfg.run.seeds)
     if seed is None:  # a model directory evaluates the seed it was packaged from
         seed = packaged.get("seed")
