@@ -6,9 +6,9 @@
 
 Each ``FIELD=VALUE`` (a float, an int or true/false) replaces ``env.FIELD``, or a field of
 one of its sections (``feedback.margin=0.05``), of every config read, the checkpoint's and
-its config.json alike (``mecanum-eval`` refuses the two when they differ); the references
-play the same changed task. A probe says whether a lever is worth training, never what a
-trained policy would do.
+its config.json alike (``mecanum-eval`` refuses the two when they differ), and on top of a
+model's own ``played_with``; the references play the same changed task. A probe says
+whether a lever is worth training, never what a trained policy would do.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import dataclasses
 import sys
 from typing import Any
 
+import mecanum_jax.task.config as task_config
 import train.config_loading as config_loading
 from mecanum_jax.config import ConfigError
 from mecanum_jax.task.config import EnvConfig
@@ -83,6 +84,14 @@ def main(argv: list[str]) -> int:
         return dataclasses.replace(cfg, env=_changed(cfg.env, env_changes))
 
     config_loading.parse_train_config = changed
+    played = task_config.played_with
+
+    def played_then_changed(env: EnvConfig, changes: object, where: str) -> EnvConfig:
+        # a model's own play-time fields (provenance.json) come after its checkpoint's
+        # config: the probe's changes go on top of them too
+        return _changed(played(env, changes, where), env_changes)
+
+    task_config.played_with = played_then_changed
     from train.cli import evaluate
 
     return evaluate.main(argv[cut + 1 :])

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+import mecanum_jax.task.config as task_config
 import train.config_loading as config_loading
 from scripts import play_probe
 
@@ -29,11 +30,15 @@ def test_bad_changes_are_refused_naming_them(argv, message, capsys):
 
 
 def test_the_restored_policy_plays_the_changed_task(monkeypatch):
+    """The change lands on top of the model's own ``played_with`` (the shipped model plays
+    its network's deadband at 0.01), in the checkpoint's config and config.json alike."""
     from train.cli import evaluate
     from train.cli.eval_target import check_config_task
     from train.learner.policy import restore_policy
 
     monkeypatch.setattr(config_loading, "parse_train_config", config_loading.parse_train_config)
+    monkeypatch.setattr(task_config, "played_with", task_config.played_with)
+    assert restore_policy(MODEL).cfg.env.residual_deadband == 0.01  # unchanged, as shipped
     seen = []
 
     def fake_main(argv):
@@ -43,8 +48,8 @@ def test_the_restored_policy_plays_the_changed_task(monkeypatch):
         return 0
 
     monkeypatch.setattr(evaluate, "main", fake_main)
-    assert play_probe.main(["residual_deadband=0.01", "--", str(MODEL), "--no-plots"]) == 0
-    assert seen == [([str(MODEL), "--no-plots"], 0.01)]
+    assert play_probe.main(["residual_deadband=0.02", "--", str(MODEL), "--no-plots"]) == 0
+    assert seen == [([str(MODEL), "--no-plots"], 0.02)]
 
 
 def test_a_sections_field_is_changed_too(monkeypatch):
@@ -52,6 +57,7 @@ def test_a_sections_field_is_changed_too(monkeypatch):
     from train.learner.policy import restore_policy
 
     monkeypatch.setattr(config_loading, "parse_train_config", config_loading.parse_train_config)
+    monkeypatch.setattr(task_config, "played_with", task_config.played_with)
     seen = []
     monkeypatch.setattr(
         evaluate, "main", lambda argv: seen.append(restore_policy(MODEL).cfg.env.feedback) or 0
