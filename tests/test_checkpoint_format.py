@@ -380,3 +380,18 @@ def test_a_model_played_with_a_field_it_may_not_change_is_refused(tmp_path, play
     (model / "provenance.json").write_text(json.dumps({**record, "played_with": played}))
     with pytest.raises(checkpoint.CheckpointError, match=re.escape(message)):
         restore_policy(model)
+
+
+def test_a_played_model_packed_again_is_played_the_same(tmp_path):
+    """``mecanum-export MODEL OUT --model`` of a played model keeps its ``played_with``: the
+    new model's config.json (the task as played) and its restored config agree."""
+    from train.cli.eval_target import check_config_task
+    from train.learner.policy import package_model
+
+    out = package_model(restore_policy(ROOT / "models" / "o_rectangle"), tmp_path / "m", {})
+    restored = restore_policy(out)
+    check_config_task(restored)  # refuses a config.json that differs from the restored task
+    assert restored.cfg.env.residual_deadband == 0.01
+    assert json.loads((out / PROVENANCE).read_text())["played_with"] == {
+        "env.residual_deadband": 0.01
+    }

@@ -226,6 +226,8 @@ def _pack(restored: RestoredPolicy, tmp: Path, provenance: Mapping[str, object])
         shutil.copyfile(config, tmp / "config.json")
     inputs.copy_inputs(restored.run_dir, tmp)
     meta = restored.meta
+    # a model packed again keeps how it is played: config.json states the task as played
+    played = _provenance(restored.run_dir).get("played_with")
     record = {
         "source_run": str(restored.run_dir),
         "epoch": restored.epoch,
@@ -234,6 +236,7 @@ def _pack(restored: RestoredPolicy, tmp: Path, provenance: Mapping[str, object])
         "walltime_s": meta.get("walltime"),
         "robot": meta.get("robot"),
         "devices": meta.get("devices"),
+        **({} if played is None else {"played_with": played}),
         **provenance,
     }
     (tmp / PROVENANCE).write_text(json.dumps(record, indent=2) + "\n")
