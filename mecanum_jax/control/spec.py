@@ -110,7 +110,6 @@ class ControllerSpec:
     feedback: FeedbackSpec
     symmetric: bool = False
     path_integrator: str = "euler"
-    residual_within_reach: bool = False
 
     @property
     def n_wheels(self) -> int:
@@ -180,7 +179,6 @@ class ControllerSpec:
             feedback=feedback,
             symmetric=bool(meta.get("symmetric") or False),
             path_integrator=str(meta.get("path_integrator") or "euler"),
-            residual_within_reach=bool(meta.get("residual_within_reach") or False),
         )
 
 

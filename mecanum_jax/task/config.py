@@ -62,11 +62,6 @@ class EnvConfig:
     down as on the way up); a correction that brakes harder leaves it short
     (docs/evaluation.md).
 
-    residual_within_reach = true turns the learned correction off while the command is
-    beyond the nominal robot's reach (a wheel's rate in the inverse model over its limit),
-    as the stop rule does: there the base's nearest feasible twist decides what is given
-    up, and a learned correction traded v for ωz by the reward's exchange rate.
-
     residual_deadband = d > 0 soft-thresholds the network's action, before the stop rule
     and the filter: each component within ±d becomes 0, each beyond it moves d towards 0.
     On the nominal robot's straight lines, spins and starts a learned correction is a few
@@ -128,8 +123,6 @@ class EnvConfig:
     """Time constant of the observed leaky yaw-rate error integral, s (>= 0; 0: off)."""
     residual_at_stop: bool = True
     """Whether the residual acts while the command is a stop (false: the base alone stops)."""
-    residual_within_reach: bool = False
-    """The residual acts only on commands within the nominal reach (true) or on all."""
     action_filter: float = 0.7
     """Low-pass factor of the actions, f in [0, 1): applied = f·previous + (1 − f)·new (0: off)."""
     residual_deadband: float = 0.005
@@ -165,7 +158,6 @@ class EnvConfig:
             for name, value, off in (
                 ("residual_space", self.residual_space, "wheel"),
                 ("residual_at_stop", self.residual_at_stop, True),
-                ("residual_within_reach", self.residual_within_reach, False),
                 ("residual_deadband", self.residual_deadband, 0.0),
                 ("residual_base", self.residual_base, "analytic"),
             )
