@@ -279,10 +279,9 @@ def played_with(env: EnvConfig, changes: object, where: str) -> EnvConfig:
             raise invalid(
                 f"{where}.{name}", value, f"only {[f'env.{f}' for f in PLAYED_FIELDS]} may differ"
             )
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise invalid(f"{where}.{name}", value, "expected a number")
-        fields[field] = float(value)
-    return dataclasses.replace(env, **fields).validate("env")  # type: ignore[arg-type]
+        fields[field] = value
+    typed = from_mapping(EnvConfig, fields, f"{where}.env")  # each value as a config file's
+    return dataclasses.replace(env, **{f: getattr(typed, f) for f in fields}).validate("env")
 
 
 def load_env_config(path: str | Path) -> EnvConfig:
