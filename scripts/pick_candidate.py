@@ -15,10 +15,18 @@ them as ``/tmp/tune-reports/tune_NAME.json``) and ranks every candidate against
    with noisy sensors; the transients' final drift, the slalom's RMSE ωz, the bursts' and
    stop-and-go's ss v, the zigzag's RMSE v and the weave's RMSE ωz.
 
+With ``--roller R...`` (``run.sh tune`` passes them), each candidate's losses also count
+those of its report of ``configs/eval/dashes.toml`` in the reference roller model
+(``roller_NAME.json`` for ``tune_NAME.json``): dashes near the reach yaw there as they
+never do in the fast model, and a correction the fast model keeps inside its deadband can
+turn that yaw into heading (docs/evaluation.md). A candidate without such a report is
+refused, so every candidate is judged by the same rule.
+
 Prints one row per candidate and, last, the path of the chosen one's model (the report's
 ``target``), so that a device call can evaluate it on held-out scenarios next::
 
     python scripts/pick_candidate.py tune_s0_1.json tune_s1_2.json ... [--exclude shipped]
+        [--roller roller_s0_1.json roller_s1_2.json ...]
 
 ``--bundle FILE`` also writes every report into one JSON keyed by file name (their
 per-episode data left out), which is how ``run.sh tune`` sends any number of candidates
@@ -73,17 +81,45 @@ FIGURES = (
 """(scenario, metric) pairs whose ratios to ``analytic`` the geometric mean takes."""
 
 
+ROLLER_SCENARIOS = ("tuning_dash", "tuning_dash_side", "tuning_cruise")
+"""The scenarios of ``configs/eval/dashes.toml``, which a roller report must hold."""
+
+
+def losses_of(scenarios: dict[str, Any]) -> int:
+    """The losses in a report's ``scenarios`` against :data:`JUDGED_AGAINST` together."""
+    return sum(
+        len(card["losses"])
+        for ref in JUDGED_AGAINST
+        for card in score(scenarios, f"policy/{ref}").values()
+    )
+
+
+def roller_losses(report: dict[str, Any]) -> int:
+    """The losses of a report of ``configs/eval/dashes.toml`` in the reference roller model;
+    a report of another physics or without those scenarios is refused."""
+    if report.get("fidelity") != "reference":
+        raise ValueError(
+            f"roller report of {report.get('target')!r}: fidelity = {report.get('fidelity')!r},"
+            " expected 'reference' (mecanum-eval --fidelity reference)"
+        )
+    missing = [s for s in ROLLER_SCENARIOS if s not in report["scenarios"]]
+    if missing:
+        raise ValueError(f"roller report of {report.get('target')!r} lacks scenarios {missing}")
+    return losses_of(report["scenarios"])
+
+
+def candidate_name(path: Path) -> str:
+    """``NAME`` of ``tune_NAME.json`` or ``roller_NAME.json``: how the two are matched."""
+    return path.stem.split("_", 1)[-1]
+
+
 def rank_key(report: dict[str, Any]) -> tuple[int, float, dict[str, float]]:
     """(losses, geometric mean of :data:`FIGURES`' ratios, the ratios) of one report."""
     scenarios = report["scenarios"]
     missing = [s for s, _ in FIGURES if s not in scenarios]
     if missing:
         raise ValueError(f"report of {report.get('target')!r} lacks scenarios {missing}")
-    losses = sum(
-        len(card["losses"])
-        for ref in JUDGED_AGAINST
-        for card in score(scenarios, f"policy/{ref}").values()
-    )
+    losses = losses_of(scenarios)
     ratios = {}
     for name, key in FIGURES:
         a, b = scenarios[name]["policy"].get(key), scenarios[name]["analytic"].get(key)
@@ -114,9 +150,23 @@ def main(argv: list[str] | None = None) -> int:
         "--bundle", type=Path, default=None,
         help="also write every report, per-episode data left out, into this one JSON file",
     )  # fmt: skip
+    ap.add_argument(
+        "--roller", nargs="*", type=Path, default=None,
+        help="each candidate's report of configs/eval/dashes.toml in the reference roller "
+        "model, roller_NAME.json for tune_NAME.json: its losses count too",
+    )  # fmt: skip
     args = ap.parse_args(argv)
     rows = []
     bundle: dict[str, Any] = {}
+    roller: dict[str, int] = {}
+    for path in args.roller or []:
+        try:
+            report = json.loads(path.read_text())
+            roller[candidate_name(path)] = roller_losses(report)
+        except (OSError, ValueError, KeyError) as e:
+            print(f"pick_candidate: cannot read roller report {path}: {e}", file=sys.stderr)
+            return 2
+        bundle[path.stem] = without_episodes(report)
     for path in args.reports:
         try:
             report = json.loads(path.read_text())
@@ -124,18 +174,26 @@ def main(argv: list[str] | None = None) -> int:
         except (OSError, ValueError, KeyError) as e:
             print(f"pick_candidate: cannot rank {path}: {e}", file=sys.stderr)
             return 2
+        on_rollers = 0
+        if args.roller is not None:
+            if candidate_name(path) not in roller:
+                want = f"roller_{candidate_name(path)}.json"
+                print(f"pick_candidate: {path} has no roller report ({want})", file=sys.stderr)
+                return 2
+            on_rollers = roller[candidate_name(path)]
         bundle[path.stem] = without_episodes(report)
         eligible = not any(x in path.name for x in args.exclude)
-        rows.append((losses, gmean, path.name, report["target"], ratios, eligible))
+        row = (losses + on_rollers, gmean, path.name, report["target"], ratios, eligible)
+        rows.append((*row, on_rollers))
     if args.bundle is not None:
         args.bundle.write_text(json.dumps(bundle, indent=1))
     rows.sort(key=lambda r: (r[0], r[1]))
     names = list(rows[0][4])
-    print("candidate".ljust(28), "losses", "gmean", *names)
-    for losses, gmean, name, _, ratios, eligible in rows:
+    print("candidate".ljust(28), "losses", "roller", "gmean", *names)
+    for losses, gmean, name, _, ratios, eligible, on_rollers in rows:
         mark = "" if eligible else " (not a candidate)"
         cells = " ".join(f"{ratios[k]:.3f}" for k in names)
-        print(f"{name + mark:28s} {losses:6d} {gmean:.3f} {cells}")
+        print(f"{name + mark:28s} {losses:6d} {on_rollers:6d} {gmean:.3f} {cells}")
     chosen = [r for r in rows if r[5]]
     if not chosen:
         print("pick_candidate: no eligible candidate", file=sys.stderr)

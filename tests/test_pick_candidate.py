@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from scripts.pick_candidate import FIGURES, main, rank_key
+from scripts.pick_candidate import FIGURES, ROLLER_SCENARIOS, main, rank_key
 
 SCENARIOS = sorted({s for s, _ in FIGURES})
 
@@ -112,3 +112,65 @@ def test_every_figure_of_the_rule_is_a_scenario_of_the_tuning_file() -> None:
     drifts = {name for name, key in FIGURES if key == "drift_m"}  # a scripted path's end
     assert {"tuning_path", "tuning_modes", "tuning_slalom", "tuning_stop_go"} <= drifts
     assert drifts <= scripted, sorted(drifts - scripted)
+
+
+def roller_report(target: str, lost: bool = False, fidelity: str = "reference") -> dict:
+    """A report of configs/eval/dashes.toml: the training mix's figures of :func:`report`
+    under each dash's name (``lost``: ss_wz lost against feedback)."""
+    mix = report(target, 1.0, "ss_wz" if lost else None, "feedback")["scenarios"]
+    scenarios = {name: mix["tuning_randomized"] for name in ROLLER_SCENARIOS}
+    return {"target": target, "fidelity": fidelity, "scenarios": scenarios}
+
+
+def _write(tmp_path: Path, reports: dict[str, dict]) -> list[str]:
+    for name, rep in reports.items():
+        (tmp_path / name).write_text(json.dumps(rep))
+    return [str(tmp_path / name) for name in reports]
+
+
+def test_a_loss_in_the_roller_model_counts_with_the_tuning_losses(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    tuning = _write(
+        tmp_path, {"tune_a_1.json": report("A", 0.9), "tune_b_2.json": report("B", 0.95)}
+    )
+    rollers = {
+        "roller_a_1.json": roller_report("A", lost=True),
+        "roller_b_2.json": roller_report("B"),
+    }
+    assert main(tuning) == 0  # the fast model alone: A, lower on average
+    assert capsys.readouterr().out.strip().splitlines()[-1] == "A"
+    assert main([*tuning, "--roller", *_write(tmp_path, rollers)]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert out[-1] == "B"
+    row = next(line.split() for line in out if line.startswith("tune_a_1.json"))
+    assert row[1:3] == ["3", "3"]  # losses in all (one a dash), of them in the roller model
+
+
+@pytest.mark.parametrize(
+    ("rollers", "message"),
+    [
+        ({"roller_b_2.json": roller_report("B")}, "tune_a_1.json has no roller report"),
+        (
+            {
+                "roller_a_1.json": roller_report("A", fidelity="fast"),
+                "roller_b_2.json": roller_report("B"),
+            },
+            "fidelity = 'fast', expected 'reference'",
+        ),
+    ],
+)
+def test_a_candidate_without_its_roller_report_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], rollers: dict, message: str
+) -> None:
+    tuning = _write(
+        tmp_path, {"tune_a_1.json": report("A", 0.9), "tune_b_2.json": report("B", 0.95)}
+    )
+    assert main([*tuning, "--roller", *_write(tmp_path, rollers)]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_the_roller_scenarios_are_those_of_the_dashes_file() -> None:
+    from mecanum_jax.evaluation.scenarios import load_scenarios
+
+    assert set(ROLLER_SCENARIOS) == set(load_scenarios("dashes").names)

@@ -25,7 +25,9 @@
 #                           models/o_rectangle out, e.g. for a screen whose recipe variant
 #                           stands in for it; TUNE_PROBE='FIELD=VALUE ...' adds the shipped
 #                           weights played so (scripts/play_probe.py) as "probe"; then
-#                           scripts/pick_candidate.py ranks
+#                           each (and the probe) also plays configs/eval/dashes.toml in the
+#                           reference roller model (TUNE_ROLLER=0: not), whose losses count
+#                           too; scripts/pick_candidate.py ranks
 #                           them by its fixed rule and prints the chosen model's path last;
 #                           every report comes back in $OUT/tuning.json (per-episode data
 #                           left out; full reports stay in /tmp/tune-reports)
@@ -336,12 +338,34 @@ case "$TASK" in
       echo "tune: $name ran out of GPU memory beside the others; again, alone"
       evaluate "${models[$k]}" tuning "/tmp/tune-$name" --no-plots > "/tmp/tune-$name.log" 2>&1
     done
+    roller=()  # TUNE_ROLLER=0: the fast model's tuning episodes alone
+    if [ "${TUNE_ROLLER:-1}" = 1 ]; then  # the dashes in the reference roller model, each
+      for k in "${!models[@]}"; do
+        name=${names[$k]}; [ "$name" = probe ] && continue
+        CUDA_VISIBLE_DEVICES=$((k % ngpu)) evaluate "${models[$k]}" dashes "/tmp/roller-$name" \
+          --no-plots --fidelity reference --physics-impl jax > "/tmp/roller-$name.log" 2>&1 &
+        throttle "${TUNE_JOBS:-$ngpu}"
+      done
+      if [ -n "${TUNE_PROBE:-}" ]; then
+        # shellcheck disable=SC2086
+        python3 scripts/play_probe.py $TUNE_PROBE -- models/o_rectangle --scenarios dashes \
+          --fidelity reference --physics-impl jax --out /tmp/roller-probe --no-plots \
+          > /tmp/roller-probe.log 2>&1 &
+      fi
+      wait; roller=(--roller)
+    fi
     for name in "${names[@]}"; do
       echo "== $name on the tuning episodes"; quiet < "/tmp/tune-$name.log" | tail -34
       cp "/tmp/tune-$name/report.json" "/tmp/tune-reports/tune_$name.json" 2>/dev/null \
         || echo "tune: $name has no report: its evaluation failed (log above); not ranked"
+      [ ${#roller[@]} = 0 ] && continue
+      echo "== $name on the dashes, reference roller model"; quiet < "/tmp/roller-$name.log" | tail -12
+      cp "/tmp/roller-$name/report.json" "/tmp/tune-reports/roller_$name.json" 2>/dev/null \
+        || echo "tune: $name has no roller report: its evaluation failed (log above)"
     done  # one file back however many candidates ($OUT takes 8): $O/tuning.json
-    python3 scripts/pick_candidate.py /tmp/tune-reports/tune_*.json --bundle "$O/tuning.json" ;;
+    [ ${#roller[@]} = 0 ] || roller+=(/tmp/tune-reports/roller_*.json)
+    python3 scripts/pick_candidate.py /tmp/tune-reports/tune_*.json "${roller[@]}" \
+      --bundle "$O/tuning.json" ;;
   eval)
     for set in ${EVAL_SETS:-default randomized}; do
       echo "== ${1:-models/o_rectangle}, scenarios: $set"
