@@ -347,6 +347,7 @@ case "$TASK" in
         throttle "${TUNE_JOBS:-$ngpu}"
       done
       if [ -n "${TUNE_PROBE:-}" ]; then
+        rm -rf /tmp/roller-probe
         # shellcheck disable=SC2086
         python3 scripts/play_probe.py $TUNE_PROBE -- models/o_rectangle --scenarios dashes \
           --fidelity reference --physics-impl jax --out /tmp/roller-probe --no-plots \
@@ -359,9 +360,11 @@ case "$TASK" in
       cp "/tmp/tune-$name/report.json" "/tmp/tune-reports/tune_$name.json" 2>/dev/null \
         || echo "tune: $name has no report: its evaluation failed (log above); not ranked"
       [ ${#roller[@]} = 0 ] && continue
-      echo "== $name on the dashes, reference roller model"; quiet < "/tmp/roller-$name.log" | tail -12
-      cp "/tmp/roller-$name/report.json" "/tmp/tune-reports/roller_$name.json" 2>/dev/null \
-        || echo "tune: $name has no roller report: its evaluation failed (log above)"
+      echo "== $name on the dashes, reference roller model"
+      quiet < "/tmp/roller-$name.log" | tail -12
+      cp "/tmp/roller-$name/report.json" "/tmp/tune-reports/roller_$name.json" 2>/dev/null || {
+        echo "tune: $name has no roller report: its evaluation failed (log above); not ranked"
+        rm -f "/tmp/tune-reports/tune_$name.json"; }
     done  # one file back however many candidates ($OUT takes 8): $O/tuning.json
     [ ${#roller[@]} = 0 ] || roller+=(/tmp/tune-reports/roller_*.json)
     python3 scripts/pick_candidate.py /tmp/tune-reports/tune_*.json "${roller[@]}" \
