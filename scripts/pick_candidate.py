@@ -29,8 +29,9 @@ Prints one row per candidate and, last, the path of the chosen one's model (the 
         [--roller roller_s0_1.json roller_s1_2.json ...]
 
 ``--bundle FILE`` also writes every report into one JSON keyed by file name (their
-per-episode data left out), which is how ``run.sh tune`` sends any number of candidates
-back from the GPU machine as one file. Held-out scenarios never enter the choice.
+per-episode data left out, but for ``tuning_nominal``'s), which is how ``run.sh tune``
+sends any number of candidates back from the GPU machine as one file. Held-out scenarios
+never enter the choice.
 """
 
 from __future__ import annotations
@@ -130,10 +131,16 @@ def rank_key(report: dict[str, Any]) -> tuple[int, float, dict[str, float]]:
     return losses, gmean, ratios
 
 
+KEPT_EPISODES = ("tuning_nominal",)
+"""Scenarios whose per-episode data the bundle keeps: a CPU rerun of one of them checks the
+GPU's table (``scripts/eval_agreement.py``, which needs them to tell a chaotic episode)."""
+
+
 def without_episodes(report: dict[str, Any]) -> dict[str, Any]:
-    """``report`` less each scenario's ``per_episode`` data (most of its size)."""
+    """``report`` less each scenario's ``per_episode`` data (most of its size), but for
+    :data:`KEPT_EPISODES`'."""
     scenarios = {
-        name: {k: v for k, v in sc.items() if k != "per_episode"}
+        name: {k: v for k, v in sc.items() if k != "per_episode" or name in KEPT_EPISODES}
         for name, sc in report["scenarios"].items()
     }
     return {**report, "scenarios": scenarios}
@@ -148,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     ap.add_argument(
         "--bundle", type=Path, default=None,
-        help="also write every report, per-episode data left out, into this one JSON file",
+        help="also write every report, most per-episode data left out, into this one JSON file",
     )  # fmt: skip
     ap.add_argument(
         "--roller", nargs="*", type=Path, default=None,

@@ -91,6 +91,7 @@ def test_the_bundle_holds_every_report_without_its_episodes(tmp_path: Path) -> N
     for name, ratio in (("tune_a_1", 0.9), ("tune_shipped", 0.95)):
         rep = report(name.upper(), ratio)
         rep["scenarios"]["tuning_path"]["per_episode"] = {"drift_m": [0.1] * 32}
+        rep["scenarios"]["tuning_nominal"]["per_episode"] = {"ss_wz": [0.1] * 32}
         (tmp_path / f"{name}.json").write_text(json.dumps(rep))
         files.append(str(tmp_path / f"{name}.json"))
     out = tmp_path / "tuning.json"
@@ -100,6 +101,8 @@ def test_the_bundle_holds_every_report_without_its_episodes(tmp_path: Path) -> N
     assert bundle["tune_a_1"]["target"] == "TUNE_A_1"
     path = bundle["tune_a_1"]["scenarios"]["tuning_path"]
     assert "per_episode" not in path
+    # kept where a CPU rerun checks the GPU's table (scripts/eval_agreement.py)
+    assert bundle["tune_a_1"]["scenarios"]["tuning_nominal"]["per_episode"]["ss_wz"][0] == 0.1
     assert path["policy"]["drift_m"] == pytest.approx(0.9)
 
 

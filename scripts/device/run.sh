@@ -30,7 +30,8 @@
 #                           too; scripts/pick_candidate.py ranks
 #                           them by its fixed rule and prints the chosen model's path last;
 #                           every report comes back in $OUT/tuning.json (per-episode data
-#                           left out; full reports stay in /tmp/tune-reports)
+#                           left out but tuning_nominal's, which a CPU rerun checks with
+#                           scripts/eval_agreement.py; full reports stay in /tmp/tune-reports)
 #   eval [MODEL]            the evaluation table: MODEL (default models/o_rectangle) against the
 #                           references on the default scenarios and 1024 randomized episodes
 #                           (EVAL_SETS='default randomized starts': other sets of configs/eval
