@@ -4,7 +4,7 @@ Building a robot, its environment, a training state or an evaluation's episodes 
 hundred small JAX operations eagerly (constants of the geometry and the limits, network
 initializers, samplers). On a GPU each distinct one is an XLA program of its own, compiled
 for the GPU at 50 to 200 ms each: about 8 s of a cold start of ``mecanum-train`` on an
-H200 went to compiling them (docs/benchmarks.md). On the CPU backend the same operations
+H200 went to compiling them (docs/profiling.md). On the CPU backend the same operations
 compile in some 20 ms each, and they give the same numbers on a GPU machine as on a CPU
 one: the episodes and the initial parameters no longer depend on the accelerator.
 

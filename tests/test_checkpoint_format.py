@@ -341,7 +341,7 @@ def test_a_model_directory_evaluates_its_packaged_epoch(tmp_path):
 
 def test_a_start_does_not_wait_for_orbax():
     """orbax is imported at a run's first checkpoint or restore, not by the command lines'
-    imports (about 0.6 s of a start on a GPU machine; docs/benchmarks.md)."""
+    imports (about 0.6 s of a start on a GPU machine; docs/profiling.md)."""
     import subprocess
     import sys
 

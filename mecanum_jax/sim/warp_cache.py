@@ -8,7 +8,7 @@
   stale wrapper of XLA's stream between a call's registration of that stream and its
   graph capture (logged on an H200, 2026-11-27). With the streams pinned, two starts in a
   row, one filling the cache and one reading it, both ran, and the second reached its first
-  evaluation in 47 s instead of 94-103 s (docs/benchmarks.md).
+  evaluation in 47 s instead of 94-103 s (docs/profiling.md).
 - **Written, on XLA:CPU** (jax 0.10.2): a long test process crashed twice in
   ``compilation_cache.put_executable_and_time`` while serializing a Warp rollout (abort,
   then a segmentation fault). No stream is involved there.
@@ -47,7 +47,7 @@ def leave_the_persistent_cache(platform: str | None = None) -> bool:
         _warned = True
         print(
             "note: JAX's persistent compilation cache is off in this process: XLA:CPU "
-            "crashed writing MuJoCo Warp's programs to it (docs/benchmarks.md)",
+            "crashed writing MuJoCo Warp's programs to it (docs/profiling.md)",
             file=sys.stderr,
         )
     return True

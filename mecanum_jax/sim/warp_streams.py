@@ -10,7 +10,7 @@ it. A wrapper from an earlier call that a reference cycle kept alive, collected 
 garbage collector between another call's registration and its capture, so erases the
 entry the live call needs, and that call fails with ``Warp error: unknown stream``. That
 happened to a second ``train.tools.coldstart`` process on a GPU machine, to an epoch compiled
-on another thread, and with JAX's persistent compilation cache on (docs/benchmarks.md):
+on another thread, and with JAX's persistent compilation cache on (docs/profiling.md):
 each changes when the collector runs, not what Warp does.
 
 :func:`pin_external_streams` makes the registration of a stream Warp does not own (an

@@ -11,7 +11,7 @@ a restored checkpoint's, which it places the same way) carry exactly those shape
 and shardings, so the compiled programs take them without recompiling. (Compiling the
 epoch on a worker thread while the robots reset was tried and removed: a few seconds off
 a tiny cold start on the 2-core CPU, and under Warp it broke a warm start on an H200;
-docs/benchmarks.md.)"""
+docs/profiling.md.)"""
 
 from __future__ import annotations
 
@@ -56,7 +56,7 @@ def first_runs_alone(learner: Learner) -> bool:
     Under MuJoCo Warp a GPU program's first run loads it and Warp captures its CUDA graphs,
     and GPU work from another thread meanwhile breaks the capture: on the ``split`` path
     (CUDA_ERROR_STREAM_CAPTURE_UNSUPPORTED, train/learner/split_epoch.py) and with the epoch loaded
-    on another thread during the reset (Warp CUDA error 904, docs/benchmarks.md). With the
+    on another thread during the reset (Warp CUDA error 904, docs/profiling.md). With the
     persistent cache, programs load in a second, so the two first runs would overlap."""
     return learner.parallel == "split" or learner.env.robot.impl == "warp"
 
@@ -74,7 +74,7 @@ def compile_together(learner: Learner) -> tuple[Host, Compiled]:
     is traced, the epoch there next, not beside the reset (one of four starts that
     compiled the two at once got an epoch 14% slower, likely from their autotuning timing
     kernels on one GPU at once; none of seven that compiled it beside the evaluation
-    alone did: docs/benchmarks.md), and the evaluation here meanwhile.
+    alone did: docs/profiling.md), and the evaluation here meanwhile.
     Returns ``(host, reset)`` for :meth:`~train.learner.ppo.Learner.init`: the fresh host state
     and the compiled reset.
 

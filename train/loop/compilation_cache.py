@@ -1,7 +1,7 @@
 """JAX's persistent compilation cache, on by default for the command lines.
 
 XLA's compilation of the training epoch and the evaluation rollouts takes most of a short
-run's start (docs/benchmarks.md); with the cache a second start reads them from disk.
+run's start (docs/profiling.md); with the cache a second start reads them from disk.
 :func:`configure` is called first thing by ``mecanum-train``, ``mecanum-eval`` and the
 trainer's benchmarks, and picks the cache directory:
 
@@ -15,7 +15,7 @@ trainer's benchmarks, and picks the cache directory:
 Every program is written, however fast it compiled (:data:`MIN_COMPILE_TIME_S` is 0, unless
 ``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS`` says otherwise): a start builds some 150
 small eager programs (the model's constants, the robots' reset), which took 0.05–0.25 s
-each to compile on a GPU and read back in milliseconds (docs/benchmarks.md). JAX keeps the
+each to compile on a GPU and read back in milliseconds (docs/profiling.md). JAX keeps the
 cache unbounded (its size limit needs the ``filelock`` package); delete the directory to
 reclaim the space.
 """

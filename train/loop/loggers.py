@@ -35,7 +35,7 @@ class TensorBoardLogger:
     :meth:`close`; :meth:`log` only queues, so the training loop never waits on it. (A
     flush after each epoch's ~140 scalars waited for that thread through a queue of 10:
     0.13–0.25 s on the 2-core CPU while another Python thread ran, 3.7 s a call in a
-    profiled GPU run; docs/benchmarks.md.)"""
+    profiled GPU run; docs/profiling.md.)"""
 
     FLUSH_S = 10.0
     QUEUE = 4096  # events waiting for the writer thread before add_scalar would block

@@ -5,7 +5,7 @@ first epoch's comparison. Those figures are a pure function of what the run's ke
 (the config with its evaluation's episodes, the robot, the code, the versions, devices and
 flags), so :class:`StoredBaseline` keeps them beside the stored programs under that key: a
 later start of the same run reads them back instead of playing the baseline again (on one
-H200 under Warp 3.3 s off a warm start of about 30 s, docs/benchmarks.md). The file holds every
+H200 under Warp 3.3 s off a warm start of about 30 s, docs/profiling.md). The file holds every
 scenario's values and per-episode parts exactly as computed (float bits kept), is written
 atomically and checksummed by :class:`~train.loop.program_store.Store`, and a file that does
 not read back whole is logged, removed and made again, never trusted.

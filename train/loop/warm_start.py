@@ -3,7 +3,7 @@
 With JAX's persistent cache warm, a start still traces and lowers its three large
 programs (the robots' reset, the epoch, the evaluation's rollout) to find them in the
 cache: on the 2-core CPU 6.7 of the tiny config's 11 s, on an H200 10 s
-(docs/benchmarks.md). :func:`attach` gives a learner's programs a store of their compiled
+(docs/profiling.md). :func:`attach` gives a learner's programs a store of their compiled
 executables (``jax.experimental.serialize_executable``) in the compilation cache's
 directory (``<dir>/mecanum-programs``), so a later start of the same run loads them
 without tracing. A cold start compiles each as ``jit(...).lower(...).compile()`` would

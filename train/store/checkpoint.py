@@ -62,7 +62,7 @@ def quiet_closed_loop_noise() -> None:
 
 def _orbax() -> ModuleType:
     """orbax.checkpoint, imported on first use: about 0.6 s that a run's start need not
-    wait for (its first checkpoint comes epochs later; docs/benchmarks.md)."""
+    wait for (its first checkpoint comes epochs later; docs/profiling.md)."""
     import orbax.checkpoint
 
     return orbax.checkpoint
