@@ -88,7 +88,7 @@
 # .git can lag the working tree (on 2026-11-26 it gave an older HEAD, not the commit that
 # trained the shipped policy), so pass COMMIT=$(git rev-parse --short HEAD).
 #
-# docs/benchmarks.md and docs/training.md list the call behind each figure.
+# docs/benchmarks.md, docs/profiling.md and docs/training.md list the call behind each figure.
 set -uo pipefail
 WARP=0
 if [ "${1:-}" = --warp ]; then WARP=1; shift; fi
@@ -389,4 +389,6 @@ case "$TASK" in
   *) echo "run.sh: unknown task '$TASK' (see the header of scripts/device/run.sh)"; exit 2 ;;
 esac
 } 2>&1 | tee "$O/log.txt"
+status=${PIPESTATUS[0]}
 ls -la "$O"
+case $status in 2 | 3) exit "$status" ;; esac  # its own refusals: unknown task, no Warp
