@@ -156,3 +156,48 @@ def test_cli_divergence_is_one_line_exit_3_and_resumes_with_a_lower_learning_rat
     assert (status["state"], status["epoch"]) == ("finished", 3)
     rows = [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines()]
     assert [r["epoch"] for r in rows] == [1, 2, 3]
+
+
+def test_a_path_error_beyond_its_leak_is_named_with_its_bound():
+    """The true path error against τ times 2.5 times the reach (a bounded integrator's
+    ceiling), as its root mean square from the path reward, else its mean: within it
+    nothing is said; beyond it the warning names the figures and the first-order
+    integrator; without a path error, or at a NaN (the NaN guard's), nothing."""
+    scale = np.array([1.2, 1.6, 10.0])  # reach: hypot 2.0 m/s, so 15 m at τ = 3 s
+    out = divergence.path_outgrown
+    # one robot in 100 at 150 m: a mean of 1.5 m, a root mean square of 15.0 m
+    far = {"path_m": np.array([1.5]), "reward/path_lin": np.array([-4.0 * 225.1])}
+    assert out(far, 3.0, 0.0, scale) is None  # the mean alone misses it
+    why = out(far, 3.0, 4.0, scale)
+    assert why is not None
+    assert why.startswith("the true path error's root mean square is 15 m, beyond the 15 m a")
+    assert "env.path_integrator = 'euler'" in why
+    assert out({"path_m": np.array([0.4, 14.9])}, 3.0, 0.0, scale) is None
+    assert out({"path_m": np.array([0.4, 87.0])}, 3.0, 0.0, scale).startswith(
+        "the true path error's mean is 87 m"
+    )
+    assert out({"path_m": np.array([87.0])}, 0.0, 4.0, scale) is None
+    assert out({"path_m": np.array([np.nan])}, 3.0, 0.0, scale) is None
+    assert out({}, 3.0, 4.0, scale) is None
+
+
+def test_a_run_warns_once_when_the_path_error_outgrows_its_leak(
+    tiny, learner, tmp_path, monkeypatch
+):
+    """The warning is a line of the run's log, said once, and the run goes on."""
+    import io
+
+    from rich.console import Console
+
+    out = io.StringIO()
+    run = Run.create(tiny, tmp_path / "run", console=Console(file=out, width=400))
+    _poison_epoch(learner, monkeypatch, 1, lambda ts, m: (ts, dict(m, path_m=m["path_m"] + 1e3)))
+    _poison_epoch(learner, monkeypatch, 2, lambda ts, m: (ts, dict(m, path_m=m["path_m"] + 1e3)))
+    # tiny observes no path error (τ = 0): the check sees the config's τ as 3 s
+    real = divergence.path_outgrown
+    monkeypatch.setattr(divergence, "path_outgrown", lambda m, tau, w, s: real(m, 3.0, 0.0, s))
+    run.train(learner=learner)
+    text = out.getvalue()
+    assert text.count("warning: epoch 1: the true path error's mean is") == 1
+    assert "warning: epoch 2" not in text
+    assert json.loads((run.dir / "status.json").read_text())["state"] == "finished"

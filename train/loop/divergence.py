@@ -1,6 +1,7 @@
 """The NaN guard of :meth:`train.loop.run.Run.train`: which epoch went non-finite, and the
 first non-finite quantity in it (a loss, else a parameter or the observation
-normalizer: a non-finite gradient shows in the parameters it updated)."""
+normalizer: a non-finite gradient shows in the parameters it updated); and the warning of
+a path error that outgrows its leak, which stays finite while it ruins the value loss."""
 
 from __future__ import annotations
 
@@ -70,6 +71,35 @@ def first_non_finite(
     return f"parameters or normalizer non-finite in seed {seed}"
 
 
+def path_outgrown(
+    metrics: dict[str, np.ndarray], path_tau: float, path_lin: float, command_scale: np.ndarray
+) -> str | None:
+    """Why the true path error has outgrown what a leak of ``path_tau`` s holds, or None: a
+    leaky integral of speed errors stays within τ times the largest, 2.5 times the reach
+    (the robot at most at it, a command beyond it at most 1.5 of it). The error is a seed's
+    root mean square over the epoch, from the path reward (``path_lin`` per m²), else its
+    mean (``path_m``): a few robots far off show in the first. The first-order integrator
+    outgrows the bound on fast spins; its reward and value loss grow with it while every
+    figure stays finite (docs/controller.md, What limits it)."""
+    if path_tau <= 0:
+        return None
+    if path_lin > 0 and "reward/path_lin" in metrics:
+        what, size = "root mean square", np.sqrt(np.max(-metrics["reward/path_lin"]) / path_lin)
+    elif "path_m" in metrics:
+        what, size = "mean", np.max(metrics["path_m"])
+    else:
+        return None
+    bound = 2.5 * path_tau * float(np.hypot(*np.asarray(command_scale)[:2]))
+    if not size > bound:  # a NaN is the NaN guard's
+        return None
+    return (
+        f"the true path error's {what} is {size:.3g} m, beyond the {bound:.3g} m a "
+        f"{path_tau} s leak holds: the first-order path error (env.path_integrator = "
+        "'euler') outgrows its leak on fast spins, and the path reward and value loss with "
+        "it; 'exact' stays bounded"
+    )
+
+
 def message(epoch: int, what: str, last_good: int, run_dir: Path, checkpoint: Path) -> str:
     """The error of a run that went non-finite in ``epoch`` (its first non-finite
     quantity ``what``) with ``last_good`` the last epoch saved."""
@@ -84,4 +114,4 @@ def message(epoch: int, what: str, last_good: int, run_dir: Path, checkpoint: Pa
     )
 
 
-__all__ = ["TrainingDiverged", "bad_seeds", "first_non_finite", "message"]
+__all__ = ["TrainingDiverged", "bad_seeds", "first_non_finite", "message", "path_outgrown"]

@@ -130,6 +130,14 @@ class RunSteps:
             self.console.log(f"set-up {loop.setup_s:.0f} s; first epoch{beside}: {epoch_s:.0f} s")
         if bad := divergence.bad_seeds(self.cfg.run.seeds, metrics):
             self._diverged(loop, metrics, new_state, bad)
+        scale = np.asarray(loop.learner.env.constants.command_scale)
+        if not loop.path_warned and (
+            why := divergence.path_outgrown(
+                metrics, self.cfg.env.path_tau, self.cfg.env.reward.path_lin, scale
+            )
+        ):
+            self.console.log(f"warning: epoch {loop.epoch + 1}: {why}")
+            loop.path_warned = True
         loop.state, loop.env_state = new_state, new_env
         loop.epoch += 1
         sps = loop.steps(1) * len(self.cfg.run.seeds) / (time.time() - t_epoch)

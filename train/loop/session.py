@@ -53,6 +53,7 @@ class Session:
     results: list[Result] = dataclasses.field(default_factory=list)
     comparisons: list[Comparison] = dataclasses.field(default_factory=list)
     shown: str = ""  # the last evaluation's figures, kept on the progress line
+    path_warned: bool = False  # divergence.path_outgrown said so once
 
     def steps(self, epochs: int) -> int:
         """Environment steps per seed in ``epochs`` epochs."""
