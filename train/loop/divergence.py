@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import jax
 import numpy as np
+from numpy.typing import ArrayLike
 
 from train.learner.transfer import to_host
 
@@ -72,7 +73,7 @@ def first_non_finite(
 
 
 def path_outgrown(
-    metrics: dict[str, np.ndarray], path_tau: float, path_lin: float, command_scale: np.ndarray
+    metrics: dict[str, np.ndarray], path_tau: float, path_lin: float, command_scale: ArrayLike
 ) -> str | None:
     """Why the true path error has outgrown what a leak of ``path_tau`` s holds, or None: a
     leaky integral of speed errors stays within τ times the largest, 2.5 times the reach

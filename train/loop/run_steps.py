@@ -130,10 +130,10 @@ class RunSteps:
             self.console.log(f"set-up {loop.setup_s:.0f} s; first epoch{beside}: {epoch_s:.0f} s")
         if bad := divergence.bad_seeds(self.cfg.run.seeds, metrics):
             self._diverged(loop, metrics, new_state, bad)
-        scale = np.asarray(loop.learner.env.constants.command_scale)
+        env = self.cfg.env
         if not loop.path_warned and (
             why := divergence.path_outgrown(
-                metrics, self.cfg.env.path_tau, self.cfg.env.reward.path_lin, scale
+                metrics, env.path_tau, env.reward.path_lin, loop.learner.env.constants.command_scale
             )
         ):
             self.console.log(f"warning: epoch {loop.epoch + 1}: {why}")
