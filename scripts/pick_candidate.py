@@ -181,17 +181,17 @@ def main(argv: list[str] | None = None) -> int:
         except (OSError, ValueError, KeyError) as e:
             print(f"pick_candidate: cannot rank {path}: {e}", file=sys.stderr)
             return 2
-        on_rollers = 0
+        on_rollers, name = 0, candidate_name(path)
         if args.roller is not None:
-            if candidate_name(path) not in roller:
-                want = f"roller_{candidate_name(path)}.json"
-                print(f"pick_candidate: {path} has no roller report ({want})", file=sys.stderr)
+            if name not in roller:
+                missing = f"{path} has no roller report (roller_{name}.json)"
+                print(f"pick_candidate: {missing}", file=sys.stderr)
                 return 2
-            on_rollers = roller[candidate_name(path)]
+            on_rollers = roller[name]
         bundle[path.stem] = without_episodes(report)
         eligible = not any(x in path.name for x in args.exclude)
-        row = (losses + on_rollers, gmean, path.name, report["target"], ratios, eligible)
-        rows.append((*row, on_rollers))
+        total = losses + on_rollers
+        rows.append((total, gmean, path.name, report["target"], ratios, eligible, on_rollers))
     if args.bundle is not None:
         args.bundle.write_text(json.dumps(bundle, indent=1))
     rows.sort(key=lambda r: (r[0], r[1]))
