@@ -48,6 +48,8 @@ class ControllerConfig(Protocol):
     @property
     def path_integrator(self) -> str: ...
     @property
+    def velocity_observer_tau(self) -> float: ...
+    @property
     def symmetric(self) -> bool: ...
     @property
     def obs_history(self) -> int: ...
@@ -76,6 +78,7 @@ def policy_shape(config: ControllerConfig, n_wheels: int) -> tuple[int, Layout]:
         feedback_base,
         config.obs_history,
         config.path_tau > 0,
+        config.velocity_observer_tau > 0,
     )
     return action_size, layout
 
@@ -104,6 +107,7 @@ def controller_meta(
         "yaw_integral_tau": config.yaw_integral_tau,
         "path_tau": config.path_tau,
         "path_integrator": config.path_integrator,
+        "velocity_observer_tau": config.velocity_observer_tau,
         "symmetric": config.symmetric,
         "obs_history": config.obs_history,
         "action_filter": config.action_filter,
