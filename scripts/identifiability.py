@@ -219,7 +219,7 @@ def main(argv: list[str] | None = None) -> int:
         ):
             left = {n: errs[n] - fit(xs[n][n_fit:][held[n]]) for n in xs}
             table.add_row(label, kind, *(f"{v:.4f}" for n in left for v in rms(left[n])))
-    Console().print(table)
+    Console(width=120).print(table)
     return 0
 
 
