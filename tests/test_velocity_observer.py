@@ -13,6 +13,7 @@ from mecanum_jax.control.spec import entry_slice
 from mecanum_jax.deploy.plant import Measurement, SensorChannel
 from mecanum_jax.task import EnvConfig, MecanumEnv
 from mecanum_jax.task.observations import NoiseConfig
+from mecanum_jax.task.references import REFERENCES
 
 
 def _env(**overrides) -> MecanumEnv:
@@ -28,7 +29,7 @@ def test_on_ice_the_observer_sees_the_slip_the_odometry_misses():
     env = _env(velocity_observer_tau=10.0)
     params = env.nominal_params._replace(friction=jnp.full(4, 0.1))
     state = env.reset_to(jax.random.PRNGKey(0), params, jnp.asarray(0), jnp.zeros(4))
-    feedback = jnp.asarray(2)  # REFERENCES.index("feedback")
+    feedback = jnp.asarray(REFERENCES.index("feedback"))
     n, scale = env.control.n_wheels, np.asarray(env.control.command_scale)
     step = jax.jit(env.step)
     at = entry_slice(env.privileged_layout, "true_twist")

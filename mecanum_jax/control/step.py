@@ -84,11 +84,8 @@ def measured_yaw_rate(spec: ControllerSpec, state: ControllerState, latency: Any
 def observe(spec: ControllerSpec, state: ControllerState, latency: Any, xp: Any) -> Any:
     """The policy observation (``spec.layout``)."""
     scale = spec.command_scale
-    parts = [
-        state.command / xp.asarray(scale),
-        observed_frame(state, latency, xp),
-        state.last_action,
-    ]
+    frame = observed_frame(state, latency, xp)
+    parts = [state.command / xp.asarray(scale), frame, state.last_action]
     if spec.yaw_integral_tau > 0:
         parts.append(state.yaw_integral[..., None] / (spec.yaw_integral_tau * float(scale[2])))
     if spec.feedback_base:
@@ -96,7 +93,7 @@ def observe(spec: ControllerSpec, state: ControllerState, latency: Any, xp: Any)
     if spec.path_tau > 0:
         parts.append(state.path_error / xp.asarray(spec.path_tau * scale))
     if spec.velocity_observer_tau > 0:
-        odometry = observed_frame(state, latency, xp)[..., spec.n_wheels + 4 : spec.n_wheels + 6]
+        odometry = frame[..., spec.n_wheels + 4 : spec.n_wheels + 6]
         parts.append(state.velocity_estimate / xp.asarray(scale[:2]) - odometry)
     if spec.obs_history > 0:
         past = xp.take(state.history, latency + 1 + xp.arange(spec.obs_history), axis=0)

@@ -114,8 +114,8 @@ class MecanumEnv(Env):
         self, rng: jax.Array, params: RobotParams, latency: jax.Array, noise_std: jax.Array
     ) -> State:
         """Reset with given physics ``params``, ``latency`` (control steps, at most the
-        config's ``latency_steps[1]``) and sensor ``noise_std`` (wheel rate, gyro, accel and,
-        if given, the accelerometer bias's).
+        config's ``latency_steps[1]``) and sensor ``noise_std`` (wheel rate, gyro, accel,
+        accel bias: :meth:`noise_std`).
 
         Evaluation uses this to run scenarios whose parameters are data, so that one
         compiled program serves them all.

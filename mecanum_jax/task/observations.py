@@ -73,9 +73,7 @@ def privileged_layout(layout: Layout, n_wheels: int, path: bool = False) -> Layo
 def accel_bias(key: jax.Array, noise_std: jax.Array) -> jax.Array:
     """An episode's accelerometer bias (3,), m/s², from its reset's noise ``key`` (a stream
     of its own: the noise drawn from ``key`` is unchanged) and ``noise_std``'s fourth entry
-    (none: 0)."""
-    if noise_std.shape[-1] < 4:
-        return jnp.zeros(3, jnp.float32)
+    (:meth:`NoiseConfig.std`)."""
     return noise_std[3] * jax.random.normal(jax.random.fold_in(key, 1), (3,))
 
 
