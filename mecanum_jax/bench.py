@@ -27,7 +27,7 @@ from mecanum_jax.bench_kinematics import KinematicsBench, run_kinematics
 from mecanum_jax.bench_physics import PhysicsBench, run_physics
 from mecanum_jax.bench_report import write_json
 from mecanum_jax.config import ConfigError
-from mecanum_jax.precision import set_matmul_precision
+from mecanum_jax.tracing import prepare_tracing
 
 
 @dataclasses.dataclass(frozen=True)
@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         require_platform()
-        set_matmul_precision("highest")  # one number on every device (mecanum_jax.precision)
+        prepare_tracing("highest")  # one number on every device (mecanum_jax.tracing)
         if isinstance(cmd, DrivesComparison):
             run_drives(cmd)
         elif isinstance(cmd, KinematicsBench):

@@ -18,8 +18,8 @@ from mecanum_jax.config import ConfigError
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.kinematics import motors, singularity
 from mecanum_jax.kinematics.modes import SIX_MODES
-from mecanum_jax.precision import set_matmul_precision
 from mecanum_jax.sim.description import resolve_description
+from mecanum_jax.tracing import prepare_tracing
 
 MAX_SPEED = 100.0
 """The largest ``--speed`` accepted, m/s or rad/s: far beyond any wheel, well short of 1e9."""
@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     args = tyro.cli(DemoArgs, args=argv, prog="mecanum-demo")
     try:
         require_platform()  # JAX_PLATFORMS names a backend that exists
-        set_matmul_precision("highest")
+        prepare_tracing("highest")
         if not 0 < args.speed <= MAX_SPEED:
             raise ConfigError(
                 f"--speed = {args.speed!r}: must be a number > 0 and at most {MAX_SPEED} "

@@ -8,7 +8,7 @@ CPU. Two guards keep figures device-independent:
 
 - every entry point (``mecanum-train``, ``mecanum-eval``, ``mecanum-bench``, the physics
   validation) calls :func:`set_matmul_precision` with its config's precision (``highest``
-  by default) before anything is traced;
+  by default) before anything is traced, through :func:`mecanum_jax.tracing.prepare_tracing`;
 - the kinematics' solves and projections pass ``precision=HIGHEST`` themselves
   (:data:`HIGHEST`), so their answers do not depend on the global setting at all.
 """

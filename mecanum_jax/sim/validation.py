@@ -40,7 +40,6 @@ from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.kinematics import odometry
 from mecanum_jax.kinematics.geometry import SingularLayoutWarning
 from mecanum_jax.kinematics.modes import SIX_MODES
-from mecanum_jax.precision import set_matmul_precision
 from mecanum_jax.sim import physics
 from mecanum_jax.sim.description import (
     IMPLS,
@@ -60,6 +59,7 @@ from mecanum_jax.sim.validation_report import (
     summary,
     to_markdown,
 )
+from mecanum_jax.tracing import prepare_tracing
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -283,7 +283,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--iterations", type=int, help="override sim.iterations")
     parser.add_argument("--impl", choices=list(IMPLS), help="override sim.impl (MJX backend)")
     args = parser.parse_args(argv)
-    set_matmul_precision("highest")  # one number on every device (mecanum_jax.precision)
+    prepare_tracing("highest")  # one number on every device (mecanum_jax.tracing)
     overrides = (("solver", args.solver), ("iterations", args.iterations), ("impl", args.impl))
     sim = {k: v for k, v in overrides if v is not None}
     try:

@@ -167,10 +167,10 @@ def load_model(args: DeploySimArgs) -> tuple[TrainConfig, Controller]:
 def episodes(args: DeploySimArgs, cfg: TrainConfig) -> Episodes:
     """The scenario's episodes (or ``--command``'s), prepared as mecanum-eval prepares
     them (JAX, before any control loop runs), with ``--latency`` and ``--noise-scale``."""
-    from mecanum_jax.precision import set_matmul_precision
     from mecanum_jax.task import NoiseConfig
+    from mecanum_jax.tracing import prepare_tracing
 
-    set_matmul_precision(cfg.run.matmul_precision, "run.matmul_precision")
+    prepare_tracing(cfg.run.matmul_precision, "run.matmul_precision")
     eps = _command_episodes(args, cfg) if args.command else _scenario_episodes(args, cfg)
     if args.latency is not None:
         eps.latency = np.full(len(eps.commands), args.latency)

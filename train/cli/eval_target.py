@@ -18,9 +18,9 @@ from mecanum_jax import memory
 from mecanum_jax.config import ConfigError
 from mecanum_jax.evaluation import episodes, scenarios
 from mecanum_jax.evaluation import rollout as ev
-from mecanum_jax.precision import set_matmul_precision
 from mecanum_jax.task import MecanumEnv
 from mecanum_jax.task import fidelity as fid
+from mecanum_jax.tracing import prepare_tracing
 from train.cli.eval_args import EvalArgs
 from train.config_loading import config_diff, config_value, load_train_config
 from train.learner.policy import PROVENANCE, RestoredPolicy, restore_policy, split_target
@@ -76,7 +76,7 @@ class Target:
             self.label = f"{run_dir} (epoch {r.epoch}, seed {r.seed})"
         # before anything is traced: one number on every device (mecanum_jax.precision)
         self.precision = args.matmul_precision or precision
-        set_matmul_precision(self.precision, "--matmul-precision")
+        prepare_tracing(self.precision, "--matmul-precision")
         fidelity = fid.check_fidelity(args.fidelity, "--fidelity")
         max_batch = fid.eval_batch(fidelity, args.max_batch, "--max-batch", 16384)
         impl = args.physics_impl or default_impl(base.physics_impl)

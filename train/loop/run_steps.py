@@ -16,7 +16,7 @@ import jax
 import numpy as np
 from rich.console import Console
 
-from mecanum_jax.precision import set_matmul_precision
+from mecanum_jax.tracing import prepare_tracing
 from train.config import TrainConfig
 from train.config_loading import config_diff
 from train.learner.periodic import Result, beats, compare
@@ -67,7 +67,7 @@ class RunSteps:
         :func:`first_runs_alone`: finished first, and compiled together with the reset and
         the epoch, :func:`train.loop.aot.compile_together`). The checkpoint manager opens at
         the first save."""
-        set_matmul_precision(self.cfg.run.matmul_precision)  # before anything is traced
+        prepare_tracing(self.cfg.run.matmul_precision)  # before anything is traced
         t_start = time.time()
         learner = self.learner = self._learner(learner)
         loop = Session(self.cfg, self.dir, self.is_writer, learner, t_start, *self._fresh(learner))

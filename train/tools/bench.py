@@ -30,7 +30,7 @@ from rich.console import Console
 from rich.table import Table
 
 from mecanum_jax.config import ConfigError
-from mecanum_jax.precision import set_matmul_precision
+from mecanum_jax.tracing import prepare_tracing
 from train.config import TrainConfig
 from train.config_loading import apply_flags, load_train_config
 from train.learner.ppo import Learner
@@ -41,7 +41,7 @@ from train.loop.progress import print_error
 
 
 def measure(cfg: TrainConfig, epochs: int) -> dict[str, Any]:
-    set_matmul_precision(cfg.run.matmul_precision)
+    prepare_tracing(cfg.run.matmul_precision)
     t0 = time.perf_counter()
     learner = Learner(cfg)
     state, env_state = learner.init()

@@ -111,7 +111,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         import numpy as np
 
         from mecanum_jax.config import ConfigError
-        from mecanum_jax.precision import set_matmul_precision
+        from mecanum_jax.tracing import prepare_tracing
         from train.config_loading import apply_flags, load_train_config
         from train.learner.ppo import Learner
         from train.learner.transfer import first_device
@@ -156,7 +156,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         except ConfigError as err:
             print(f"error: {err}", file=sys.stderr)
             raise SystemExit(2) from None
-        set_matmul_precision(cfg.run.matmul_precision)
+        prepare_tracing(cfg.run.matmul_precision)
     with clock.phase("model and environment build"):
         learner = Learner(cfg)
         if args.warm_start == "on":

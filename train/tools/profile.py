@@ -37,7 +37,7 @@ from rich.console import Console
 from rich.table import Table
 
 from mecanum_jax.config import ConfigError
-from mecanum_jax.precision import set_matmul_precision
+from mecanum_jax.tracing import prepare_tracing
 from train.config import TrainConfig
 from train.config_loading import apply_flags, load_train_config
 from train.learner.ppo import Learner
@@ -113,7 +113,7 @@ def measure(
 ) -> dict[str, Any]:
     """Time the parts, the epoch, the evaluation and the transfers; return the report.
     ``learner``: one built for ``cfg`` already (default: a new one on the first device)."""
-    set_matmul_precision(cfg.run.matmul_precision)
+    prepare_tracing(cfg.run.matmul_precision)
     learner = learner or Learner(cfg, devices=jax.local_devices()[:1])
     timer = Timer(log)
     ts, env = learner.init()

@@ -1,0 +1,49 @@
+"""What every entry point sets before anything is traced.
+
+:func:`prepare_tracing` sets the matmul precision (:mod:`mecanum_jax.precision`: one number
+on every device) and lowers JAX's threefry hash unrolled on the CPU (:func:`unroll_threefry`).
+
+JAX lowers threefry on the CPU as a loop of five rounds (``jax/_src/random/threefry2x32.py``,
+``use_rolled_loops``) and XLA:CPU compiles each such loop as a call of its own, apart from
+its neighbours. Every random draw is one: in the `tiny` config's epoch they were 248 of
+1,083 kernels and 8.8 of 18.5 MB of LLVM IR, and 10.1 of the robots' reset's 10.6 MB. The
+unrolled form, JAX's own lowering on every other platform, fuses with the code around it:
+the same bits, and a cold ``tiny`` start compiles in 43 s instead of 53 (docs/profiling.md).
+"""
+
+from __future__ import annotations
+
+from functools import partial
+
+from mecanum_jax.precision import set_matmul_precision
+
+_installed: list[bool] = []  # once per process
+
+
+def unroll_threefry() -> bool:
+    """Lower ``threefry2x32`` unrolled on the CPU, as JAX does on GPUs; idempotent.
+
+    The hash's arithmetic is the same, so the bits are (tests/test_tracing.py). Returns
+    whether the lowering is installed: ``False`` where this JAX lacks the private
+    lowering it reuses, which then keeps its own (slower to compile, equal bits).
+    """
+    if not _installed:
+        try:
+            from jax._src.interpreters import mlir
+            from jax._src.random import threefry2x32 as tf
+
+            rule = mlir.lower_fun(
+                partial(tf._threefry2x32_lowering, use_rolled_loops=False), multiple_results=True
+            )
+            mlir.register_lowering(tf.threefry2x32_p, rule, platform="cpu")
+            _installed.append(True)
+        except (ImportError, AttributeError, TypeError):
+            _installed.append(False)
+    return _installed[0]
+
+
+def prepare_tracing(precision: str, where: str = "run.matmul_precision") -> None:
+    """Before anything is traced: the matmul ``precision`` (``where`` names its field in
+    an error) and the CPU's unrolled threefry."""
+    set_matmul_precision(precision, where)
+    unroll_threefry()

@@ -1,0 +1,79 @@
+"""The CPU's unrolled threefry (mecanum_jax.tracing): the same bits as JAX's rolled loop,
+lowered without a loop, and installed by every entry point's preparation."""
+
+from __future__ import annotations
+
+from functools import partial
+
+import jax
+import numpy as np
+import pytest
+
+from mecanum_jax import tracing
+from mecanum_jax.config import ConfigError
+from mecanum_jax.precision import matmul_precision, set_matmul_precision
+
+
+def draws(key: jax.Array) -> tuple[jax.Array, ...]:
+    """The kinds of draw the task and the trainer make, from one key."""
+    k1, k2, k3, k4, k5 = jax.random.split(key, 5)
+    return (
+        jax.random.normal(k1, (7, 3)),
+        jax.random.uniform(k2, (5,), minval=-1.0, maxval=2.0),
+        jax.random.randint(k3, (9,), 0, 1000),
+        jax.random.permutation(k4, 33),
+        jax.random.bernoulli(k5, 0.3, (11,)),
+        jax.random.fold_in(k5, 7),
+    )
+
+
+def lowered(rolled: bool) -> tuple[str, list[np.ndarray]]:
+    """Lower and run :func:`draws` with JAX's rolled CPU lowering or the unrolled one."""
+    from jax._src.interpreters import mlir
+    from jax._src.random import threefry2x32 as tf
+
+    rule = mlir.lower_fun(
+        partial(tf._threefry2x32_lowering, use_rolled_loops=rolled), multiple_results=True
+    )
+    mlir.register_lowering(tf.threefry2x32_p, rule, platform="cpu")
+    try:
+        keys = jax.random.split(jax.random.PRNGKey(3), 4)
+        fn = jax.jit(jax.vmap(lambda k: draws(k)))  # a fresh function: no cached lowering
+        text = fn.lower(keys).as_text()
+        out = [np.asarray(x) for x in fn(keys)]
+        return text, out
+    finally:
+        mlir.register_lowering(
+            tf.threefry2x32_p,
+            mlir.lower_fun(
+                partial(tf._threefry2x32_lowering, use_rolled_loops=False), multiple_results=True
+            ),
+            platform="cpu",
+        )
+
+
+@pytest.mark.skipif(jax.default_backend() != "cpu", reason="the CPU's lowering")
+def test_unrolled_threefry_gives_the_same_bits_without_a_loop() -> None:
+    assert tracing.unroll_threefry()  # this JAX has the lowering it reuses
+    rolled_text, rolled = lowered(rolled=True)
+    unrolled_text, unrolled = lowered(rolled=False)
+    assert "stablehlo.while" in rolled_text  # JAX's own CPU lowering loops
+    assert "stablehlo.while" not in unrolled_text
+    assert len(rolled) == len(unrolled) == 6
+    for a, b in zip(rolled, unrolled, strict=True):
+        assert (a.dtype, a.shape) == (b.dtype, b.shape)
+        np.testing.assert_array_equal(a, b)
+
+
+def test_prepare_tracing_sets_the_precision_and_the_lowering() -> None:
+    before = matmul_precision()
+    try:
+        tracing.prepare_tracing("high")
+        assert matmul_precision() == "high"
+        with pytest.raises(ConfigError, match="--matmul-precision = 'tf32'"):
+            tracing.prepare_tracing("tf32", "--matmul-precision")
+    finally:
+        set_matmul_precision(before)
+    assert tracing.unroll_threefry()  # idempotent: installed once, reported each time
+    text = jax.jit(lambda k: jax.random.normal(k, (4,))).lower(jax.random.PRNGKey(0)).as_text()
+    assert "stablehlo.while" not in text
