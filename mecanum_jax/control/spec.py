@@ -22,13 +22,16 @@ import numpy as np
 
 Layout = tuple[tuple[str, int], ...]
 
-SENSOR_ENTRIES = ("wheel_rate", "gyro_z", "accel", "odometry_twist")
-"""One sensor frame's entries, in order (:func:`sensor_size` values)."""
+
+def sensor_layout(n_wheels: int) -> Layout:
+    """One sensor frame's entries and sizes, in order: encoder rates, gyro z, accelerometer,
+    wheel-odometry twist (:func:`mecanum_jax.control.step.frame`)."""
+    return (("wheel_rate", n_wheels), ("gyro_z", 1), ("accel", 3), ("odometry_twist", 3))
 
 
 def sensor_size(n_wheels: int) -> int:
-    """One sensor frame: encoder rates, gyro z, accelerometer (3), odometry twist (3)."""
-    return n_wheels + 1 + 3 + 3
+    """One sensor frame's length."""
+    return sum(size for _, size in sensor_layout(n_wheels))
 
 
 def policy_layout(
@@ -138,6 +141,10 @@ class ControllerSpec:
     def entry(self, name: str) -> slice:
         return entry_slice(self.layout, name)
 
+    def sensor(self, name: str) -> slice:
+        """Where entry ``name`` lies in a sensor frame (:func:`sensor_layout`)."""
+        return entry_slice(sensor_layout(self.n_wheels), name)
+
     @functools.cached_property
     def nearest(self) -> NearestMaps:
         """The feasible-twist projection of the ``feedback`` controller's metric."""
@@ -228,12 +235,12 @@ class NearestMaps:
 
 
 __all__ = [
-    "SENSOR_ENTRIES",
     "ControllerSpec",
     "FeedbackSpec",
     "Layout",
     "NearestMaps",
     "entry_slice",
     "policy_layout",
+    "sensor_layout",
     "sensor_size",
 ]

@@ -74,8 +74,8 @@ def observed_frame(state: ControllerState, latency: Any, xp: Any) -> Any:
 
 def measured_yaw_rate(spec: ControllerSpec, state: ControllerState, latency: Any, xp: Any) -> Any:
     """The gyro's yaw rate as the controller sees it now, rad/s, shape (1,)."""
-    n = spec.n_wheels
-    return observed_frame(state, latency, xp)[..., n : n + 1] * float(spec.command_scale[2])
+    gyro = observed_frame(state, latency, xp)[..., spec.sensor("gyro_z")]
+    return gyro * float(spec.command_scale[2])
 
 
 # --- the observation -------------------------------------------------------------------------
@@ -288,10 +288,10 @@ def velocity_step(spec: ControllerSpec, estimate: Any, frame: Any, xp: Any) -> A
     ``v + dt·(a − ω × v)``, then pulled towards the wheel odometry with
     ``velocity_observer_tau``. The encoders hold it to the wheels' speed over long times;
     for about τ it keeps the body's own, which a slipping wheel does not show."""
-    n, dt, scale = spec.n_wheels, spec.control_dt, spec.command_scale
-    accel = frame[..., n + 1 : n + 3] * spec.gravity
-    w = frame[..., n : n + 1] * float(scale[2])
-    odometry = frame[..., n + 4 : n + 6] * xp.asarray(scale[:2])
+    dt, scale = spec.control_dt, spec.command_scale
+    accel = frame[..., spec.sensor("accel")][..., :2] * spec.gravity
+    w = frame[..., spec.sensor("gyro_z")] * float(scale[2])
+    odometry = frame[..., spec.sensor("odometry_twist")][..., :2] * xp.asarray(scale[:2])
     turn = xp.concat([w * estimate[..., 1:2], -w * estimate[..., 0:1]], axis=-1)
     grown = estimate + dt * (accel + turn)
     return odometry + math.exp(-dt / spec.velocity_observer_tau) * (grown - odometry)
@@ -322,15 +322,14 @@ def sense(
         feedback_integral=integral,
     )
     now = observed_frame(out, latency, xp)
-    n = spec.n_wheels
-    gyro = now[..., n] * float(spec.command_scale[2])
+    gyro = now[..., spec.sensor("gyro_z")][..., 0] * float(spec.command_scale[2])
     if spec.yaw_integral_tau > 0:
         decay = math.exp(-spec.control_dt / spec.yaw_integral_tau)
         out = out._replace(
             yaw_integral=decay * state.yaw_integral + (tracked[..., 2] - gyro) * spec.control_dt
         )
     if spec.path_tau > 0:
-        odometry = now[..., n + 4 : n + 7] * xp.asarray(spec.command_scale)
+        odometry = now[..., spec.sensor("odometry_twist")] * xp.asarray(spec.command_scale)
         measured = xp.concat([odometry[..., 0:2], gyro[..., None]], axis=-1)
         path = nearest_feasible(spec, tracked, xp) if spec.path_integrator == "exact" else tracked
         out = out._replace(path_error=path_step(spec, state.path_error, measured, path, xp))
