@@ -343,11 +343,12 @@ case "$TASK" in
     if [ "${TUNE_ROLLER:-1}" = 1 ]; then  # the dashes in the reference roller model, each
       for k in "${!models[@]}"; do
         name=${names[$k]}; [ "$name" = probe ] && continue
+        [ -f "/tmp/tune-$name/report.json" ] || continue  # its fast evaluation failed: unranked
         CUDA_VISIBLE_DEVICES=$((k % ngpu)) evaluate "${models[$k]}" dashes "/tmp/roller-$name" \
           --no-plots --fidelity reference --physics-impl jax > "/tmp/roller-$name.log" 2>&1 &
         throttle "${TUNE_JOBS:-$ngpu}"
       done
-      if [ -n "${TUNE_PROBE:-}" ]; then
+      if [ -n "${TUNE_PROBE:-}" ] && [ -f /tmp/tune-probe/report.json ]; then
         rm -rf /tmp/roller-probe
         # shellcheck disable=SC2086
         python3 scripts/play_probe.py $TUNE_PROBE -- models/o_rectangle --scenarios dashes \
@@ -359,7 +360,8 @@ case "$TASK" in
     for name in "${names[@]}"; do
       echo "== $name on the tuning episodes"; quiet < "/tmp/tune-$name.log" | tail -34
       cp "/tmp/tune-$name/report.json" "/tmp/tune-reports/tune_$name.json" 2>/dev/null \
-        || echo "tune: $name has no report: its evaluation failed (log above); not ranked"
+        || { echo "tune: $name has no report: its evaluation failed (log above); not ranked"
+             continue; }
       [ ${#roller[@]} = 0 ] && continue
       echo "== $name on the dashes, reference roller model"
       quiet < "/tmp/roller-$name.log" | tail -12
