@@ -1,7 +1,10 @@
 """What a new user meets first: quiet imports, an 80-column progress line, a finished run
 resumed, and resume past a corrupt or truncated newest checkpoint."""
 
+import ast
 import shutil
+from collections.abc import Iterator
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -153,3 +156,35 @@ def test_an_empty_newest_checkpoint_is_passed_over_with_a_warning(full_run, tmp_
     assert restored.epoch == 3
     with pytest.raises(checkpoint.CheckpointError, match=r"checkpoints/4' \("):
         restore_policy(copy, epoch=4)  # an epoch asked for by name is not replaced
+
+
+def _imports_of(node: ast.AST) -> Iterator[tuple[int, str]]:
+    """``(line, module)`` of every import under ``node`` outside ``if TYPE_CHECKING:``."""
+    if isinstance(node, ast.If) and getattr(node.test, "id", "") == "TYPE_CHECKING":
+        return
+    if isinstance(node, ast.Import):
+        yield from ((node.lineno, a.name) for a in node.names)
+    elif isinstance(node, ast.ImportFrom) and node.module:
+        names = [f"{node.module}.{a.name}" for a in node.names]
+        yield from ((node.lineno, n) for n in (node.module, *names))
+    for child in ast.iter_child_nodes(node):
+        yield from _imports_of(child)
+
+
+def test_every_module_importing_mjx_or_brax_quiets_the_warp_probe_first():
+    """The probe prints in whichever module imports MJX first (Brax imports it): each such
+    module imports ``mecanum_jax._quiet_mjx`` above it, so no entry point's import order
+    lets the lines through (``mecanum-deploy-sim`` once printed them, by way of the
+    evaluation's rollout)."""
+    root = Path(__file__).resolve().parent.parent
+    loud = ("brax", "mujoco.mjx")
+    offenders = []
+    for path in sorted([*root.glob("mecanum_jax/**/*.py"), *root.glob("train/**/*.py")]):
+        if path.name == "_quiet_mjx.py":
+            continue
+        found = sorted(_imports_of(ast.parse(path.read_text())))
+        first = [line for line, name in found if name.startswith(loud)]
+        quiet = [line for line, name in found if name == "mecanum_jax._quiet_mjx"]
+        if first and not (quiet and quiet[0] < first[0]):
+            offenders.append(f"{path.relative_to(root)}:{first[0]}")
+    assert not offenders, offenders

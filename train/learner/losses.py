@@ -28,6 +28,10 @@ import functools
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any, ParamSpec, TypeVar
 
+# isort: split
+import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
+
+# isort: split
 import jax
 import jax.numpy as jnp
 from brax.training import types

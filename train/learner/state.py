@@ -13,6 +13,10 @@ import functools
 import math
 from collections.abc import Callable
 
+# isort: split
+import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
+
+# isort: split
 import flax
 import jax
 import jax.numpy as jnp

@@ -50,6 +50,8 @@ _NUMBER = re.compile(r"_(\d+)$")
 
 def _registry() -> dict[tuple[Any, ...], Any]:
     """MJX's Warp callables by their call structure ({} without MJX's Warp implementation)."""
+    import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
+
     try:
         from mujoco.mjx.warp import ffi
     except ImportError:  # no warp extra: no Warp targets anywhere

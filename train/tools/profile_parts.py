@@ -37,6 +37,10 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 
+# isort: split
+import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
+
+# isort: split
 import jax
 import jax.numpy as jnp
 from brax.envs.base import State
