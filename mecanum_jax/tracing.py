@@ -8,7 +8,8 @@ JAX lowers threefry on the CPU as a loop of five rounds (``jax/_src/random/three
 its neighbours. Every random draw is one: in the `tiny` config's epoch they were 248 of
 1,083 kernels and 8.8 of 18.5 MB of LLVM IR, and 10.1 of the robots' reset's 10.6 MB. The
 unrolled form, JAX's own lowering on every other platform, fuses with the code around it:
-the same bits, and a cold ``tiny`` start compiles in 43 s instead of 53 (docs/profiling.md).
+the same random bits, and a cold ``tiny`` start compiles in 43 s instead of 53. Other float
+results can move by an ulp where XLA fuses their neighbours differently (docs/profiling.md).
 """
 
 from __future__ import annotations

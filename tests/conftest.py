@@ -49,7 +49,7 @@ from hypothesis import HealthCheck, settings  # noqa: E402
 jax.config.update("jax_numpy_rank_promotion", "raise")
 from mecanum_jax.tracing import unroll_threefry  # noqa: E402
 
-unroll_threefry()  # as every entry point does: the same bits, compiled sooner on the CPU
+unroll_threefry()  # as every entry point does: the same random bits, compiled sooner
 if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
     jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)

@@ -1,4 +1,4 @@
-"""The CPU's unrolled threefry (mecanum_jax.tracing): the same bits as JAX's rolled loop,
+"""The CPU's unrolled threefry (mecanum_jax.tracing): the same random bits as JAX's rolled loop,
 lowered without a loop, and installed by every entry point's preparation."""
 
 from __future__ import annotations
