@@ -59,6 +59,21 @@ def test_spaces(env):
     assert env.substeps == 4  # 20 ms control / 5 ms physics
 
 
+def test_the_state_info_is_the_typed_task_info(env):
+    """A state's ``info`` holds exactly :class:`TaskInfo`'s keys, and those after
+    :class:`EpisodeInfo`'s are the controller state's fields, in its order: the typed
+    description of ``info`` is the one the environment writes."""
+    from mecanum_jax.control import ControllerState
+    from mecanum_jax.task.controller import EpisodeInfo, TaskInfo
+
+    own = list(EpisodeInfo.__annotations__)
+    assert list(TaskInfo.__annotations__) == own + list(ControllerState._fields)
+    state = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
+    assert set(state.info) == set(TaskInfo.__annotations__)
+    stepped = jax.eval_shape(env.step, state, jnp.zeros(env.action_size))
+    assert set(stepped.info) == set(TaskInfo.__annotations__)
+
+
 @pytest.mark.full
 def test_default_physics_step_tracks_like_the_fine_step(env):
     """The environment's coarse physics step (5 ms, 4 substeps, for throughput) drives the

@@ -43,6 +43,7 @@ from mecanum_jax.evaluation import metrics
 from mecanum_jax.evaluation.episodes import EpisodeBatch
 from mecanum_jax.kinematics import odometry
 from mecanum_jax.task import REFERENCES, MecanumEnv
+from mecanum_jax.task.controller import task_info
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -133,7 +134,7 @@ class Evaluator:
     ) -> Trace[jax.Array]:
         env = self.env
         state = jax.vmap(env.reset_to)(batch.keys, batch.params, batch.latency, batch.noise_std)
-        info = dict(state.info)
+        info = task_info(state)
         info["feedback_gains"] = jnp.broadcast_to(gains, info["feedback_gains"].shape)
         state = state.replace(info=info)
         start = jax.vmap(env.robot.sensors)(state.pipeline_state).pose

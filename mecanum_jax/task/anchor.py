@@ -23,7 +23,7 @@ keep to the yaw component of no-yaw commands only.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -31,11 +31,14 @@ import jax.numpy as jnp
 from mecanum_jax.kinematics import limits
 from mecanum_jax.task.constants import RobotConstants
 
+if TYPE_CHECKING:
+    from mecanum_jax.task.controller import TaskInfo
+
 YAW = 2
 """Index of ωz in a twist-space residual (vx, vy, ωz)."""
 
 
-def is_nominal(robot: RobotConstants, info: dict[str, Any]) -> jax.Array:
+def is_nominal(robot: RobotConstants, info: TaskInfo) -> jax.Array:
     """Whether one robot's ``info["params"]`` are the nominal robot's and it has no latency."""
     pairs = zip(jax.tree.leaves(info["params"]), jax.tree.leaves(robot.nominal_params), strict=True)
     same = [jnp.all(a == b) for a, b in pairs]
@@ -44,7 +47,7 @@ def is_nominal(robot: RobotConstants, info: dict[str, Any]) -> jax.Array:
 
 def exact_components(
     robot: RobotConstants,
-    info: dict[str, Any],
+    info: TaskInfo,
     hold_steps: int,
     spins: bool = False,
     translations: bool = False,

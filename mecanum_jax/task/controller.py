@@ -1,15 +1,16 @@
 """The task's controller spec: what an environment's config says the robot-side
 controller is (:func:`controller_meta`, the export's metadata, and the
-:class:`~mecanum_jax.control.ControllerSpec` read from it), and the controller state kept
-in a Brax state's ``info`` (:func:`control_state`, :func:`with_control`).
+:class:`~mecanum_jax.control.ControllerSpec` read from it), and a Brax state's ``info`` in
+this task (:class:`TaskInfo`: the episode's entries and the controller state,
+:func:`control_state`, :func:`with_control`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING, ParamSpec, Protocol, TypeVar
+from collections.abc import Callable
+from typing import TYPE_CHECKING, ParamSpec, Protocol, TypedDict, TypeVar, cast
 
 import jax
 import numpy as np
@@ -17,11 +18,12 @@ import numpy as np
 from mecanum_jax.control import ControllerSpec, ControllerState, Layout, policy_layout
 from mecanum_jax.control.state import FIELDS
 from mecanum_jax.sim.description import RobotDescription, fingerprint
-from mecanum_jax.sim.state import GRAVITY
+from mecanum_jax.sim.state import GRAVITY, RobotParams
 from mecanum_jax.task.constants import RobotConstants
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
+    from brax.envs.base import State
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -150,21 +152,67 @@ def allow_rank_promotion(fn: Callable[P, R]) -> Callable[P, R]:
     return wrapped
 
 
-def control_state(info: Mapping[str, object]) -> ControllerState:
+class EpisodeInfo(TypedDict):
+    """What an episode carries in a Brax state's ``info`` besides the controller's state
+    (one robot's; the batch's arrays have the robots' axes in front)."""
+
+    rng: jax.Array
+    params: RobotParams
+    """the robot's physical parameters, drawn at the reset"""
+    latency: jax.Array
+    """() int32: the sensors' delay, control steps"""
+    noise_std: jax.Array
+    """(4,) sensor noise: wheel rate, gyro, accelerometer, accelerometer bias"""
+    accel_bias: jax.Array
+    """(3,) the accelerometer's offset this episode"""
+    next_resample: jax.Array
+    """() int32: the step at which the command is next drawn"""
+    step: jax.Array
+    """() int32: control steps since the reset"""
+    true_path_error: jax.Array
+    """(3,) the path error of the true twist (the critic's and the path reward's)"""
+    truncation: jax.Array
+    """() 1.0 on the step an episode hits its length (:class:`~.env.TrainingEnv`)"""
+
+
+class TaskInfo(EpisodeInfo):
+    """A Brax state's ``info`` in this task: :class:`EpisodeInfo`, then the fields of the
+    :class:`~mecanum_jax.control.ControllerState` (the same names; a test keeps them so)."""
+
+    command: jax.Array
+    command_age: jax.Array
+    last_action: jax.Array
+    history: jax.Array
+    yaw_integral: jax.Array
+    feedback_integral: jax.Array
+    feedback_gains: jax.Array
+    path_error: jax.Array
+    velocity_estimate: jax.Array
+
+
+def task_info(state: State) -> TaskInfo:
+    """A copy of ``state.info`` (Brax types it as a plain dict), as the task's."""
+    return cast(TaskInfo, dict(state.info))
+
+
+def control_state(info: TaskInfo) -> ControllerState:
     """The controller state kept in a Brax state's ``info``."""
-    return ControllerState(**{k: info[k] for k in FIELDS})
+    return ControllerState(**{k: info[k] for k in FIELDS})  # type: ignore[literal-required]
 
 
-def with_control(info: Mapping[str, object], state: ControllerState) -> dict[str, object]:
+def with_control(info: EpisodeInfo, state: ControllerState) -> TaskInfo:
     """``info`` with the controller state ``state``."""
-    return {**info, **state._asdict()}
+    return cast(TaskInfo, {**info, **state._asdict()})
 
 
 __all__ = [
+    "EpisodeInfo",
+    "TaskInfo",
     "allow_rank_promotion",
     "control_state",
     "controller_meta",
     "controller_spec",
     "policy_shape",
+    "task_info",
     "with_control",
 ]

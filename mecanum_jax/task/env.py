@@ -24,8 +24,6 @@ drive it unchanged. Its parts live beside it:
 
 from __future__ import annotations
 
-from typing import Any
-
 # isort: split
 import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
 
@@ -47,7 +45,14 @@ from mecanum_jax.task import observations as obs_
 from mecanum_jax.task import randomization as rand
 from mecanum_jax.task import references as refs
 from mecanum_jax.task.config import EnvConfig
-from mecanum_jax.task.controller import allow_rank_promotion, control_state, with_control
+from mecanum_jax.task.controller import (
+    EpisodeInfo,
+    TaskInfo,
+    allow_rank_promotion,
+    control_state,
+    task_info,
+    with_control,
+)
 from mecanum_jax.task.observations import NoiseConfig
 from mecanum_jax.task.references import FeedbackConfig
 from mecanum_jax.task.reward import METRIC_NAMES, step_reward
@@ -130,7 +135,7 @@ class MecanumEnv(Env):
         bias = obs_.accel_bias(k_noise, noise_std)
         first = obs_.sensor_vector(self.control, sens, k_noise, noise_std, bias)
         control = ctl.initial_state(self.control, first, command, self.history_frames, jnp)
-        info = {
+        episode: EpisodeInfo = {
             "rng": rng,
             "params": params,
             "latency": jnp.asarray(latency, jnp.int32),
@@ -141,7 +146,7 @@ class MecanumEnv(Env):
             "true_path_error": jnp.zeros(3),
             "truncation": jnp.asarray(0.0),
         }
-        info = with_control(info, control._replace(feedback_gains=self.feedback_gains()))
+        info = with_control(episode, control._replace(feedback_gains=self.feedback_gains()))
         obs = self._observe(sens, info)
         metrics = {k: jnp.asarray(0.0) for k in self.metric_names}
         return State(sim, obs, jnp.asarray(0.0), jnp.asarray(0.0), metrics, info)
@@ -152,13 +157,13 @@ class MecanumEnv(Env):
         :data:`REFERENCES`, may be traced; negative: none) that reference controller's
         setpoints replace the action's. The feedback controller's integrator is updated only
         when ``reference`` is given."""
-        info = dict(state.info)
+        info = task_info(state)
         c, cfg, spec = self.constants, self.config, self.control
-        before = control_state(state.info)
+        before = control_state(info)
         latency = info["latency"]
         rates, after = ctl.act(spec, before, action, latency, jnp)
         if reference is not None:
-            chosen = refs.reference_rates(c, reference, state.info, cfg.feedback, spec)
+            chosen = refs.reference_rates(c, reference, info, cfg.feedback, spec)
             rates = jnp.where(reference >= 0, chosen, rates)
             if not self.feedback_base:  # the feedback reference's integrator runs too
                 gyro = ctl.measured_yaw_rate(spec, before, latency, jnp)
@@ -192,7 +197,7 @@ class MecanumEnv(Env):
         )
         due = cmds.resample_time(k_time, step, cfg.commands, cfg.control_dt)
         info["next_resample"] = jnp.where(resample, due, info["next_resample"])
-        info.update(step=step, rng=rng, true_path_error=path)
+        info["step"], info["rng"], info["true_path_error"] = step, rng, path
         frame = obs_.sensor_vector(spec, sens, k_noise, info["noise_std"], info["accel_bias"])
         info = with_control(info, ctl.sense(spec, after, frame, new_command, latency, jnp))
         obs = self._observe(sens, info)
@@ -202,7 +207,7 @@ class MecanumEnv(Env):
     def set_command(self, state: State, command: jax.Array) -> State:
         """Impose ``command`` from now on (scripted sequences): it replaces the current
         command, in the observations too, and the environment stops resampling."""
-        info = dict(state.info)
+        info = task_info(state)
         changed = jnp.any(command != info["command"])
         info["command_age"] = jnp.where(changed, 0, info["command_age"]).astype(jnp.int32)
         if self.control.feedback.reset:  # the integrator restarts with a new command
@@ -216,7 +221,7 @@ class MecanumEnv(Env):
 
     @allow_rank_promotion
     def wheel_setpoints(
-        self, command: jax.Array, action: jax.Array, info: dict[str, Any] | None = None
+        self, command: jax.Array, action: jax.Array, info: TaskInfo | None = None
     ) -> jax.Array:
         """Wheel-rate setpoints (rad/s) for an applied action in [-1, 1]^action_size under
         ``command`` (``info``: the state, for a residual on the ``feedback`` controller)."""
@@ -233,7 +238,7 @@ class MecanumEnv(Env):
         return ctl.setpoints(spec, command, jnp.clip(action, -1.0, 1.0), gyro, integral, gains, jnp)
 
     @allow_rank_promotion
-    def _observe(self, sens: Sensors, info: dict[str, Any]) -> dict[str, jax.Array]:
+    def _observe(self, sens: Sensors, info: TaskInfo) -> dict[str, jax.Array]:
         policy = ctl.observe(self.control, control_state(info), info["latency"], jnp)
         return obs_.observe(self.constants, sens, info, policy, self.path_scale)
 

@@ -12,7 +12,7 @@ control steps, and the integrators the config asks for. The critic's
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -22,6 +22,9 @@ from mecanum_jax.control import ControllerSpec, Layout
 from mecanum_jax.control import step as ctl
 from mecanum_jax.sim.state import RobotParams, Sensors
 from mecanum_jax.task.constants import RobotConstants
+
+if TYPE_CHECKING:
+    from mecanum_jax.task.controller import TaskInfo
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,7 +96,7 @@ def sensor_vector(
 def observe(
     robot: RobotConstants,
     sens: Sensors,
-    info: dict[str, Any],
+    info: TaskInfo,
     policy: jax.Array,
     path_scale: jax.Array | None = None,
 ) -> dict[str, jax.Array]:

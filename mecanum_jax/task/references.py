@@ -14,7 +14,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Callable
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -25,7 +24,7 @@ from mecanum_jax.control import step as ctl
 from mecanum_jax.kinematics import limits
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.task.constants import RobotConstants
-from mecanum_jax.task.controller import allow_rank_promotion, control_state
+from mecanum_jax.task.controller import TaskInfo, allow_rank_promotion, control_state
 from mecanum_jax.task.observations import command_from_obs
 
 Policy = Callable[[dict[str, jax.Array], jax.Array], tuple[jax.Array, dict[str, jax.Array]]]
@@ -120,7 +119,7 @@ def feasible_target(
 
 
 @allow_rank_promotion
-def feedback_rates(spec: ControllerSpec, info: dict[str, Any]) -> jax.Array:
+def feedback_rates(spec: ControllerSpec, info: TaskInfo) -> jax.Array:
     """The ``feedback`` reference's wheel-rate setpoints for the state's ``info`` (the
     robot-side controller's, :func:`mecanum_jax.control.step.feedback_rates`)."""
     s = control_state(info)
@@ -132,7 +131,7 @@ def feedback_rates(spec: ControllerSpec, info: dict[str, Any]) -> jax.Array:
 def reference_rates(
     robot: RobotConstants,
     reference: int | jax.Array,
-    info: dict[str, Any],
+    info: TaskInfo,
     fb: FeedbackConfig,
     spec: ControllerSpec,
 ) -> jax.Array:
@@ -148,7 +147,7 @@ def reference_rates(
     return jnp.select([index == i for i in range(len(candidates))], [c() for c in candidates])
 
 
-RatesOf = Callable[[RobotConstants, dict[str, Any], FeedbackConfig, ControllerSpec], jax.Array]
+RatesOf = Callable[[RobotConstants, TaskInfo, FeedbackConfig, ControllerSpec], jax.Array]
 
 REFERENCE_RATES: dict[str, RatesOf] = {
     "analytic": lambda robot, info, fb, spec: baseline_rates(robot, info["command"]),

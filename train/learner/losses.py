@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING, Any, ParamSpec, TypeVar
+from typing import TYPE_CHECKING, ParamSpec, TypeVar
 
 # isort: split
 import mecanum_jax._quiet_mjx  # noqa: F401  (first: keeps MJX's Warp probe quiet)
@@ -44,6 +44,7 @@ from mecanum_jax.task.anchor import exact_components
 from train.loss_config import AnchorConfig, SmoothnessConfig
 
 if TYPE_CHECKING:
+    from mecanum_jax.task.controller import TaskInfo
     from mecanum_jax.task.env import MecanumEnv
 
 P = ParamSpec("P")
@@ -60,7 +61,7 @@ def anchor_loss(action: jax.Array, mask: jax.Array) -> jax.Array:
 
 
 def state_extras(
-    env: MecanumEnv, info: dict[str, Any], next_info: dict[str, Any], anchor: AnchorConfig
+    env: MecanumEnv, info: TaskInfo, next_info: TaskInfo, anchor: AnchorConfig
 ) -> dict[str, jax.Array]:
     """What the loss reads of a batch of transitions besides the observations:
     ``truncation`` (Brax's), and with ``anchor`` on the mask of
