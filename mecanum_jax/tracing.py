@@ -10,6 +10,9 @@ its neighbours. Every random draw is one: in the `tiny` config's epoch they were
 unrolled form, JAX's own lowering on every other platform, fuses with the code around it:
 the same random bits, and a cold ``tiny`` start compiles in 43 s instead of 53. Other float
 results can move by an ulp where XLA fuses their neighbours differently (docs/profiling.md).
+JAX's own main branch has since dropped the CPU's loop (jax-ml/jax, commit 1935c5f of
+``threefry2x32.py`` registers no CPU rule): :func:`unroll_threefry` can go once the lock's
+JAX lowers so itself.
 """
 
 from __future__ import annotations
