@@ -17,6 +17,7 @@ JAX lowers so itself.
 
 from __future__ import annotations
 
+import inspect
 from functools import partial
 
 from mecanum_jax.precision import set_matmul_precision
@@ -29,19 +30,21 @@ def unroll_threefry() -> bool:
 
     The hash's arithmetic is the same, so the bits are (tests/test_tracing.py). Returns
     whether the lowering is installed: ``False`` where this JAX lacks the private
-    lowering it reuses, which then keeps its own (slower to compile, equal bits).
+    lowering it reuses, or its ``use_rolled_loops`` switch, which then keeps its own
+    (slower to compile on the CPU, equal bits).
     """
     if not _installed:
         try:
             from jax._src.interpreters import mlir
             from jax._src.random import threefry2x32 as tf
 
-            rule = mlir.lower_fun(
-                partial(tf._threefry2x32_lowering, use_rolled_loops=False), multiple_results=True
-            )
+            lowering = tf._threefry2x32_lowering
+            if "use_rolled_loops" not in inspect.signature(lowering).parameters:
+                raise TypeError("another threefry lowering")  # checked now, not at lowering
+            rule = mlir.lower_fun(partial(lowering, use_rolled_loops=False), multiple_results=True)
             mlir.register_lowering(tf.threefry2x32_p, rule, platform="cpu")
             _installed.append(True)
-        except (ImportError, AttributeError, TypeError):
+        except (ImportError, AttributeError, TypeError, ValueError):
             _installed.append(False)
     return _installed[0]
 

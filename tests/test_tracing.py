@@ -77,3 +77,16 @@ def test_prepare_tracing_sets_the_precision_and_the_lowering() -> None:
     assert tracing.unroll_threefry()  # idempotent: installed once, reported each time
     text = jax.jit(lambda k: jax.random.normal(k, (4,))).lower(jax.random.PRNGKey(0)).as_text()
     assert "stablehlo.while" not in text
+
+
+def test_a_jax_without_the_switch_keeps_its_own_lowering(monkeypatch):
+    """Where JAX's private lowering has no ``use_rolled_loops`` switch (another JAX), the
+    call installs nothing and says so, rather than failing later, at a lowering."""
+    from jax._src.random import threefry2x32 as tf
+
+    monkeypatch.setattr(tracing, "_installed", [])
+    monkeypatch.setattr(tf, "_threefry2x32_lowering", lambda key1, key2, x1, x2: (x1, x2))
+    assert tracing.unroll_threefry() is False
+    assert tracing.unroll_threefry() is False  # decided once
+    text = jax.jit(lambda k: jax.random.normal(k, (4,))).lower(jax.random.PRNGKey(1)).as_text()
+    assert "stablehlo.while" not in text  # the rule installed before is left as it was
