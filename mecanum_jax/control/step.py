@@ -93,7 +93,7 @@ def observe(spec: ControllerSpec, state: ControllerState, latency: Any, xp: Any)
     if spec.path_tau > 0:
         parts.append(state.path_error / xp.asarray(spec.path_tau * scale))
     if spec.velocity_observer_tau > 0:
-        odometry = frame[..., spec.n_wheels + 4 : spec.n_wheels + 6]
+        odometry = frame[..., spec.sensor("odometry_twist")][..., :2]
         parts.append(state.velocity_estimate / xp.asarray(scale[:2]) - odometry)
     if spec.obs_history > 0:
         past = xp.take(state.history, latency + 1 + xp.arange(spec.obs_history), axis=0)
