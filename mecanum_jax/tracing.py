@@ -18,11 +18,26 @@ JAX lowers so itself.
 from __future__ import annotations
 
 import inspect
+from collections.abc import Callable
 from functools import partial
+from typing import Any
 
 from mecanum_jax.precision import set_matmul_precision
 
 _installed: list[bool] = []  # once per process
+
+
+def threefry_rule(rolled: bool) -> Callable[..., Any]:
+    """JAX's own lowering rule for ``threefry2x32``, rolled (its CPU loop) or unrolled;
+    ``TypeError`` where this JAX's private lowering lacks the ``use_rolled_loops`` switch
+    (checked now, not at a lowering)."""
+    from jax._src.interpreters import mlir
+    from jax._src.random import threefry2x32 as tf
+
+    lowering = tf._threefry2x32_lowering
+    if "use_rolled_loops" not in inspect.signature(lowering).parameters:
+        raise TypeError("another threefry lowering")
+    return mlir.lower_fun(partial(lowering, use_rolled_loops=rolled), multiple_results=True)
 
 
 def unroll_threefry() -> bool:
@@ -38,11 +53,7 @@ def unroll_threefry() -> bool:
             from jax._src.interpreters import mlir
             from jax._src.random import threefry2x32 as tf
 
-            lowering = tf._threefry2x32_lowering
-            if "use_rolled_loops" not in inspect.signature(lowering).parameters:
-                raise TypeError("another threefry lowering")  # checked now, not at lowering
-            rule = mlir.lower_fun(partial(lowering, use_rolled_loops=False), multiple_results=True)
-            mlir.register_lowering(tf.threefry2x32_p, rule, platform="cpu")
+            mlir.register_lowering(tf.threefry2x32_p, threefry_rule(False), platform="cpu")
             _installed.append(True)
         except (ImportError, AttributeError, TypeError, ValueError):
             _installed.append(False)

@@ -3,8 +3,6 @@ lowered without a loop, and installed by every entry point's preparation."""
 
 from __future__ import annotations
 
-from functools import partial
-
 import jax
 import numpy as np
 import pytest
@@ -32,24 +30,15 @@ def lowered(rolled: bool) -> tuple[str, list[np.ndarray]]:
     from jax._src.interpreters import mlir
     from jax._src.random import threefry2x32 as tf
 
-    rule = mlir.lower_fun(
-        partial(tf._threefry2x32_lowering, use_rolled_loops=rolled), multiple_results=True
-    )
-    mlir.register_lowering(tf.threefry2x32_p, rule, platform="cpu")
+    mlir.register_lowering(tf.threefry2x32_p, tracing.threefry_rule(rolled), platform="cpu")
     try:
         keys = jax.random.split(jax.random.PRNGKey(3), 4)
         fn = jax.jit(jax.vmap(lambda k: draws(k)))  # a fresh function: no cached lowering
         text = fn.lower(keys).as_text()
         out = [np.asarray(x) for x in fn(keys)]
         return text, out
-    finally:
-        mlir.register_lowering(
-            tf.threefry2x32_p,
-            mlir.lower_fun(
-                partial(tf._threefry2x32_lowering, use_rolled_loops=False), multiple_results=True
-            ),
-            platform="cpu",
-        )
+    finally:  # as every entry point leaves it
+        mlir.register_lowering(tf.threefry2x32_p, tracing.threefry_rule(False), platform="cpu")
 
 
 @pytest.mark.skipif(jax.default_backend() != "cpu", reason="the CPU's lowering")
