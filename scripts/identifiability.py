@@ -1,16 +1,13 @@
 """How much of the base controller's error could a policy predict from what it observes?
 
     python scripts/identifiability.py [--config gpu] [--robots 1024] [--frames 0 10 25]
-        [--observer-tau 1.0] [--accel-bias 0.1]
 
 A residual policy can only cancel an error it can predict. This rolls the `feedback`
 controller (the `gpu` recipe's base) on the config's randomized robots and on the nominal
 robot, with the training's sensor noise, and fits predictors of the next step's true twist
 error (steady steps, at least 0.5 s after a command change, commands within reach) from
-the policy's observation with 0, 10 or 25 earlier sensor frames, with the velocity observer
-of ``env.velocity_observer_tau`` (``--observer-tau``; the accelerometer biased per robot
-with ``--accel-bias``, m/s²), and from the observation plus the critic's randomized
-parameters (what the privileged critic knows). Predictors are
+the policy's observation with 0, 10 or 25 earlier sensor frames, and from the observation
+plus the critic's randomized parameters (what the privileged critic knows). Predictors are
 fitted on 3/4 of the robots, in the config's share of nominal ones, and judged on the rest:
 the RMS error left after subtracting the prediction, on randomized and on nominal robots,
 beside `feedback`'s own. A predictor that leaves the nominal robot worse than `feedback`
@@ -74,24 +71,12 @@ def rollout(env: MecanumEnv, key: jax.Array, robots: int, steps: int) -> dict[st
     return {"state": state, "params": params, "error": error, "steady": steady}
 
 
-def features(
-    d: dict[str, np.ndarray], env: MecanumEnv, frames: int | None, observer: bool = False
-) -> np.ndarray:
-    """The observation with ``frames`` earlier sensor frames (None: the parameters
-    instead), and the velocity observer's entry if ``observer``."""
-    state, seen = d["state"], d["state"][..., :0]
-    if env.control.has("velocity_residual"):
-        cut = env.control.entry("velocity_residual")
-        seen = state[..., cut]
-        state = np.concatenate([state[..., : cut.start], state[..., cut.stop :]], axis=-1)
-    base = sum(
-        size for name, size in env.layout if name not in ("sensor_history", "velocity_residual")
-    )
+def features(d: dict[str, np.ndarray], env: MecanumEnv, frames: int | None) -> np.ndarray:
+    """The observation with ``frames`` earlier sensor frames; None: plus the parameters."""
+    base = sum(size for name, size in env.layout if name != "sensor_history")
     if frames is None:
-        parts = [state[..., :base], d["params"]]
-    else:
-        parts = [state[..., : base + frames * sensor_size(env.constants.n_wheels)]]
-    return np.concatenate([*parts, seen] if observer else parts, axis=-1)
+        return np.concatenate([d["state"][..., :base], d["params"]], axis=-1)
+    return d["state"][..., : base + frames * sensor_size(env.constants.n_wheels)]
 
 
 def fit_mlp(x: np.ndarray, y: np.ndarray, steps: int, seed: int) -> Predictor:
@@ -146,8 +131,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fit-steps", type=int, default=2500)
     ap.add_argument("--frames", type=int, nargs="+", default=[0, 10, 25])
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--observer-tau", type=float, default=0.0, help="s; 0: no observer rows")
-    ap.add_argument("--accel-bias", type=float, default=0.0, help="m/s², per robot and axis")
     args = ap.parse_args(argv)
     if args.robots < CHUNK or args.robots % CHUNK:
         ap.error(f"--robots = {args.robots}: must be a positive multiple of {CHUNK}")
@@ -157,11 +140,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--fit-steps = {args.fit_steps}, --frames = {args.frames}: need >= 1 and >= 0")
     try:  # a bad config or frame count: one line naming the field and value
         cfg = load_train_config(args.config).env
-        noise = dataclasses.replace(cfg.noise, accel_bias=args.accel_bias)
-        cfg = dataclasses.replace(
-            cfg, obs_history=max(args.frames), physics_impl="jax", noise=noise,
-            velocity_observer_tau=args.observer_tau,
-        )  # fmt: skip
+        cfg = dataclasses.replace(cfg, obs_history=max(args.frames), physics_impl="jax")
         cfg.validate()
     except ConfigError as err:
         ap.error(str(err))
@@ -202,13 +181,9 @@ def main(argv: list[str] | None = None) -> int:
     errs = {n: d["error"][n_fit:][held[n]] for n, d in data.items()}
     table.add_row("-", "none (`feedback`)", *(f"{v:.4f}" for n in errs for v in rms(errs[n])))
     env = envs["randomized"]
-    rows: list[tuple[int | None, bool]] = [(f, False) for f in args.frames]
-    if args.observer_tau > 0:
-        rows += [(f, True) for f in args.frames]
-    for frames, observer in [*rows, (None, False)]:
+    for frames in [*args.frames, None]:
         label = "+ parameters (privileged)" if frames is None else f"{frames} earlier frames"
-        label += f" + observer (τ {args.observer_tau} s)" if observer else ""
-        xs = {n: features(d, env, frames, observer) for n, d in data.items()}
+        xs = {n: features(d, env, frames) for n, d in data.items()}
         x = np.concatenate([xs[n][fit_rows[n]][data[n]["steady"][fit_rows[n]]] for n in xs])
         y = np.concatenate(
             [data[n]["error"][fit_rows[n]][data[n]["steady"][fit_rows[n]]] for n in xs]

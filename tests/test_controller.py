@@ -40,7 +40,6 @@ OPTIONS = {
     "direct_rates": {"residual": False, "action_filter": 0.0, "residual_deadband": 0.0},
     "path_ramp_history": {"path_tau": 3.0, "residual_ramp_s": 0.5, "obs_history": 2},
     "feedback_margin": {"feedback": {"margin": 0.1}},
-    "velocity_observer": {"velocity_observer_tau": 1.0, "symmetric": True},
 }  # fmt: skip
 """Controller options as the configs use them, each on the shipped robot's export."""
 
@@ -56,8 +55,7 @@ def _policy(overrides: dict, seed: int = 0) -> NumpyPolicy:
     meta["action_size"] = 3 if twist else n
     feedback = meta["residual"] and meta["residual_base"] == "feedback"
     layout = policy_layout(n, meta["action_size"], meta["yaw_integral_tau"] > 0, feedback,
-                           meta["obs_history"], meta.get("path_tau", 0) > 0,
-                           meta.get("velocity_observer_tau", 0) > 0)  # fmt: skip
+                           meta["obs_history"], meta.get("path_tau", 0) > 0)  # fmt: skip
     meta["observation_layout"] = [list(x) for x in layout]
     size = sum(k for _, k in layout)
     if size == shipped.observation_size and meta["action_size"] == shipped.action_size:

@@ -172,20 +172,6 @@ def test_the_loop_keeps_the_path_error_as_the_environment_does(shipped_task, int
     assert set_err < 1e-3
 
 
-def test_the_loop_keeps_the_velocity_observer_as_the_environment_does(shipped_task):
-    """The accelerometer-odometry observer (observed) through a start, a turn and a stop,
-    with noise and latency: the loop's estimate is the environment's, and it moves."""
-    task = dataclasses.replace(shipped_task, velocity_observer_tau=1.0)
-    env = MecanumEnv(task)
-    ctrl = Controller(network_free(env))
-    assert ctrl.spec.has("velocity_residual")
-    commands = np.repeat(np.array([[0.6, 0.0, 0.0], [0.3, 0.3, 1.5], [0.0, 0.0, 0.0]]), 8, 0)
-    obs_err, set_err, _ = _lockstep(env, ctrl, commands.astype(np.float32), 1)
-    assert obs_err < 1e-5
-    assert set_err < 1e-3
-    assert np.abs(ctrl.state.velocity_estimate).max() > 0.05
-
-
 def test_a_layout_entry_the_loop_does_not_keep_is_refused(controller):
     """An export whose layout has a state the controller does not keep is refused, naming
     it (a new state is a field of mecanum_jax.control.ControllerState and a step of it)."""

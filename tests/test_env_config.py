@@ -23,8 +23,6 @@ from mecanum_jax.task import EnvConfig, MecanumEnv
         ({"reward": {"target": "goal"}}, "env.reward.target = 'goal'"),
         ({"robot": "no_such_robot"}, "env.robot = 'no_such_robot'"),
         ({"noise": {"gyro": "big"}}, "env.noise.gyro = 'big'"),
-        ({"noise": {"accel_bias": -0.1}}, "env.noise.accel_bias = -0.1: must be >= 0"),
-        ({"velocity_observer_tau": -1.0}, "env.velocity_observer_tau = -1.0: must be >= 0"),
         ({"action_filter": 1.0}, "env.action_filter = 1.0"),
         ({"action_filter": -0.1}, "env.action_filter = -0.1"),
         ({"colour": "red"}, "env.colour = 'red': unknown key"),

@@ -30,7 +30,7 @@ def test_the_history_is_the_frames_before_the_observed_one_newest_first():
     """With a latency of 1 the observed frame is one period old; the history is the
     frames before it, each as delayed."""
     history = jnp.arange(6 * 2, dtype=jnp.float32).reshape(6, 2)  # frame k = [2k, 2k+1]
-    state = ControllerState(*(None,) * 3, history, *(None,) * 5)
+    state = ControllerState(*(None,) * 3, history, *(None,) * 4)
     latency = jnp.asarray(1, jnp.int32)
     np.testing.assert_array_equal(ctl.observed_frame(state, latency, jnp), [2.0, 3.0])
     past = jnp.take(history, latency + 1 + jnp.arange(3), axis=0).reshape(-1)

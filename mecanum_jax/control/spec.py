@@ -41,7 +41,6 @@ def policy_layout(
     feedback_integral: bool = False,
     history: int = 0,
     path_error: bool = False,
-    velocity_observer: bool = False,
 ) -> Layout:
     """The policy observation's entries and their sizes, in order; ``history`` earlier
     sensor frames come last."""
@@ -59,8 +58,6 @@ def policy_layout(
         layout = (*layout, ("feedback_integral", 1))
     if path_error:
         layout = (*layout, ("path_error", 3))
-    if velocity_observer:
-        layout = (*layout, ("velocity_residual", 2))
     if history > 0:
         layout = (*layout, ("sensor_history", history * sensor_size(n_wheels)))
     return layout
@@ -116,7 +113,6 @@ class ControllerSpec:
     feedback: FeedbackSpec
     symmetric: bool = False
     path_integrator: str = "euler"
-    velocity_observer_tau: float = 0.0
 
     @property
     def n_wheels(self) -> int:
@@ -190,7 +186,6 @@ class ControllerSpec:
             feedback=feedback,
             symmetric=bool(meta.get("symmetric") or False),
             path_integrator=str(meta.get("path_integrator") or "euler"),
-            velocity_observer_tau=float(meta.get("velocity_observer_tau") or 0.0),
         )
 
 

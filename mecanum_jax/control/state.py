@@ -30,9 +30,6 @@ class ControllerState(NamedTuple):
     path_error: Any
     """(3,) the leaky path error measured against the commanded path, in the commanded
     frame: position x, y (m) and heading (rad), the robot's minus the command's."""
-    velocity_estimate: Any
-    """(2,) the body's planar velocity (vx, vy) as the accelerometer-odometry observer
-    estimates it, m/s (0 unless ``velocity_observer_tau``)."""
 
 
 FIELDS = ControllerState._fields

@@ -84,17 +84,17 @@ def measured_yaw_rate(spec: ControllerSpec, state: ControllerState, latency: Any
 def observe(spec: ControllerSpec, state: ControllerState, latency: Any, xp: Any) -> Any:
     """The policy observation (``spec.layout``)."""
     scale = spec.command_scale
-    frame = observed_frame(state, latency, xp)
-    parts = [state.command / xp.asarray(scale), frame, state.last_action]
+    parts = [
+        state.command / xp.asarray(scale),
+        observed_frame(state, latency, xp),
+        state.last_action,
+    ]
     if spec.yaw_integral_tau > 0:
         parts.append(state.yaw_integral[..., None] / (spec.yaw_integral_tau * float(scale[2])))
     if spec.feedback_base:
         parts.append(state.feedback_integral[..., None] / float(scale[2]))
     if spec.path_tau > 0:
         parts.append(state.path_error / xp.asarray(spec.path_tau * scale))
-    if spec.velocity_observer_tau > 0:
-        odometry = frame[..., spec.sensor("odometry_twist")][..., :2]
-        parts.append(state.velocity_estimate / xp.asarray(scale[:2]) - odometry)
     if spec.obs_history > 0:
         past = xp.take(state.history, latency + 1 + xp.arange(spec.obs_history), axis=0)
         parts.append(xp.reshape(past, (-1,)))
@@ -282,21 +282,6 @@ def path_step(spec: ControllerSpec, error: Any, twist: Any, command: Any, xp: An
     return math.exp(-dt / spec.path_tau) * grown
 
 
-def velocity_step(spec: ControllerSpec, estimate: Any, frame: Any, xp: Any) -> Any:
-    """The observer's body velocity (..., 2) after the period whose sensor ``frame`` was
-    just read: grown by the accelerometer's specific force less the frame's turn (the gyro),
-    ``v + dt·(a − ω × v)``, then pulled towards the wheel odometry with
-    ``velocity_observer_tau``. The encoders hold it to the wheels' speed over long times;
-    for about τ it keeps the body's own, which a slipping wheel does not show."""
-    dt, scale = spec.control_dt, spec.command_scale
-    accel = frame[..., spec.sensor("accel")][..., :2] * spec.gravity
-    w = frame[..., spec.sensor("gyro_z")] * float(scale[2])
-    odometry = frame[..., spec.sensor("odometry_twist")][..., :2] * xp.asarray(scale[:2])
-    turn = xp.concat([w * estimate[..., 1:2], -w * estimate[..., 0:1]], axis=-1)
-    grown = estimate + dt * (accel + turn)
-    return odometry + math.exp(-dt / spec.velocity_observer_tau) * (grown - odometry)
-
-
 def sense(
     spec: ControllerSpec,
     state: ControllerState,
@@ -333,8 +318,6 @@ def sense(
         measured = xp.concat([odometry[..., 0:2], gyro[..., None]], axis=-1)
         path = nearest_feasible(spec, tracked, xp) if spec.path_integrator == "exact" else tracked
         out = out._replace(path_error=path_step(spec, state.path_error, measured, path, xp))
-    if spec.velocity_observer_tau > 0:
-        out = out._replace(velocity_estimate=velocity_step(spec, state.velocity_estimate, now, xp))
     return out
 
 
@@ -353,7 +336,6 @@ def initial_state(
         feedback_integral=zero,
         feedback_gains=gains(spec, xp),
         path_error=xp.zeros((3,), dtype=xp.float32),
-        velocity_estimate=xp.zeros((2,), dtype=xp.float32),
     )
 
 
@@ -376,5 +358,4 @@ __all__ = [
     "setpoints",
     "shape_action",
     "soft_threshold",
-    "velocity_step",
 ]

@@ -64,8 +64,6 @@ def _entry_map(name: str, size: int, signs: Any, wheels: Map, spec: ControllerSp
     frame = [wheels, scalar, accel, twist]
     if name in ("command", "odometry_twist", "path_error"):
         return twist
-    if name == "velocity_residual":
-        return (np.arange(2), t[:2])
     if name == "wheel_rate":
         return wheels
     if name in ("gyro_z", "yaw_error_integral", "feedback_integral"):

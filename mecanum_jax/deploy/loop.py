@@ -48,8 +48,7 @@ else:  # pragma: no cover - in an export's archive (on sys.path), next to mecanu
 
 KNOWN = (
     "command", "wheel_rate", "gyro_z", "accel", "odometry_twist", "last_action",
-    "yaw_error_integral", "feedback_integral", "path_error", "velocity_residual",
-    "sensor_history",
+    "yaw_error_integral", "feedback_integral", "path_error", "sensor_history",
 )  # fmt: skip
 """The observation entries the controller keeps."""
 

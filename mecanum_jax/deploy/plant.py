@@ -208,19 +208,17 @@ class Plant:
 
 class SensorChannel:
     """What the controller receives: the plant's sensors with Gaussian noise (standard
-    deviations: wheel rate, gyro, accel and, if given, an accelerometer bias drawn at each
-    reset) and ``latency`` control periods old, kept as the training environment keeps
-    them (its reset fills the history with the first reading)."""
+    deviations: wheel rate, gyro, accel) and ``latency`` control periods old, kept as the
+    training environment keeps them (its reset fills the history with the first reading)."""
 
     def __init__(self, noise_std: npt.ArrayLike = (0.0, 0.0, 0.0), latency: int = 0, seed: int = 0):
         self.noise_std = np.asarray(noise_std, float)
-        if self.noise_std.shape not in ((3,), (4,)) or not np.all(self.noise_std >= 0):
-            raise ValueError(f"noise_std = {noise_std!r}: three or four standard deviations >= 0")
+        if self.noise_std.shape != (3,) or not np.all(self.noise_std >= 0):
+            raise ValueError(f"noise_std = {noise_std!r}: three standard deviations >= 0")
         if int(latency) != latency or latency < 0:
             raise ValueError(f"latency = {latency!r}: whole control periods >= 0")
         self.latency = int(latency)
         self.rng = np.random.default_rng(seed)
-        self.bias = np.zeros(3)
         self.history: list[tuple[np.ndarray, float, np.ndarray]] = []
 
     def _noisy(self, m: Measurement) -> tuple[np.ndarray, float, np.ndarray]:
@@ -228,12 +226,10 @@ class SensorChannel:
         return (
             m.wheel_rate + s[0] * r.standard_normal(len(m.wheel_rate)),
             m.gyro_z + s[1] * float(r.standard_normal()),
-            m.accel + s[2] * r.standard_normal(3) + self.bias,
+            m.accel + s[2] * r.standard_normal(3),
         )
 
     def reset(self, m: Measurement) -> tuple[np.ndarray, float, np.ndarray]:
-        if len(self.noise_std) > 3 and self.noise_std[3] > 0:  # else the noise stream as before
-            self.bias = self.noise_std[3] * self.rng.standard_normal(3)
         self.history = [self._noisy(m)] * (self.latency + 1)
         return self.history[-1]
 

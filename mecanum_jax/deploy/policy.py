@@ -199,7 +199,6 @@ class NumpyPolicy:
         feedback_integral: float | None = None,
         sensor_history: Any = None,
         path_error: Any = None,
-        velocity_estimate: Any = None,
     ) -> np.ndarray:
         """The policy observation from raw measurements and the controller's states
         (:func:`mecanum_jax.control.step.observe`; ``sensor_history``: the
@@ -209,7 +208,6 @@ class NumpyPolicy:
             "yaw_integral": (spec.yaw_integral_tau > 0, yaw_integral),
             "feedback_integral": (spec.feedback_base, feedback_integral),
             "path_error": (spec.path_tau > 0, path_error),
-            "velocity_estimate": (spec.velocity_observer_tau > 0, velocity_estimate),
         }
         for name, (used, value) in needed.items():
             if used and value is None:
@@ -236,7 +234,6 @@ class NumpyPolicy:
             feedback_integral=f32(feedback_integral),
             feedback_gains=self.gains,
             path_error=f32(np.zeros(3) if path_error is None else path_error),
-            velocity_estimate=f32(np.zeros(2) if velocity_estimate is None else velocity_estimate),
         )
         return ctl.observe(spec, state, 0, np).astype(np.float32)
 

@@ -49,7 +49,7 @@ class EpisodeBatch(NamedTuple):
     keys: jax.Array  # (E, 2) rng of each episode's sensor noise
     params: RobotParams  # (E, ...) physics
     latency: jax.Array  # (E,) control steps
-    noise_std: jax.Array  # (E, 4) wheel rate, gyro, accel, accel bias
+    noise_std: jax.Array  # (E, 3) wheel rate, gyro, accel
     commands: jax.Array  # (E, T, 3) command at each control step
 
 
@@ -144,8 +144,7 @@ def prepare(env: MecanumEnv, scenario: Scenario) -> EpisodeBatch:
         # judged on the same episodes as every other target
         mix = scenario.command_config(JUDGE_COMMANDS)
         commands = samplers[1](jax.random.split(k_cmd, E), _as_arrays(mix))
-    std = env.noise_std(scenario.noise)
-    noise = jnp.broadcast_to(std, (E, *std.shape))
+    noise = jnp.broadcast_to(env.noise_std(scenario.noise), (E, 3))
     return EpisodeBatch(jax.random.split(k_run, E), params, latency, noise, commands)
 
 

@@ -92,11 +92,6 @@ class EnvConfig:
     so the error grows for as long as such a command is held, and beyond reach it counts the
     part of the command no wheel can drive.
 
-    velocity_observer_tau = τ > 0 adds what the accelerometer says the odometry misses:
-    the body's planar velocity integrated from the accelerometer (turned with the gyro)
-    and pulled towards the wheel odometry with τ, less the odometry (both as observed):
-    the slip a floor or a load leaves unseen by the encoders, for about τ after a change.
-
     symmetric = true averages the policy over the robot's mirror group (left-right,
     front-back, half turn; mecanum_jax.control.symmetry): a command a mirror leaves
     unchanged gets a correction that mirror leaves unchanged, exactly.
@@ -141,9 +136,6 @@ class EnvConfig:
     """Time constant of the observed leaky path error, s (>= 0; 0: off)."""
     path_integrator: str = "exact"
     """How the path error is kept: "exact" or "euler" (the shipped policy's; see above)."""
-    velocity_observer_tau: float = 0.0
-    """Time constant of the observed accelerometer-odometry velocity observer, s (>= 0;
-    0: off)."""
     symmetric: bool = False
     """The policy is averaged over the robot's mirror group (exactly equivariant)."""
     commands: CommandConfig = CommandConfig()
@@ -229,7 +221,7 @@ class EnvConfig:
         require(
             self,
             where,
-            ("yaw_integral_tau", "path_tau", "residual_ramp_s", "velocity_observer_tau"),
+            ("yaw_integral_tau", "path_tau", "residual_ramp_s"),
             lambda v: v >= 0,
             "must be >= 0 (0: off)",
         )

@@ -50,8 +50,6 @@ class ControllerConfig(Protocol):
     @property
     def path_integrator(self) -> str: ...
     @property
-    def velocity_observer_tau(self) -> float: ...
-    @property
     def symmetric(self) -> bool: ...
     @property
     def obs_history(self) -> int: ...
@@ -80,7 +78,6 @@ def policy_shape(config: ControllerConfig, n_wheels: int) -> tuple[int, Layout]:
         feedback_base,
         config.obs_history,
         config.path_tau > 0,
-        config.velocity_observer_tau > 0,
     )
     return action_size, layout
 
@@ -109,7 +106,6 @@ def controller_meta(
         "yaw_integral_tau": config.yaw_integral_tau,
         "path_tau": config.path_tau,
         "path_integrator": config.path_integrator,
-        "velocity_observer_tau": config.velocity_observer_tau,
         "symmetric": config.symmetric,
         "obs_history": config.obs_history,
         "action_filter": config.action_filter,
@@ -162,9 +158,7 @@ class EpisodeInfo(TypedDict):
     latency: jax.Array
     """() int32: the sensors' delay, control steps"""
     noise_std: jax.Array
-    """(4,) sensor noise: wheel rate, gyro, accelerometer, accelerometer bias"""
-    accel_bias: jax.Array
-    """(3,) the accelerometer's offset this episode"""
+    """(3,) sensor noise: wheel rate, gyro, accelerometer"""
     next_resample: jax.Array
     """() int32: the step at which the command is next drawn"""
     step: jax.Array
@@ -187,7 +181,6 @@ class TaskInfo(EpisodeInfo):
     feedback_integral: jax.Array
     feedback_gains: jax.Array
     path_error: jax.Array
-    velocity_estimate: jax.Array
 
 
 def task_info(state: State) -> TaskInfo:

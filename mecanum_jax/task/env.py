@@ -119,8 +119,7 @@ class MecanumEnv(Env):
         self, rng: jax.Array, params: RobotParams, latency: jax.Array, noise_std: jax.Array
     ) -> State:
         """Reset with given physics ``params``, ``latency`` (control steps, at most the
-        config's ``latency_steps[1]``) and sensor ``noise_std`` (wheel rate, gyro, accel,
-        accel bias: :meth:`noise_std`).
+        config's ``latency_steps[1]``) and sensor ``noise_std`` (wheel rate, gyro, accel).
 
         Evaluation uses this to run scenarios whose parameters are data, so that one
         compiled program serves them all.
@@ -132,15 +131,13 @@ class MecanumEnv(Env):
         noise_std = jnp.asarray(noise_std, jnp.float32)
         start = jnp.asarray(0, jnp.int32)
         command = cmds.sample_command(c, k_cmd, commands)
-        bias = obs_.accel_bias(k_noise, noise_std)
-        first = obs_.sensor_vector(self.control, sens, k_noise, noise_std, bias)
+        first = obs_.sensor_vector(self.control, sens, k_noise, noise_std)
         control = ctl.initial_state(self.control, first, command, self.history_frames, jnp)
         episode: EpisodeInfo = {
             "rng": rng,
             "params": params,
             "latency": jnp.asarray(latency, jnp.int32),
             "noise_std": noise_std,
-            "accel_bias": bias,
             "next_resample": cmds.resample_time(k_time, start, commands, self.config.control_dt),
             "step": jnp.asarray(0, jnp.int32),
             "true_path_error": jnp.zeros(3),
@@ -198,7 +195,7 @@ class MecanumEnv(Env):
         due = cmds.resample_time(k_time, step, cfg.commands, cfg.control_dt)
         info["next_resample"] = jnp.where(resample, due, info["next_resample"])
         info["step"], info["rng"], info["true_path_error"] = step, rng, path
-        frame = obs_.sensor_vector(spec, sens, k_noise, info["noise_std"], info["accel_bias"])
+        frame = obs_.sensor_vector(spec, sens, k_noise, info["noise_std"])
         info = with_control(info, ctl.sense(spec, after, frame, new_command, latency, jnp))
         obs = self._observe(sens, info)
         return state.replace(pipeline_state=sim, obs=obs, reward=reward, metrics=metrics, info=info)
@@ -243,8 +240,7 @@ class MecanumEnv(Env):
         return obs_.observe(self.constants, sens, info, policy, self.path_scale)
 
     def noise_std(self, noise: NoiseConfig | None = None) -> jax.Array:
-        """Sensor noise standard deviations (wheel rate, gyro, accel, accel bias) of a
-        noise config."""
+        """Sensor noise standard deviations (wheel rate, gyro, accel) of a noise config."""
         return (noise or self.config.noise).std()
 
     def feedback_gains(self, feedback: FeedbackConfig | None = None) -> jax.Array:

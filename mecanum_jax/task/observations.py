@@ -39,19 +39,18 @@ class NoiseConfig:
     """Gyro z noise, rad/s (>= 0)."""
     accel: float = 0.3
     """Accelerometer noise, m/s² (>= 0)."""
-    accel_bias: float = 0.0
-    """Accelerometer bias, m/s² (>= 0): the standard deviation of an offset on each axis,
-    drawn once per episode (a tilted or miscalibrated IMU; 0: none)."""
 
     def validate(self, where: str = "env.noise") -> None:
         """Check values; raise :class:`ConfigError` naming the field."""
-        fields = ("scale", "wheel_rate", "gyro", "accel", "accel_bias")
+        fields = ("scale", "wheel_rate", "gyro", "accel")
         require(self, where, fields, lambda v: v >= 0, "must be >= 0")
 
     def std(self) -> jax.Array:
-        """The standard deviations (wheel rate, gyro, accel, accel bias), scaled."""
-        stds = (self.wheel_rate, self.gyro, self.accel, self.accel_bias)
-        return jnp.asarray([self.scale * s for s in stds], jnp.float32)
+        """The standard deviations (wheel rate, gyro, accel), scaled."""
+        return jnp.asarray(
+            [self.scale * self.wheel_rate, self.scale * self.gyro, self.scale * self.accel],
+            jnp.float32,
+        )
 
 
 def privileged_layout(layout: Layout, n_wheels: int, path: bool = False) -> Layout:
@@ -73,23 +72,15 @@ def privileged_layout(layout: Layout, n_wheels: int, path: bool = False) -> Layo
     )
 
 
-def accel_bias(key: jax.Array, noise_std: jax.Array) -> jax.Array:
-    """An episode's accelerometer bias (3,), m/s², from its reset's noise ``key`` (a stream
-    of its own: the noise drawn from ``key`` is unchanged) and ``noise_std``'s fourth entry
-    (:meth:`NoiseConfig.std`)."""
-    return noise_std[3] * jax.random.normal(jax.random.fold_in(key, 1), (3,))
-
-
 def sensor_vector(
-    spec: ControllerSpec, s: Sensors, key: jax.Array, noise_std: jax.Array, bias: jax.Array
+    spec: ControllerSpec, s: Sensors, key: jax.Array, noise_std: jax.Array
 ) -> jax.Array:
     """The scaled sensor frame (:func:`mecanum_jax.control.step.frame`) of noisy
-    encoder rates, gyro z and accelerometer (standard deviations ``noise_std``; the
-    accelerometer's ``bias`` (3,) added)."""
+    encoder rates, gyro z and accelerometer (standard deviations ``noise_std``)."""
     k1, k2, k3 = jax.random.split(key, 3)
     rate = s.wheel_rate + noise_std[0] * jax.random.normal(k1, s.wheel_rate.shape)
     gyro = s.gyro_z + noise_std[1] * jax.random.normal(k2)
-    accel = s.accel + noise_std[2] * jax.random.normal(k3, (3,)) + bias
+    accel = s.accel + noise_std[2] * jax.random.normal(k3, (3,))
     return ctl.frame(spec, rate, gyro[None], accel, jnp)
 
 

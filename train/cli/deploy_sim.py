@@ -98,7 +98,7 @@ class Episodes:
     commands: np.ndarray  # (E, T, 3)
     params: list[PlantParams]
     latency: np.ndarray  # (E,) control periods
-    noise_std: np.ndarray  # (E, 3 or 4) wheel rate, gyro, accel (, accel bias)
+    noise_std: np.ndarray  # (E, 3) wheel rate, gyro, accel
     targets: np.ndarray  # (E, T, 3) the nearest feasible twist of the true robot
     scripted: bool
     jacobian: np.ndarray
@@ -176,7 +176,7 @@ def episodes(args: DeploySimArgs, cfg: TrainConfig) -> Episodes:
         eps.latency = np.full(len(eps.commands), args.latency)
     if args.noise_scale is not None:
         std = np.asarray(NoiseConfig(scale=args.noise_scale).std(), float)
-        eps.noise_std = np.broadcast_to(std, (len(eps.commands), len(std))).copy()
+        eps.noise_std = np.broadcast_to(std, eps.noise_std.shape).copy()
     return eps
 
 
