@@ -325,7 +325,7 @@ def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
     of them, at 4.5 rad/s, branched at step 155 of 250 when both sides ran MJX's JAX
     implementation."""
     from mecanum_jax.evaluation import metrics, scenarios
-    from mecanum_jax.evaluation import rollout as ev
+    from mecanum_jax.evaluation.traces import trace_parts
     from train.cli import eval_target
     from train.cli import evaluate as cli
 
@@ -337,14 +337,14 @@ def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
     _, traces, _ = cli.evaluate(target, chosen, args)
     dt = target.env.config.control_dt
     jac = np.asarray(target.env.jacobian)
-    evaluated = ev.trace_parts(traces["nominal"]["policy"], jac, dt)
+    evaluated = trace_parts(traces["nominal"]["policy"], jac, dt)
 
     sim_args = deploy_sim.DeploySimArgs(str(MODEL), episodes=E, seconds=S)
     cfg, ctrl = deploy_sim.load_model(sim_args)
     eps = deploy_sim.episodes(sim_args, cfg)
     np.testing.assert_array_equal(eps.commands, traces["nominal"]["policy"].command)
     plant = Plant(dataclasses.replace(cfg.env, physics_impl="jax").description(), "fast")
-    deployed = ev.trace_parts(deploy_sim.play(plant, ctrl, eps), jac, dt)
+    deployed = trace_parts(deploy_sim.play(plant, ctrl, eps), jac, dt)
 
     class ForgetfulLoop(Controller):  # a loop that forgets the feedback integrator
         def step(self, command, *readings):
@@ -352,7 +352,7 @@ def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
                 self.state = self.state._replace(feedback_integral=np.float32(0.0))
             return super().step(command, *readings)
 
-    wrong = ev.trace_parts(deploy_sim.play(plant, ForgetfulLoop(ctrl.policy), eps), jac, dt)
+    wrong = trace_parts(deploy_sim.play(plant, ForgetfulLoop(ctrl.policy), eps), jac, dt)
 
     def per_episode(p):
         return np.sqrt(p.num / p.den)

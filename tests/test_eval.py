@@ -15,6 +15,7 @@ import pytest
 
 from mecanum_jax.evaluation import episodes, paired
 from mecanum_jax.evaluation import rollout as evaluation
+from mecanum_jax.evaluation.traces import Trace, per_episode, summarize, trace_parts
 from mecanum_jax.task import MecanumEnv
 from train.cli import evaluate as cli
 from train.learner.policy import check_compatible, load_policy, restore_policy
@@ -63,7 +64,7 @@ def test_summarize_on_a_known_trace():
     pose[:, :, 0] = np.minimum(np.arange(1, T + 1), 25) * dt
     pose[:, -1, :2] = [0.5, 0.05]  # ends 5 cm to the left of the commanded end point
     pose[:, -1, 2] = 0.2
-    trace = evaluation.Trace(
+    trace = Trace(
         command=command,
         target=command,
         twist=twist,
@@ -77,7 +78,7 @@ def test_summarize_on_a_known_trace():
         qpos=np.zeros((E, T, 1)),
     )
     jac = np.ones((4, 3))
-    m = evaluation.summarize(trace, dt, True, jac)
+    m = summarize(trace, dt, True, jac)
     assert m["rmse_vx"] == pytest.approx(0.0)
     assert m["rmse_vy"] == pytest.approx(0.1)
     assert m["rmse_lin"] == pytest.approx(0.1)
@@ -88,8 +89,8 @@ def test_summarize_on_a_known_trace():
     assert m["heading_drift_rad"] == pytest.approx(0.2, abs=1e-6)
     assert m["energy_j"] == pytest.approx(25.0)
     assert m["energy_per_m"] == pytest.approx(25.0 / np.hypot(0.48, 0.05) + 0 * 1, rel=0.2)
-    assert evaluation.summarize(trace, dt, False, jac)["drift_m"] is None
-    detail = evaluation.per_episode(trace, dt, scripted=True)
+    assert summarize(trace, dt, False, jac)["drift_m"] is None
+    detail = per_episode(trace, dt, scripted=True)
     np.testing.assert_allclose(detail["rmse_wz"], [0.0, 0.3], atol=1e-6)
     np.testing.assert_allclose(detail["drift_m"], [0.05, 0.05], atol=1e-6)
     assert max(detail["rmse_wz"]) == pytest.approx(m["worst_rmse_wz"])
@@ -109,7 +110,7 @@ def test_baseline_rollout_tracks_and_is_deterministic(eval_env, small, baseline_
     b = baseline_evaluator.run(batch)
     np.testing.assert_array_equal(a.twist, b.twist)
     np.testing.assert_array_equal(a.command, np.asarray(batch.commands))
-    m = evaluation.summarize(a, eval_env.config.control_dt, False, eval_env.jacobian)
+    m = summarize(a, eval_env.config.control_dt, False, eval_env.jacobian)
     assert m["unstable"] == 0
     # it tracks: far better than standing still
     still = np.sqrt(np.mean(np.sum(a.command[..., :2] ** 2, axis=-1)))
@@ -131,8 +132,8 @@ def test_references_apply_no_action_beside_a_policy(eval_env, small):
     assert np.max(np.abs(pol.action)) > 0.01
     np.testing.assert_array_equal(ana.action, 0.0)
     jac, dt = eval_env.jacobian, eval_env.config.control_dt
-    assert evaluation.trace_parts(ana, jac, dt)["flicker"].value() == 0.0
-    assert evaluation.trace_parts(pol, jac, dt)["flicker"].value() > 0.0
+    assert trace_parts(ana, jac, dt)["flicker"].value() == 0.0
+    assert trace_parts(pol, jac, dt)["flicker"].value() > 0.0
 
 
 def _tiny_restored(full_run):

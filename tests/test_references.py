@@ -12,6 +12,7 @@ from tasks import PLAIN_FEEDBACK, WHEEL
 
 from mecanum_jax.evaluation import episodes, metrics, scenarios
 from mecanum_jax.evaluation import rollout as evaluation
+from mecanum_jax.evaluation.traces import trace_parts
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.task import REFERENCES, EnvConfig, FeedbackConfig, MecanumEnv, references
 from train.cli.evaluate import main as eval_main
@@ -68,7 +69,7 @@ def test_feedback_removes_the_steady_yaw_error_of_a_slipping_spin(tmp_path):
     jac = kinematics.jacobian(env.geometry)
     dt = env.config.control_dt
     traces = ev.run_many([(batch, "analytic"), (batch, "feedback")])
-    a, f = (evaluation.trace_parts(t, jac, dt)["ss_wz"] for t in traces)
+    a, f = (trace_parts(t, jac, dt)["ss_wz"] for t in traces)
     assert a.value() > 0.05  # the open loop leaves a steady error
     c = metrics.paired_ratio(f, a, n_boot=500)
     assert c is not None

@@ -10,7 +10,7 @@ import pytest
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.evaluation import episodes, scenarios
-from mecanum_jax.evaluation import rollout as evaluation
+from mecanum_jax.evaluation.traces import intended_poses
 from mecanum_jax.kinematics import limits, singularity
 from mecanum_jax.kinematics.modes import SIX_MODES
 from mecanum_jax.task import EnvConfig, MecanumEnv
@@ -66,7 +66,7 @@ def test_singular_pass_drags_two_wheels_and_is_closed(eval_env, shipped):
         singularity.singular_wheels(eval_env.geometry, jnp.asarray(moving), tol=1e-5)
     )
     assert np.all(still.sum(axis=-1) == 2)  # two wheels only dragged at every moving step
-    path = evaluation.intended_poses(cmds[None], eval_env.config.control_dt)[0]
+    path = intended_poses(cmds[None], eval_env.config.control_dt)[0]
     np.testing.assert_allclose(path[-1], 0.0, atol=1e-5)  # out and back: a closed sequence
     assert np.max(np.linalg.norm(path[:, :2], axis=-1)) > 0.5
 

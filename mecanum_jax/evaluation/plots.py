@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from mecanum_jax.evaluation.rollout import Trace, intended_poses, relative_poses
+from mecanum_jax.evaluation.traces import Trace, intended_poses, relative_poses
 from mecanum_jax.task import REFERENCES
 
 if TYPE_CHECKING:

@@ -41,7 +41,7 @@ from mecanum_jax.deploy.loop import Controller
 from mecanum_jax.deploy.plant import Plant, PlantParams, SensorChannel
 from mecanum_jax.deploy.policy import ExportError
 from mecanum_jax.evaluation import metrics
-from mecanum_jax.evaluation import rollout as ev
+from mecanum_jax.evaluation.traces import Trace, summarize, trace_parts
 from train.cli import eval_output
 from train.cli.paths import check_output, resolve_model
 from train.loop.progress import print_error
@@ -238,9 +238,7 @@ def _command_episodes(args: DeploySimArgs, cfg: TrainConfig) -> Episodes:
     )
 
 
-def play(
-    plant: Plant, controller: Controller, eps: Episodes, seed: int = 0
-) -> ev.Trace[np.ndarray]:
+def play(plant: Plant, controller: Controller, eps: Episodes, seed: int = 0) -> Trace[np.ndarray]:
     """Every episode through the control loop, one after another: a :class:`Trace` as
     mecanum-eval records it (twist, pose, torques at the end of each control period)."""
     E, T, _ = eps.commands.shape
@@ -266,7 +264,7 @@ def play(
             limit = plant.params.torque_limit
             out["saturated"][e, t] = np.mean(np.abs(m.wheel_torque) >= 0.99 * limit)
             out["unstable"][e, t] = plant.unstable
-    return ev.Trace(
+    return Trace(
         command=eps.commands, target=eps.targets, start=start, qpos=np.zeros((E, T, 0)), **out
     )
 
@@ -276,13 +274,13 @@ TABLE = tuple(column for column in eval_output.TABLE if column[1] != "flicker")
 INTERVALS = ("rmse_lin", "rmse_wz", "ss_lin", "ss_wz")
 
 
-def report(trace: ev.Trace[np.ndarray], eps: Episodes, args: DeploySimArgs) -> dict[str, Any]:
+def report(trace: Trace[np.ndarray], eps: Episodes, args: DeploySimArgs) -> dict[str, Any]:
     """mecanum-eval's summary of the rehearsal, 95% bootstrap intervals over the episodes
     of the tracking figures, and the per-episode steady-state errors."""
     mcfg = metrics.MetricConfig(settle_s=args.settle_s)
     dt = eps.control_dt
-    parts = ev.trace_parts(trace, eps.jacobian, dt, mcfg)
-    summary = ev.summarize(trace, dt, eps.scripted, eps.jacobian, mcfg, parts)
+    parts = trace_parts(trace, eps.jacobian, dt, mcfg)
+    summary = summarize(trace, dt, eps.scripted, eps.jacobian, mcfg, parts)
     per_episode = {}
     for key in ("ss_lin", "ss_wz"):
         p = parts[key]

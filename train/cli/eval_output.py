@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING, Any
 from rich.table import Table
 
 from mecanum_jax.evaluation import plots
-from mecanum_jax.evaluation import rollout as ev
 from mecanum_jax.evaluation.compare import score
+from mecanum_jax.evaluation.traces import Trace
 from mecanum_jax.task import REFERENCES
 
 if TYPE_CHECKING:
@@ -123,7 +123,7 @@ def scorecard_table(results: dict[str, Any], who: str, refs: Sequence[str]) -> T
 
 def write_plots(
     results: dict[str, Any],
-    traces: dict[str, dict[str, ev.Trace[np.ndarray]]],
+    traces: dict[str, dict[str, Trace[np.ndarray]]],
     dt: float,
     out: Path,
 ) -> list[Path]:

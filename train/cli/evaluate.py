@@ -55,7 +55,13 @@ from mecanum_jax.evaluation import (  # noqa: E402
     plots,
     scenarios,
 )
-from mecanum_jax.evaluation import rollout as ev  # noqa: E402
+from mecanum_jax.evaluation.traces import (  # noqa: E402
+    Trace,
+    drift_parts,
+    per_episode,
+    summarize,
+    trace_parts,
+)
 from mecanum_jax.kinematics import model as kinematics  # noqa: E402
 from train.cli.eval_args import EvalArgs, check_args  # noqa: E402
 from train.cli.eval_output import (  # noqa: E402
@@ -83,7 +89,7 @@ def evaluate(
     scenario_set: scenarios.ScenarioSet,
     args: EvalArgs,
     parts_out: paired.Parts | None = None,
-) -> tuple[dict[str, Any], dict[str, dict[str, ev.Trace[np.ndarray]]], dict[str, float]]:
+) -> tuple[dict[str, Any], dict[str, dict[str, Trace[np.ndarray]]], dict[str, float]]:
     """Every scenario with the policy (if any) and the references, all in as few compiled
     chunks as the batch limit allows: results, traces and timings; ``parts_out``, if
     given, also receives every controller's per-episode metric parts by scenario."""
@@ -99,15 +105,15 @@ def evaluate(
         out = target.evaluator.run_many(jobs, target.params, progress)
     t_rollout = time.time() - t0 - t_prepare
     results: dict[str, Any] = {}
-    traces: dict[str, dict[str, ev.Trace[np.ndarray]]] = {}
+    traces: dict[str, dict[str, Trace[np.ndarray]]] = {}
     jac = kinematics.jacobian(env.geometry)
     for k, sc in enumerate(scenario_set.scenarios):
         per = {who: out[k * len(players) + j] for j, who in enumerate(players)}
         traces[sc.name] = per
-        parts = {who: ev.trace_parts(tr, jac, dt, mcfg) for who, tr in per.items()}
+        parts = {who: trace_parts(tr, jac, dt, mcfg) for who, tr in per.items()}
         if sc.scripted:
             for who, tr in per.items():
-                parts[who] |= ev.drift_parts(tr, dt)
+                parts[who] |= drift_parts(tr, dt)
         if parts_out is not None:
             parts_out[sc.name] = parts
         first = players[0]
@@ -118,15 +124,13 @@ def evaluate(
             "seconds": sc.seconds,
             "seed": sc.seed,
             "scripted": sc.scripted,
-            **{who: ev.summarize(tr, dt, sc.scripted, jac, mcfg) for who, tr in per.items()},
+            **{who: summarize(tr, dt, sc.scripted, jac, mcfg) for who, tr in per.items()},
             "compare": {
                 f"{first}/{ref}": compare.ratios(parts[first], parts[ref], n_boot=args.bootstrap)
                 for ref in refs
                 if first != ref
             },
-            "per_episode": {
-                who: ev.per_episode(tr, dt, sc.scripted, mcfg) for who, tr in per.items()
-            },
+            "per_episode": {who: per_episode(tr, dt, sc.scripted, mcfg) for who, tr in per.items()},
         }
     steps = sum(int(np.prod(b.commands.shape[:2])) for b, _ in jobs)
     timing = {
@@ -143,7 +147,7 @@ def evaluate(
 
 
 def write_videos(
-    target: Target, traces: dict[str, dict[str, ev.Trace[np.ndarray]]], args: EvalArgs, out: Path
+    target: Target, traces: dict[str, dict[str, Trace[np.ndarray]]], args: EvalArgs, out: Path
 ) -> list[Path]:
     from mecanum_jax.sim.render import render_frames, write_video
 

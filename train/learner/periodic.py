@@ -21,6 +21,7 @@ import numpy as np
 from mecanum_jax.evaluation import episodes, metrics, scenarios
 from mecanum_jax.evaluation import rollout as evaluation
 from mecanum_jax.evaluation.compare import TRAINING_COMPARED, ratios
+from mecanum_jax.evaluation.traces import summarize, trace_parts
 from mecanum_jax.kinematics import model as kinematics
 from mecanum_jax.task import fidelity as fid
 from mecanum_jax.task.env import MecanumEnv
@@ -99,8 +100,8 @@ class PeriodicEvaluation:
         dt = self.env.config.control_dt
         values, parts = {}, {}
         for name, trace in zip(batches, traces, strict=True):
-            parts[name] = evaluation.trace_parts(trace, self._jacobian, dt)
-            values[name] = evaluation.summarize(trace, dt, False, self._jacobian, parts=parts[name])
+            parts[name] = trace_parts(trace, self._jacobian, dt)
+            values[name] = summarize(trace, dt, False, self._jacobian, parts=parts[name])
         return Result(values, parts)
 
     def trace(self, who: str, params: object = None) -> list[Lowered]:
