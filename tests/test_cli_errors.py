@@ -94,6 +94,14 @@ CASES = [
     (demo.main, ["--robot", "nosuch"], "robot = 'nosuch'"),
     (ros2.main, ["junk.toml"], "params = 'junk.toml'"),
     (ros2.main, ["o_rectangle", "--to-ros", "x.toml"], "out = 'x.toml'"),
+    # a probe's changes of the task (--play): the item, the field and the value named
+    (evaluate.main, ["baseline", *EVAL, "--play", "residual_deadband"], "'residual_deadband'"),
+    (evaluate.main, ["baseline", *EVAL, "--play", "bogus=1"], "--play.bogus = 1"),
+    (evaluate.main, ["baseline", *EVAL, "--play", "feedback=1"], "--play.feedback = 1"),
+    (evaluate.main, ["baseline", *EVAL, "--play", "feedback.margin=1.5"], "margin = 1.5"),
+    (evaluate.main, ["baseline", *EVAL, "--play", "path_tau=x"], "'path_tau=x'"),
+    (evaluate.main, [str(MODEL), *EVAL, "--play", "path_tau=0"], "--play path_tau=0"),
+    (evaluate.main, [str(MODEL), *EVAL, "--export", "--play", "path_tau=1"], "a probe"),
     # a tuple field: its error in plain text (no rich markup)
     (deploy_sim.main, ["--command", "1", "2"], "--command = [1.0, 2.0]"),
 ]

@@ -280,8 +280,32 @@ def played_with(env: EnvConfig, changes: object, where: str) -> EnvConfig:
                 f"{where}.{name}", value, f"only {[f'env.{f}' for f in PLAYED_FIELDS]} may differ"
             )
         fields[field] = value
-    typed = from_mapping(EnvConfig, fields, f"{where}.env")  # each value as a config file's
-    return dataclasses.replace(env, **{f: getattr(typed, f) for f in fields}).validate("env")
+    return changed_env(env, fields, f"{where}.env")
+
+
+def changed_env(env: EnvConfig, changes: dict[str, object], where: str) -> EnvConfig:
+    """``env`` with ``changes`` (``"FIELD"`` or ``"SECTION.FIELD"``: a value as a config
+    file would give it), each checked as a config file's key and value, then validated."""
+    top: dict[str, object] = {}
+    sections: dict[str, dict[str, object]] = {}
+    for name, value in changes.items():
+        section, dot, field = name.partition(".")
+        if not dot and dataclasses.is_dataclass(getattr(env, name, None)):
+            raise invalid(f"{where}.{name}", value, f"a section: change its fields ({name}.FIELD)")
+        if not dot:
+            top[name] = value
+        elif not dataclasses.is_dataclass(getattr(env, section, None)):
+            raise invalid(f"{where}.{name}", value, f"{section!r} is not a section of env")
+        else:
+            sections.setdefault(section, {})[field] = value
+    typed = from_mapping(EnvConfig, top, where)
+    out = dataclasses.replace(env, **{f: getattr(typed, f) for f in top})
+    for section, fields in sections.items():
+        part = getattr(env, section)
+        typed_part = from_mapping(type(part), fields, f"{where}.{section}")
+        part = dataclasses.replace(part, **{f: getattr(typed_part, f) for f in fields})
+        out = dataclasses.replace(out, **{section: part})
+    return out.validate("env")
 
 
 def load_env_config(path: str | Path) -> EnvConfig:
@@ -300,6 +324,7 @@ __all__ = [
     "NoiseConfig",
     "RandomizationConfig",
     "RewardConfig",
+    "changed_env",
     "load_env_config",
     "played_with",
 ]

@@ -16,9 +16,8 @@ tune() {  # MODEL...; TUNE_JOBS=N: N evaluations at once (they share the GPU; co
   if [ -n "${TUNE_PROBE:-}" ]; then  # the shipped weights played with env fields changed
     names+=(probe); i=$((i + 1)); rm -rf /tmp/tune-probe
     # shellcheck disable=SC2086  # TUNE_PROBE is a list of FIELD=VALUE words
-    CUDA_VISIBLE_DEVICES=$((i % ngpu)) python3 scripts/play_probe.py $TUNE_PROBE -- \
-      models/o_rectangle --scenarios tuning --out /tmp/tune-probe --no-plots \
-      > /tmp/tune-probe.log 2>&1 &
+    CUDA_VISIBLE_DEVICES=$((i % ngpu)) evaluate models/o_rectangle tuning /tmp/tune-probe \
+      --no-plots --play $TUNE_PROBE > /tmp/tune-probe.log 2>&1 &
   fi
   wait
   for k in "${!models[@]}"; do  # one that ran out of GPU memory beside the others: alone
@@ -40,9 +39,8 @@ tune() {  # MODEL...; TUNE_JOBS=N: N evaluations at once (they share the GPU; co
     if [ -n "${TUNE_PROBE:-}" ] && [ -f /tmp/tune-probe/report.json ]; then
       rm -rf /tmp/roller-probe
       # shellcheck disable=SC2086
-      python3 scripts/play_probe.py $TUNE_PROBE -- models/o_rectangle --scenarios dashes \
-        --fidelity reference --physics-impl jax --out /tmp/roller-probe --no-plots \
-        > /tmp/roller-probe.log 2>&1 &
+      evaluate models/o_rectangle dashes /tmp/roller-probe --no-plots --fidelity reference \
+        --physics-impl jax --play $TUNE_PROBE > /tmp/roller-probe.log 2>&1 &
     fi
     wait; roller=(--roller)
   fi

@@ -24,7 +24,7 @@
 #                           ran out of GPU memory runs again, alone); TUNE_SHIPPED=0 leaves
 #                           models/o_rectangle out, e.g. for a screen whose recipe variant
 #                           stands in for it; TUNE_PROBE='FIELD=VALUE ...' adds the shipped
-#                           weights played so (scripts/play_probe.py) as "probe"; then
+#                           weights played so (mecanum-eval --play) as "probe"; then
 #                           each (and the probe) also plays configs/eval/dashes.toml in the
 #                           reference roller model (TUNE_ROLLER=0: not), whose losses count
 #                           too; scripts/pick_candidate.py ranks

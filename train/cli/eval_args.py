@@ -8,6 +8,7 @@ from mecanum_jax.sim.render import ensure_gl_backend, video_writer_missing
 ensure_gl_backend()  # before MuJoCo is imported (by the task): OSMesa when there is no display
 
 import dataclasses  # noqa: E402
+import tomllib  # noqa: E402
 from typing import Annotated, Literal  # noqa: E402
 
 import tyro  # noqa: E402
@@ -71,6 +72,11 @@ class EvalArgs:
     references: tuple[str, ...] = REFERENCES
     """Reference controllers to run on the same episodes (analytic, analytic_nearest,
     feedback)."""
+    play: tuple[str, ...] = ()
+    """A probe: FIELD=VALUE changes of the task's [env] at play time (FIELD or
+    SECTION.FIELD, VALUE as in a TOML file, e.g. residual_deadband=0.01
+    feedback.margin=0.05), for the policy and the references alike. It says whether a lever
+    is worth training, never what a policy trained so would do."""
     settle_s: float = 0.5
     """Steady-state error counts control steps at least this long after a command change, s."""
     bootstrap: int = 2000
@@ -117,6 +123,27 @@ def check_args(args: EvalArgs) -> None:
         raise ConfigError(f"--bootstrap = {args.bootstrap}: must be >= 100")
     if args.export and args.target == "baseline":
         raise ConfigError("--export: the baseline has no weights to export; give a checkpoint")
+    if args.export and args.play:
+        raise ConfigError(f"--play {' '.join(args.play)}: a probe, not a policy to export")
+    play_changes(args.play)
 
 
-__all__ = ["MIN_SECONDS", "EvalArgs", "check_args"]
+def play_changes(items: tuple[str, ...]) -> dict[str, object]:
+    """``--play``'s FIELD=VALUE items as ``{FIELD: value}``, each value read as TOML reads
+    it; the fields themselves are checked against the task (task.config.changed_env)."""
+    changes: dict[str, object] = {}
+    for item in items:
+        name, eq, text = item.partition("=")
+        if not eq or not name or not text:
+            raise ConfigError(f"--play {item!r}: expected FIELD=VALUE, e.g. residual_deadband=0.01")
+        try:
+            changes[name] = tomllib.loads(f"value = {text}")["value"]
+        except tomllib.TOMLDecodeError:
+            raise ConfigError(
+                f"--play {item!r}: {text!r} is not a TOML value (a number, true or false, "
+                'or a "quoted string")'
+            ) from None
+    return changes
+
+
+__all__ = ["MIN_SECONDS", "EvalArgs", "check_args", "play_changes"]

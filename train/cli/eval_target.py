@@ -20,8 +20,9 @@ from mecanum_jax.evaluation import episodes, scenarios
 from mecanum_jax.evaluation import rollout as ev
 from mecanum_jax.task import MecanumEnv
 from mecanum_jax.task import fidelity as fid
+from mecanum_jax.task.config import changed_env
 from mecanum_jax.tracing import prepare_tracing
-from train.cli.eval_args import EvalArgs
+from train.cli.eval_args import EvalArgs, play_changes
 from train.config_loading import config_diff, config_value, load_train_config
 from train.learner.policy import PROVENANCE, RestoredPolicy, restore_policy, split_target
 from train.store import inputs
@@ -49,10 +50,13 @@ class Target:
 
     def __init__(self, args: EvalArgs, scenario_set: scenarios.ScenarioSet):
         self.restored: RestoredPolicy | None = None
+        play = play_changes(args.play)
         if args.target == "baseline":
             base = load_train_config(args.config or "quick").env
             if args.robot is not None:
                 base = dataclasses.replace(base, robot=args.robot)
+            if play:
+                base = changed_env(base, play, "--play")
             for name in ("seed", "epoch"):
                 if getattr(args, name) is not None:
                     raise ConfigError(f"--{name} = {getattr(args, name)}: only for a checkpoint")
@@ -68,12 +72,14 @@ class Target:
             run_dir, epoch = split_target(args.target)
             if epoch is not None and args.epoch is not None and epoch != args.epoch:
                 raise ConfigError(f"--epoch = {args.epoch}: the target names epoch {epoch}")
-            self.restored = restore_policy(run_dir, args.seed, epoch or args.epoch)
-            check_config_task(self.restored)
+            self.restored = restore_policy(run_dir, args.seed, epoch or args.epoch, play)
+            check_config_task(self.restored, ignore=tuple(play))
             base = self.restored.cfg.env
             precision = self.restored.cfg.run.matmul_precision
             r = self.restored
             self.label = f"{run_dir} (epoch {r.epoch}, seed {r.seed})"
+        if play:
+            self.label += f" played with {' '.join(args.play)}"
         # before anything is traced: one number on every device (mecanum_jax.precision)
         self.precision = args.matmul_precision or precision
         prepare_tracing(self.precision, "--matmul-precision")
@@ -122,10 +128,11 @@ def _require_memory(
     )
 
 
-def check_config_task(restored: RestoredPolicy) -> None:
+def check_config_task(restored: RestoredPolicy, ignore: tuple[str, ...] = ()) -> None:
     """Refuse a model whose config.json states another task (``[env]``) than its
     checkpoint was trained on (an edit by hand): the checkpoint's config decides, so the
-    edit would be ignored silently here, while deploy-sim and a resumed run read it."""
+    edit would be ignored silently here, while deploy-sim and a resumed run read it.
+    ``ignore``: env fields changed at play time (``--play``)."""
     path = restored.run_dir / "config.json"
     try:
         given = json.loads(path.read_text())["env"]["robot"]
@@ -143,7 +150,8 @@ def check_config_task(restored: RestoredPolicy) -> None:
     except ValueError:  # check_saved_config's to report
         return
     differ = config_diff(stated, restored.cfg)
-    if fields := [f for f in differ if f.startswith("env.") and f != "env.robot"]:
+    skip = {"env.robot", *(f"env.{f}" for f in ignore)}
+    if fields := [f for f in differ if f.startswith("env.") and f not in skip]:
         pairs = ", ".join(
             f"{f} = {config_value(stated, f)!r} (trained: {config_value(restored.cfg, f)!r})"
             for f in fields

@@ -89,9 +89,14 @@ def split_target(path: str | Path) -> tuple[Path, int | None]:
 
 
 def restore_policy(
-    run_dir: str | Path, seed: int | None = None, epoch: int | None = None
+    run_dir: str | Path,
+    seed: int | None = None,
+    epoch: int | None = None,
+    play: dict[str, object] | None = None,
 ) -> RestoredPolicy:
-    """Restore one seed's policy (not the optimizer or environment) from a run's checkpoint.
+    """Restore one seed's policy (not the optimizer or environment) from a run's checkpoint;
+    ``play``: fields of its task changed at play time (``mecanum-eval --play``), on top of
+    a model's own ``played_with``.
 
     Builds no environment: the shapes and the checks come from the checkpoint's config and
     robot description (:func:`~mecanum_jax.task.shapes.task_shapes`).
@@ -137,6 +142,10 @@ def restore_policy(
             cfg = dataclasses.replace(cfg, env=played_with(cfg.env, packaged["played_with"], where))
         except ConfigError as err:
             raise CheckpointError(str(err)) from None
+    if play:  # a probe: refused where it changes what the networks see (check_compatible)
+        from mecanum_jax.task.config import changed_env
+
+        cfg = dataclasses.replace(cfg, env=changed_env(cfg.env, play, "--play"))
     seeds = list(cfg.run.seeds)
     if seed is None:  # a model directory evaluates the seed it was packaged from
         seed = packaged.get("seed")
@@ -150,7 +159,14 @@ def restore_policy(
     # description: no MJCF or MJX model is built (nor Warp needed)
     shapes = task_shapes(cfg.env)
     networks = make_networks(shapes, cfg)
-    check_compatible(meta, shapes, f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r}")
+    where = f"checkpoint {str(run_dir / CHECKPOINT_DIR / str(epoch))!r}"
+    try:
+        check_compatible(meta, shapes, where)
+    except CheckpointError as err:
+        if not play:
+            raise
+        given = " ".join(f"{k}={v}" for k, v in play.items())
+        raise CheckpointError(f"--play {given}: not a play-time change here: {err}") from None
     train = unpack_train(run_dir, epoch, state_template(cfg, shapes, int(meta["devices"])), items)
     one = jax.tree.map(lambda x: x[0, seeds.index(seed)], train)
     return RestoredPolicy(
