@@ -271,7 +271,7 @@ class EnvConfig:
         )
 
 
-PLAYED_FIELDS = ("residual_deadband",)
+PLAYED_FIELDS = ("residual_deadband", "residual_beyond_reach")
 """Fields a trained policy may be played with other than it was trained with: they shape the
 robot-side controller's output only, never the observations or the networks."""
 
