@@ -16,6 +16,8 @@ from mecanum_jax.kinematics.modes import SIX_MODES
 from mecanum_jax.task import EnvConfig, MecanumEnv
 
 PATHS = ["figure_eight", "zigzag", "bursts", "stop_and_go", "square", "slalom", "spin_then_go"]
+NOMINAL_FLOOR = {"friction": [0.98, 1.02]}
+"""What the shipped scenario files put under every scenario ([defaults] randomization)."""
 
 
 def test_default_scenarios_are_the_issue_list(shipped):
@@ -33,7 +35,7 @@ def test_default_scenarios_are_the_issue_list(shipped):
     for s in shipped.scenarios:
         assert s.description, s.name
     by = {s.name: s for s in shipped.scenarios}
-    assert by["nominal"].randomization == {}
+    assert by["nominal"].randomization == NOMINAL_FLOOR
     assert by["nominal"].noise.scale == 0
     assert by["slippery"].randomization_config(1.0).friction[1] < 0.5
     assert by["weak_motors"].command_config(EnvConfig().commands).p_beyond >= 0.5
@@ -136,6 +138,15 @@ def test_prepare_is_seeded_and_applies_the_physics(eval_env, shipped):
         ("[scenarios.a.noise]\nscale = -1.0", "scenarios.a.noise.scale = -1.0: must be >= 0"),
         ("[defaults]\nseed = 'x'\n[scenarios.a]", "defaults.seed = 'x': expected an integer"),
         ("[defaults]\n", "expected at least one [scenarios.<name>] table"),
+        ("[defaults]\nbogus = 1\n[scenarios.a]", "defaults.bogus = 1: unknown key"),
+        (
+            "[defaults.randomization]\nfloor = 1.0\n[scenarios.a]",
+            "defaults.randomization.floor = 1.0: unknown key",
+        ),
+        (
+            "[defaults.randomization]\nfriction = [0.5, 0.2]\n[scenarios.a]",
+            "scenarios.a.randomization.friction = [0.5, 0.2]: lower bound above upper",
+        ),
         ("[scenarios.a.randomization]\nenabled = false", "scenarios.a.randomization.enabled"),
     ],
 )
@@ -190,7 +201,8 @@ def test_latency_split_varies_noise_and_latency_alone():
         assert sc.noise.scale == float(noise), sc.name
         rand = sc.randomization_config(1.0)
         assert tuple(rand.latency_steps) == (int(lat), int(lat)), sc.name
-        assert set(sc.randomization) <= {"latency_steps"}, sc.name
+        assert set(sc.randomization) <= {"latency_steps", "friction"}, sc.name
+        assert sc.randomization["friction"] == NOMINAL_FLOOR["friction"], sc.name
         assert not sc.mix, sc.name
 
 
@@ -205,7 +217,7 @@ def test_starts_are_single_translations_from_rest_at_the_named_speed():
     for sc in starts.scenarios:
         where, percent = sc.name.split("_")
         assert sc.seed == tuning_seed, sc.name
-        assert not sc.randomization, sc.name
+        assert sc.randomization == NOMINAL_FLOOR, sc.name
         assert not sc.mix, sc.name
         assert sc.noise.scale == 1.0, sc.name
         ((vx, vy, wz, seconds),) = sc.commands.sequence
@@ -243,9 +255,33 @@ def test_dashes_are_the_nominal_robot_on_the_tuning_seed():
     assert dashes.names == ["tuning_dash", "tuning_dash_side", "tuning_cruise"]
     for sc in dashes.scenarios:
         assert sc.seed == tuning_seed, sc.name
-        assert not sc.randomization, sc.name
+        assert sc.randomization == NOMINAL_FLOOR, sc.name
         assert not sc.mix, sc.name
         assert sc.noise.scale == 1.0, sc.name
         legs = sc.commands.sequence
         assert all(wz == 0.0 for _, _, wz, _ in legs), sc.name
         assert sc.seconds - sum(s for *_, s in legs) >= 1.0, sc.name
+
+
+def test_every_scripted_floor_is_jittered_so_a_blind_controller_plays_many_episodes(
+    eval_env, tmp_path
+):
+    """A ``[defaults]`` randomization lies under each scenario's own, key by key; the shipped
+    files draw every floor within 2% of the nominal friction, so that a controller that
+    ignores the sensors (``analytic``) does not play one chaotic trajectory 64 times."""
+    for name in ("tuning", "default", "paths", "starts", "dashes", "latency", "reach"):
+        for sc in scenarios.load_scenarios(name).scenarios:
+            if "randomized" in sc.name or "slippery" in sc.name:
+                continue  # its own floors
+            assert sc.randomization["friction"] == NOMINAL_FLOOR["friction"], (name, sc.name)
+    weave = scenarios.load_scenarios("tuning").select(["tuning_weave"]).scenarios[0]
+    f = np.asarray(episodes.prepare(eval_env, weave).params.friction)
+    assert 0.98 - 1e-6 <= f.min() < f.max() <= 1.02 + 1e-6
+    assert len(np.unique(f)) == len(f)  # every episode its own floor
+    (tmp_path / "s.toml").write_text(
+        "[defaults.randomization]\nfriction = [0.9, 1.1]\npayload_mass = [1.0, 2.0]\n"
+        "[scenarios.a]\n[scenarios.b.randomization]\nfriction = [0.2, 0.3]\n"
+    )
+    a, b = scenarios.load_scenarios(tmp_path / "s.toml").scenarios
+    assert a.randomization == {"friction": [0.9, 1.1], "payload_mass": [1.0, 2.0]}
+    assert b.randomization == {"friction": [0.2, 0.3], "payload_mass": [1.0, 2.0]}
