@@ -233,4 +233,6 @@ def test_x_square_trains_evaluates_and_exports(tmp_path):
     assert evaluate.main([*argv, "--no-plots"]) == 0
     report = json.loads((out / "report.json").read_text())
     assert set(report["scenarios"]) == {"nominal", "six_modes"}
+    # the report states the floors it drew (default.toml's [defaults] randomization)
+    assert report["scenarios"]["six_modes"]["randomization"] == {"friction": [0.98, 1.02]}
     assert export.main([str(run_dir), str(tmp_path / "x.npz")]) == 0

@@ -173,7 +173,7 @@ def _check_keys(table: object, where: str, allowed: list[str]) -> dict[str, Any]
     return table
 
 
-RANDOMIZATION_KEYS = [
+_RANDOMIZATION_KEYS = [
     f.name for f in dataclasses.fields(RandomizationConfig) if f.name != "enabled"
 ]
 
@@ -206,7 +206,9 @@ def parse_scenario(
         f"{where}.commands",
     )
     mix = {k: v for k, v in cmd_table.items() if k in mix_keys}
-    rand = _check_keys(table.get("randomization", {}), f"{where}.randomization", RANDOMIZATION_KEYS)
+    rand = _check_keys(
+        table.get("randomization", {}), f"{where}.randomization", _RANDOMIZATION_KEYS
+    )
     rand = {**(base_randomization or {}), **rand}
     noise = (
         from_mapping(NoiseConfig, table["noise"], f"{where}.noise")
@@ -342,7 +344,7 @@ def load_scenarios(
     data = load_toml(path)
     _check_keys(data, f"{path}", ["defaults", "include", "scenarios"])
     top = dict(_check_keys(data.get("defaults", {}), "defaults", [*_DEFAULT_KEYS, "randomization"]))
-    base = _check_keys(top.pop("randomization", {}), "defaults.randomization", RANDOMIZATION_KEYS)
+    base = _check_keys(top.pop("randomization", {}), "defaults.randomization", _RANDOMIZATION_KEYS)
     defaults = from_mapping(Defaults, top, "defaults")
     tables = data.get("scenarios")
     if not isinstance(tables, dict) or not tables:

@@ -124,6 +124,7 @@ def evaluate(
             "seconds": sc.seconds,
             "seed": sc.seed,
             "scripted": sc.scripted,
+            "randomization": sc.randomization,  # the file's, over the nominal robot
             **{who: summarize(tr, dt, sc.scripted, jac, mcfg) for who, tr in per.items()},
             "compare": {
                 f"{first}/{ref}": compare.ratios(parts[first], parts[ref], n_boot=args.bootstrap)
