@@ -40,7 +40,6 @@ OPTIONS = {
     "direct_rates": {"residual": False, "action_filter": 0.0, "residual_deadband": 0.0},
     "path_ramp_history": {"path_tau": 3.0, "residual_ramp_s": 0.5, "obs_history": 2},
     "feedback_margin": {"feedback": {"margin": 0.1}},
-    "beyond_reach_symmetric": {"residual_beyond_reach": True, "symmetric": True},
 }  # fmt: skip
 """Controller options as the configs use them, each on the shipped robot's export."""
 

@@ -153,20 +153,6 @@ def test_the_shipped_model_is_played_as_its_provenance_states_and_keeps_what_it_
     assert restored.meta["config"]["env"]["residual_deadband"] == 0.005
 
 
-def test_a_model_may_be_played_with_the_correction_only_beyond_reach(tmp_path):
-    """``env.residual_beyond_reach`` shapes the output only, so a model may be played with
-    it (beside its own deadband); the checkpoint still states what it trained with."""
-    model = tmp_path / "model"
-    shutil.copytree(ROOT / "models" / "o_rectangle", model)
-    record = json.loads((model / "provenance.json").read_text())
-    played = {**record["played_with"], "env.residual_beyond_reach": True}
-    (model / "provenance.json").write_text(json.dumps({**record, "played_with": played}))
-    restored = restore_policy(model)
-    assert restored.cfg.env.residual_beyond_reach
-    assert restored.cfg.env.residual_deadband == 0.01
-    assert not restored.meta["config"]["env"].get("residual_beyond_reach")
-
-
 @pytest.mark.parametrize(
     ("played", "message"),
     [

@@ -1,11 +1,9 @@
 """``env.residual_at_stop = false``: the learned correction is off while the command is a
-stop, in the environment, the NumPy policy and the ONNX graph alike; and
-``env.residual_beyond_reach``, off within the nominal reach."""
+stop, in the environment, the NumPy policy and the ONNX graph alike."""
 
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -19,7 +17,6 @@ from mecanum_jax.deploy.policy import NumpyPolicy
 from mecanum_jax.deploy.write import task_meta
 from mecanum_jax.task import EnvConfig, FeedbackConfig, MecanumEnv, RandomizationConfig
 
-MODEL = Path(__file__).resolve().parents[1] / "models" / "o_rectangle"
 FILTER = 0.5
 BIAS = np.asarray([0.8, -0.6, 0.5], np.float32)  # the constant network's pre-tanh output
 
@@ -140,26 +137,3 @@ def test_the_environment_applies_what_the_numpy_policy_computes(env):
 def test_bad_values_name_the_field(mapping, message):
     with pytest.raises(ConfigError, match=message):
         from_mapping(EnvConfig, mapping, "env").validate()
-
-
-def test_beyond_reach_keeps_the_correction_only_beyond_reach():
-    """``residual_beyond_reach``: the network's action is taken as 0 before the filter
-    where every wheel of the nominal inverse model is within its limit (a stop too), and
-    kept where one would exceed it."""
-    from mecanum_jax.control import step as ctl
-    from mecanum_jax.control.spec import ControllerSpec
-    from mecanum_jax.deploy.policy import load
-
-    meta = load(MODEL / "policy.npz").meta
-    gated = ControllerSpec.from_meta({**meta, "residual_beyond_reach": True, "action_filter": 0})
-    free = ControllerSpec.from_meta({**meta, "action_filter": 0})
-    assert not free.residual_beyond_reach  # the shipped export has no gate
-    for unit in ([1.0, 0.0, 0.0], [0.3, -0.4, 1.5]):  # a wheel's load of the unit command
-        load = float(np.max(np.abs(gated.jacobian @ unit) / gated.max_rates))
-        commands = np.asarray([np.multiply(unit, k / load) for k in (0.99, 1.01, 0.0)], np.float32)
-        raw, last = np.full((3, 3), 0.5, np.float32), np.zeros((3, 3), np.float32)
-        out = ctl.shape_action(gated, raw, commands, last, np)
-        kept = ctl.shape_action(free, raw, commands, last, np)
-        assert np.all(kept > 0.4)
-        np.testing.assert_array_equal(out[1], kept[1])
-        assert np.all(out[[0, 2]] == 0.0)

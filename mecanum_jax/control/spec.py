@@ -113,7 +113,6 @@ class ControllerSpec:
     feedback: FeedbackSpec
     symmetric: bool = False
     path_integrator: str = "euler"
-    residual_beyond_reach: bool = False
 
     @property
     def n_wheels(self) -> int:
@@ -187,7 +186,6 @@ class ControllerSpec:
             feedback=feedback,
             symmetric=bool(meta.get("symmetric") or False),
             path_integrator=str(meta.get("path_integrator") or "euler"),
-            residual_beyond_reach=bool(meta.get("residual_beyond_reach") or False),
         )
 
 

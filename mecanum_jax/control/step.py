@@ -107,16 +107,13 @@ def observe(spec: ControllerSpec, state: ControllerState, latency: Any, xp: Any)
 def shape_action(spec: ControllerSpec, raw: Any, command: Any, last_action: Any, xp: Any) -> Any:
     """The applied action for the network's output ``raw``: clipped to [-1, 1],
     soft-thresholded (``residual_deadband``), 0 at a stop command unless
-    ``residual_at_stop`` and within the nominal reach with ``residual_beyond_reach``,
-    low-passed with the last action (``action_filter``)."""
+    ``residual_at_stop``, low-passed with the last action (``action_filter``)."""
     action = xp.clip(raw, -1.0, 1.0)
     if spec.residual_deadband > 0:
         action = soft_threshold(action, spec.residual_deadband, xp)
     if not spec.residual_at_stop:
         stop = xp.all(command == 0.0, axis=-1, keepdims=True)
         action = xp.where(stop, 0.0, action)
-    if spec.residual_beyond_reach:
-        action = xp.where(wheel_load(spec, command, xp) > 1.0, action, 0.0)
     f = spec.action_filter
     if f > 0:
         action = f * last_action + (1.0 - f) * action

@@ -62,13 +62,6 @@ class EnvConfig:
     down as on the way up); a correction that brakes harder leaves it short
     (docs/evaluation.md).
 
-    residual_beyond_reach = true turns the learned correction off while the command is
-    within the nominal robot's reach (no wheel's rate in the inverse model over its limit),
-    as the stop rule does. Within reach a correction learns none of the drawn robots' steady
-    error that the base leaves, and yaws the nominal robot's lines and starts; beyond it,
-    where the base's nearest feasible twist decides what is given up, a correction freed of
-    the anchor gained steady ωz (docs/controller.md, What limits it).
-
     residual_deadband = d > 0 soft-thresholds the network's action, before the stop rule
     and the filter: each component within ±d becomes 0, each beyond it moves d towards 0.
     On the nominal robot's straight lines, spins and starts a learned correction is a few
@@ -130,8 +123,6 @@ class EnvConfig:
     """Time constant of the observed leaky yaw-rate error integral, s (>= 0; 0: off)."""
     residual_at_stop: bool = True
     """Whether the residual acts while the command is a stop (false: the base alone stops)."""
-    residual_beyond_reach: bool = False
-    """The residual acts only on commands beyond the nominal reach (true) or on all."""
     action_filter: float = 0.7
     """Low-pass factor of the actions, f in [0, 1): applied = f·previous + (1 − f)·new (0: off)."""
     residual_deadband: float = 0.005
@@ -167,7 +158,6 @@ class EnvConfig:
             for name, value, off in (
                 ("residual_space", self.residual_space, "wheel"),
                 ("residual_at_stop", self.residual_at_stop, True),
-                ("residual_beyond_reach", self.residual_beyond_reach, False),
                 ("residual_deadband", self.residual_deadband, 0.0),
                 ("residual_base", self.residual_base, "analytic"),
             )
@@ -271,7 +261,7 @@ class EnvConfig:
         )
 
 
-PLAYED_FIELDS = ("residual_deadband", "residual_beyond_reach")
+PLAYED_FIELDS = ("residual_deadband",)
 """Fields a trained policy may be played with other than it was trained with: they shape the
 robot-side controller's output only, never the observations or the networks."""
 

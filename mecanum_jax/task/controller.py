@@ -58,8 +58,6 @@ class ControllerConfig(Protocol):
     @property
     def residual_at_stop(self) -> bool: ...
     @property
-    def residual_beyond_reach(self) -> bool: ...
-    @property
     def residual_deadband(self) -> float: ...
     @property
     def residual_ramp_s(self) -> float: ...
@@ -112,7 +110,6 @@ def controller_meta(
         "obs_history": config.obs_history,
         "action_filter": config.action_filter,
         "residual_at_stop": config.residual_at_stop,
-        "residual_beyond_reach": config.residual_beyond_reach,
         "residual_deadband": config.residual_deadband,
         "residual_ramp_s": config.residual_ramp_s,
         "max_rates": np.asarray(constants.max_rates).tolist(),
