@@ -315,8 +315,8 @@ def test_deploy_sim_cli_constant_command(tmp_path, capsys):
 
 @pytest.mark.full  # mecanum-eval's rollout compiles for a minute or more on 2 cores
 def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
-    """The same 16 nominal episodes (5 s; 8 no longer held two that need the integrator once
-    the floors were drawn within 2%) through mecanum-eval (MJX) and through the NumPy
+    """The same 16 nominal episodes (5 s; enough that several need the integrator on floors
+    drawn within 2%) through mecanum-eval (MJX) and through the NumPy
     loop on C MuJoCo's fast model: the loop's pooled ss v and ss ωz lie inside the
     evaluation's 95% bootstrap interval, and each episode's within 2% of that interval's
     width, but for at most one episode (a loop that forgets the `feedback` integrator,

@@ -154,7 +154,8 @@ def feedback_integral_step(
     held while the corrected twist is out of reach and the error would push it further,
     and while the command is younger than ``hold_steps`` (``command_age`` (..., 1))."""
     twist, err = feedback_twist(spec, command, gyro_z, integral, gains, xp)
-    saturated = wheel_load(spec, twist, xp) > 1.0
+    reach = xp.abs(rows(spec.jacobian, twist, xp)) / xp.asarray(spec.max_rates)
+    saturated = xp.max(reach, axis=-1, keepdims=True) > 1.0
     u = twist[..., 2:3] - command[..., 2:3]
     hold = xp.logical_and(saturated, err * u > 0.0)
     if spec.feedback.hold_steps > 0:
@@ -162,13 +163,6 @@ def feedback_integral_step(
     i_max = gains[..., 2:3]
     grown = xp.clip(integral + gains[..., 1:2] * err * spec.control_dt, -i_max, i_max)
     return xp.where(hold, integral, grown)
-
-
-def wheel_load(spec: ControllerSpec, twist: Any, xp: Any) -> Any:
-    """The largest wheel rate of the nominal inverse model over its limit (..., 1): above 1
-    ``twist`` (..., 3) is beyond the nominal reach."""
-    reach = xp.abs(rows(spec.jacobian, twist, xp)) / xp.asarray(spec.max_rates)
-    return xp.max(reach, axis=-1, keepdims=True)
 
 
 def nearest_feasible(spec: ControllerSpec, twist: Any, xp: Any) -> Any:
@@ -364,5 +358,4 @@ __all__ = [
     "setpoints",
     "shape_action",
     "soft_threshold",
-    "wheel_load",
 ]

@@ -349,7 +349,7 @@ def load_scenarios(
     tables = data.get("scenarios")
     if not isinstance(tables, dict) or not tables:
         raise ConfigError(f"{path}: scenarios: expected at least one [scenarios.<name>] table")
-    scenarios = [parse_scenario(name, t, defaults, dict(base)) for name, t in tables.items()]
+    scenarios = [parse_scenario(name, t, defaults, base) for name, t in tables.items()]
     include = data.get("include", [])
     if not isinstance(include, list) or not all(isinstance(x, str) for x in include):
         raise ConfigError(f"{path}: include = {include!r}: expected a list of file names")
