@@ -145,12 +145,26 @@ def test_a_start_does_not_wait_for_orbax():
     assert out.stdout.strip().splitlines()[-1] == "False"
 
 
-def test_the_shipped_model_is_played_as_its_provenance_states_and_keeps_what_it_trained():
+def _played(tmp_path: Path, deadband: float) -> Path:
+    """A copy of the shipped model played with the network's deadband at ``deadband``: its
+    ``provenance.json`` says so and its config.json states the task as played."""
+    model = tmp_path / "played"
+    shutil.copytree(ROOT / "models" / "o_rectangle", model)
+    record = json.loads((model / "provenance.json").read_text())
+    played = {"played_with": {"env.residual_deadband": deadband}}
+    (model / "provenance.json").write_text(json.dumps({**record, **played}))
+    config = json.loads((model / "config.json").read_text())
+    config["env"]["residual_deadband"] = deadband
+    (model / "config.json").write_text(json.dumps(config))
+    return model
+
+
+def test_a_model_is_played_as_its_provenance_states_and_keeps_what_it_trained(tmp_path):
     """``provenance.json``'s ``played_with`` sets a play-time field (the network's deadband);
     the checkpoint's config still states what the policy was trained with."""
-    restored = restore_policy(ROOT / "models" / "o_rectangle")
-    assert restored.cfg.env.residual_deadband == 0.01
-    assert restored.meta["config"]["env"]["residual_deadband"] == 0.005
+    restored = restore_policy(_played(tmp_path, 0.02))
+    assert restored.cfg.env.residual_deadband == 0.02
+    assert restored.meta["config"]["env"]["residual_deadband"] == 0.01
 
 
 @pytest.mark.parametrize(
@@ -178,10 +192,10 @@ def test_a_played_model_packed_again_is_played_the_same(tmp_path):
     from train.cli.eval_target import check_config_task
     from train.learner.policy import package_model
 
-    out = package_model(restore_policy(ROOT / "models" / "o_rectangle"), tmp_path / "m", {})
+    out = package_model(restore_policy(_played(tmp_path, 0.02)), tmp_path / "m", {})
     restored = restore_policy(out)
     check_config_task(restored)  # refuses a config.json that differs from the restored task
-    assert restored.cfg.env.residual_deadband == 0.01
+    assert restored.cfg.env.residual_deadband == 0.02
     assert json.loads((out / PROVENANCE).read_text())["played_with"] == {
-        "env.residual_deadband": 0.01
+        "env.residual_deadband": 0.02
     }

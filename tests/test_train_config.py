@@ -124,8 +124,9 @@ def _default(dotted):
 
 
 def test_shipped_configs_state_only_what_they_change():
-    """The defaults are the shipped recipe: gpu.toml names it and sets back only the path
-    integrator its policy was trained with; every config states a key only where it
+    """The defaults are the shipped recipe: gpu.toml names it and sets only the path
+    integrator its policy was trained with and the mirror average (which a default would
+    refuse on every layout without mirrors); every config states a key only where it
     differs from the default (a key stated at its default would hide what the file changes)."""
     names = sorted(p.stem for p in TRAIN_CONFIG_DIR.glob("*.toml"))
     assert {"quick", "tiny", "gpu", "scratch"} <= set(names)
@@ -138,7 +139,11 @@ def test_shipped_configs_state_only_what_they_change():
                 same = tuple(value) if isinstance(value, list) else value
                 assert same != _default(key), f"{name}.toml: {key} = {value!r} is the default"
     gpu = tomllib.loads((TRAIN_CONFIG_DIR / "gpu.toml").read_text())
-    assert dict(_leaves(gpu)) == {"name": "gpu", "env.path_integrator": "euler"}
+    assert dict(_leaves(gpu)) == {
+        "name": "gpu",
+        "env.path_integrator": "euler",
+        "env.symmetric": True,
+    }
 
 
 def test_a_saved_config_without_a_field_runs_as_it_was_saved():

@@ -37,7 +37,7 @@ class RewardConfig:
     """Scale of −|a_t − a_(t−1)|², actions in [-1, 1] (>= 0)."""
     energy: float = 0.0005
     """Scale of −Σ|τ·ω|, the wheels' mechanical power in W (>= 0)."""
-    path_lin: float = 4.0
+    path_lin: float = 0.0
     """Scale of −|e_xy|², the true path error's position part, per m² (>= 0; needs
     env.path_tau > 0, whose leak it shares)."""
     path_ang: float = 2.0
