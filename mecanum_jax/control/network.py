@@ -36,14 +36,17 @@ def network_output(
     if activation not in ACTIVATIONS:
         raise ValueError(f"activation = {activation!r}: not one of {sorted(ACTIVATIONS)}")
     act = ACTIVATIONS[activation]
+    # once, outside loc: the mirror average's passes share one copy (one ONNX initializer each)
+    mu, sigma = xp.asarray(mean), xp.asarray(std)
+    weights = [(xp.asarray(w), xp.asarray(b)) for w, b in layers]
 
     def loc(o: Any) -> Any:
-        x = (o - xp.asarray(mean)) / xp.asarray(std)
+        x = (o - mu) / sigma
         if clip > 0:
             x = xp.clip(x, -clip, clip)
-        for i, (w, b) in enumerate(layers):
-            x = x @ xp.asarray(w) + xp.asarray(b)
-            if i < len(layers) - 1:
+        for i, (w, b) in enumerate(weights):
+            x = x @ w + b
+            if i < len(weights) - 1:
                 x = act(x, xp)
         return x[..., : spec.action_size]
 
