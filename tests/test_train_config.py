@@ -146,6 +146,18 @@ def test_shipped_configs_state_only_what_they_change():
     }
 
 
+def test_the_shipped_model_was_trained_with_the_gpu_config():
+    """gpu.toml is the shipped policy's recipe: models/o_rectangle's config.json states the
+    same task, network and PPO settings, but for the physics flag its run passed and the
+    run's own bookkeeping (seeds, checkpoints, evaluation batch)."""
+    model = TRAIN_CONFIG_DIR.parents[1] / "models" / "o_rectangle" / "config.json"
+    shipped = json.loads(model.read_text())
+    gpu = json.loads(json.dumps(dataclasses.asdict(load_train_config("gpu"))))
+    assert {**shipped["env"], "physics_impl": gpu["env"]["physics_impl"]} == gpu["env"]
+    assert shipped["network"] == gpu["network"]
+    assert shipped["ppo"] == gpu["ppo"]
+
+
 def test_a_saved_config_without_a_field_runs_as_it_was_saved():
     """A run's config.json or checkpoint meta written before a field existed ran with the
     field off; with_absent fills it so, not with today's default (the shipped recipe), and
