@@ -26,11 +26,22 @@ from mecanum_jax.task import EnvConfig, MecanumEnv
         ({"action_filter": 1.0}, "env.action_filter = 1.0"),
         ({"action_filter": -0.1}, "env.action_filter = -0.1"),
         ({"colour": "red"}, "env.colour = 'red': unknown key"),
+        (
+            {"robot": "centripetal3", "symmetric": True},
+            "env.symmetric = True: robot 'centripetal3' is not mirror-symmetric",
+        ),
     ],
 )
 def test_bad_env_config_names_field(table, message):
     with pytest.raises(ConfigError, match=message.replace(".", r"\.").replace("[", r"\[")):
         from_mapping(EnvConfig, table, "env").validate()
+
+
+def test_a_mirror_averaged_policy_takes_every_mirror_symmetric_layout():
+    """O and X layouts, rectangular or square (the X-square rank-deficient), have the mirror
+    group; centripetal3 and custom_six are refused above, before anything is built."""
+    for robot in ("o_rectangle", "o_square", "x_rectangle", "x_square"):
+        EnvConfig(robot=robot, symmetric=True).validate()
 
 
 def test_twist_residual_needs_residual_actions():

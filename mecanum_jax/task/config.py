@@ -6,6 +6,8 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import numpy as np
+
 from mecanum_jax.config import from_mapping, invalid, load_toml, require, validated_once
 from mecanum_jax.sim.description import IMPLS, RobotDescription, resolve_description
 from mecanum_jax.task.commands import CommandConfig
@@ -192,7 +194,9 @@ class EnvConfig:
         self.noise.validate(f"{where}.noise")
         self.reward.validate(f"{where}.reward")
         self.feedback.validate(f"{where}.feedback")
-        self.description(where)  # the robot must load
+        desc = self.description(where)  # the robot must load
+        if self.symmetric:
+            _require_mirrors(desc, where)
         return self
 
     def _validate_timing(self, where: str) -> None:
@@ -259,6 +263,25 @@ class EnvConfig:
             randomization=dataclasses.replace(self.randomization, enabled=False),
             noise=dataclasses.replace(self.noise, scale=0.0),
         )
+
+
+def _require_mirrors(desc: RobotDescription, where: str) -> None:
+    """A mirror-averaged policy needs a robot that each mirror maps onto itself (refused
+    here, before a run builds anything, rather than when the controller is built)."""
+    from mecanum_jax.control.symmetry import TWIST_SIGNS, AsymmetricRobotError, wheel_map
+    from mecanum_jax.kinematics import model as kinematics
+
+    jacobian = np.asarray(kinematics.jacobian(desc.build_geometry()))
+    for name, signs in TWIST_SIGNS.items():
+        try:
+            wheel_map(jacobian, signs, name)
+        except AsymmetricRobotError:
+            raise invalid(
+                f"{where}.symmetric",
+                True,
+                f"robot {desc.robot.name!r} is not mirror-symmetric (its {name} mirror maps a "
+                f"wheel onto none); train it with {where}.symmetric = false",
+            ) from None
 
 
 PLAYED_FIELDS = ("residual_deadband",)
