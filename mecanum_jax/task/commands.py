@@ -4,9 +4,7 @@ Commands are sampled per robot and resampled at random times: zeros, pure transl
 every direction, pure spins, combinations, and commands beyond reach (more than the
 wheels' rate limits allow), each a fraction of the feasible set's radius in its direction
 (from the description's motor limits). A layout that cannot drive some twist (an
-X-square cannot spin) gets commands projected onto the twists it can reach. With
-``p_mirror`` a new command is at times the last one mirrored (:func:`next_command`): the
-reversals of zigzags, slaloms and back-and-forth driving, the largest steps a command makes.
+X-square cannot spin) gets commands projected onto the twists it can reach.
 """
 
 from __future__ import annotations
@@ -54,11 +52,6 @@ class CommandConfig:
     """Shortest time a command is held before a new one is drawn, s (> 0)."""
     resample_max_s: float = 2.5
     """Longest time a command is held, s (>= resample_min_s)."""
-    p_mirror: float = 0.0
-    """Chance that a new command is the last one mirrored, left-right (vx, -vy, -ωz),
-    front-back (-vx, vy, -ωz) or by a half turn (-vx, -vy, ωz), one of the three at random,
-    instead of a fresh draw: the reversals of zigzags and slaloms (0 <= p <= 1; a stop is
-    followed by a fresh draw)."""
 
     def validate(self, where: str = "env.commands") -> None:
         """Check values; raise :class:`ConfigError` naming the field."""
@@ -79,8 +72,6 @@ class CommandConfig:
             )
         if not 0 < self.resample_min_s <= self.resample_max_s:
             raise invalid(f"{where}.resample_min_s", self.resample_min_s, "need 0 < min <= max")
-        if not 0 <= self.p_mirror <= 1:
-            raise invalid(f"{where}.p_mirror", self.p_mirror, "must be in [0, 1]")
 
 
 def sample_command(robot: RobotConstants, key: jax.Array, c: CommandConfig) -> jax.Array:
@@ -108,29 +99,6 @@ def sample_command(robot: RobotConstants, key: jax.Array, c: CommandConfig) -> j
     return jnp.where(kind == 0, 0.0, unit * reach * frac)
 
 
-MIRRORS = ((1.0, -1.0, -1.0), (-1.0, 1.0, -1.0), (-1.0, -1.0, 1.0))
-"""The robot's mirror group acting on a command: left-right, front-back, half turn."""
-MIRROR_STREAM = 0x6D697272
-"""What :func:`next_command` folds into its key for the mirror's draws."""
-
-
-def next_command(
-    robot: RobotConstants, key: jax.Array, c: CommandConfig, previous: jax.Array
-) -> jax.Array:
-    """The command that replaces ``previous``: a fresh draw (:func:`sample_command` of
-    ``key``), or with probability ``c.p_mirror`` ``previous`` mirrored (a stop is followed
-    by a fresh draw). The mirror's randomness comes from ``key`` folded, so with
-    ``p_mirror = 0`` the commands are those of the fresh draws, bit for bit."""
-    fresh = sample_command(robot, key, c)
-    if isinstance(c.p_mirror, float | int) and c.p_mirror == 0:
-        return fresh  # (a training config's value is static: its step draws no mirrors)
-    k_flip, k_which = jax.random.split(jax.random.fold_in(key, MIRROR_STREAM))
-    flip = jax.random.bernoulli(k_flip, c.p_mirror) & jnp.any(previous != 0.0)
-    which = jax.random.randint(k_which, (), 0, len(MIRRORS))
-    mirrored = previous * jnp.asarray(MIRRORS, previous.dtype)[which]
-    return jnp.where(flip, mirrored, fresh)
-
-
 def resample_time(key: jax.Array, now: jax.Array, c: CommandConfig, dt: float) -> jax.Array:
     """The control step (of ``dt`` s) at which the command drawn at step ``now`` is replaced."""
     # jnp (not Python) arithmetic: evaluation passes the config's values as traced arrays
@@ -152,7 +120,7 @@ def command_schedule(
         cmd, due, k = carry
         k, k_cmd, k_time = jax.random.split(k, 3)
         now = t >= due
-        cmd = jnp.where(now, next_command(robot, k_cmd, c, cmd), cmd)
+        cmd = jnp.where(now, sample_command(robot, k_cmd, c), cmd)
         due = jnp.where(now, resample_time(k_time, t, c, dt), due)
         return (cmd, due, k), cmd
 
@@ -162,10 +130,8 @@ def command_schedule(
 
 __all__ = [
     "COMMAND_KINDS",
-    "MIRRORS",
     "CommandConfig",
     "command_schedule",
-    "next_command",
     "resample_time",
     "sample_command",
 ]

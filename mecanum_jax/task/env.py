@@ -189,9 +189,7 @@ class MecanumEnv(Env):
         rng, k_noise, k_cmd, k_time = jax.random.split(info["rng"], 4)
         step = info["step"] + 1
         resample = step >= info["next_resample"]
-        new_command = jnp.where(
-            resample, cmds.next_command(c, k_cmd, cfg.commands, command), command
-        )
+        new_command = jnp.where(resample, cmds.sample_command(c, k_cmd, cfg.commands), command)
         due = cmds.resample_time(k_time, step, cfg.commands, cfg.control_dt)
         info["next_resample"] = jnp.where(resample, due, info["next_resample"])
         info["step"], info["rng"], info["true_path_error"] = step, rng, path
