@@ -177,6 +177,33 @@ def test_a_saved_config_without_a_field_runs_as_it_was_saved():
     assert cfg.ppo.smoothness.temporal == 1.0  # stated in the file: kept
 
 
+def test_a_saved_config_with_a_removed_option_off_loads_and_with_it_on_is_refused(tmp_path):
+    """A run saved before an option was removed states it: at its off value (how the run
+    ran, and how the code now runs) the key is dropped; at another value the run used what
+    is gone, and loading names the file, the field and the value. A TOML file gets no such
+    leave. Each retired field is gone from today's config (else the entry would hide it)."""
+    from train.config_loading import SAVED_RETIRED
+
+    for key, _ in _leaves(SAVED_RETIRED):
+        with pytest.raises(AttributeError):
+            _default(key)
+    saved = json.loads(json.dumps(dataclasses.asdict(load_train_config("gpu"))))
+    saved["env"]["commands"]["p_mirror"] = 0.0  # as every run saved before a53809c states it
+    path = tmp_path / "config.json"
+    path.write_text(json.dumps(saved))
+    assert load_train_config(str(path)) == load_train_config("gpu")
+    saved["env"]["commands"]["p_mirror"] = 0.3
+    path.write_text(json.dumps(saved))
+    with pytest.raises(
+        ConfigError, match=r"config\.json: env\.commands\.p_mirror = 0\.3: .*removed"
+    ):
+        load_train_config(str(path))
+    toml = tmp_path / "old.toml"
+    toml.write_text("[env.commands]\np_mirror = 0.0\n")
+    with pytest.raises(ConfigError, match=r"p_mirror = 0\.0: unknown key"):
+        load_train_config(str(toml))
+
+
 def _field_docs(cls):
     """Attribute docstrings of a dataclass's fields (what tyro shows in --help)."""
     tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))

@@ -48,6 +48,41 @@ off (or small), and a file written before it existed means that value, not today
 default. Saved configs written since spell every field; TOML files mean today's defaults."""
 
 
+SAVED_RETIRED: dict[str, Any] = {"env": {"commands": {"p_mirror": 0.0}}}
+"""Fields a saved config may state that no longer exist, each at the value with which its
+run ran as the code now runs (the option off): such a key is dropped; at another value the
+run used an option that is gone (docs/controller.md, Levers tried), and loading refuses it.
+TOML files get no such leave: there a retired key is an unknown key."""
+
+
+def saved_config(data: Any, source: str) -> Any:
+    """A saved config's mapping (a run's ``config.json``, a checkpoint's meta) in today's
+    fields: retired ones stated off dropped (:data:`SAVED_RETIRED`; stated otherwise, a
+    :class:`ConfigError` naming ``source`` and the field), absent ones filled
+    (:func:`with_absent`)."""
+    return with_absent(_without_retired(data, SAVED_RETIRED, source, ""))
+
+
+def _without_retired(data: Any, retired: dict[str, Any], source: str, where: str) -> Any:
+    if not isinstance(data, dict):
+        return data
+    out = dict(data)
+    for key, off in retired.items():
+        name = f"{where}.{key}" if where else key
+        if key not in out:
+            continue
+        if isinstance(off, dict):
+            out[key] = _without_retired(out[key], off, source, name)
+        elif out[key] == off:
+            del out[key]
+        else:
+            raise ConfigError(
+                f"{source}: {name} = {out[key]!r}: this option was removed; a saved config "
+                f"loads only with it off ({off!r})"
+            )
+    return out
+
+
 def with_absent(data: Any, absent: Any = SAVED_ABSENT) -> Any:
     """``data`` (a saved config's mapping) with every field of ``absent`` it lacks filled in."""
     if not isinstance(data, dict):
@@ -91,7 +126,9 @@ def load_train_config(
     """
     p = find_config(path, TRAIN_CONFIG_DIR, "config", "built-in config")
     try:
-        data = with_absent(json.loads(p.read_text())) if p.suffix == ".json" else load_toml(p)
+        data = (
+            saved_config(json.loads(p.read_text()), str(p)) if p.suffix == ".json" else load_toml(p)
+        )
     except json.JSONDecodeError as err:
         raise ConfigError(f"config file {str(p)!r}: invalid JSON: {err}") from None
     except UnicodeDecodeError:
@@ -156,11 +193,13 @@ def config_diff(a: Any, b: Any, where: str = "") -> list[str]:
 
 __all__ = [
     "SAVED_ABSENT",
+    "SAVED_RETIRED",
     "TRAIN_CONFIG_DIR",
     "apply_flags",
     "config_diff",
     "config_value",
     "load_train_config",
     "parse_train_config",
+    "saved_config",
     "with_absent",
 ]

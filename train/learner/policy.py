@@ -106,7 +106,7 @@ def restore_policy(
     checkpoint whose robot description or observation layout differs from what this code
     builds from the checkpoint's own config (e.g. the robot's TOML file changed since).
     """
-    from train.config_loading import parse_train_config, with_absent
+    from train.config_loading import parse_train_config, saved_config
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -127,7 +127,7 @@ def restore_policy(
     meta = dict(items["meta"])
     try:
         saved = inputs.use_copies(
-            with_absent(meta["config"]), run_dir
+            saved_config(meta["config"], f"{run_dir}/checkpoint meta"), run_dir
         )  # the robot it trained on, if copied
         cfg = parse_train_config(saved, f"{run_dir}/checkpoint meta")
     except (KeyError, ConfigError) as err:

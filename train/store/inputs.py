@@ -149,7 +149,7 @@ def load_saved_config(run_dir: Path, warn: bool = True, validate: bool = True) -
     it has one), so that it loads after the original is gone. Errors name the file.
     ``validate=False``: its types checked, its values left to the caller
     (``train.config_loading.parse_train_config``)."""
-    from train.config_loading import parse_train_config, with_absent
+    from train.config_loading import parse_train_config, saved_config
 
     path = run_dir / "config.json"
     try:
@@ -158,7 +158,7 @@ def load_saved_config(run_dir: Path, warn: bool = True, validate: bool = True) -
         raise ConfigError(f"config file {str(path)!r}: invalid JSON: {err}") from None
     except OSError as err:
         raise ConfigError(f"config file {str(path)!r}: unreadable: {err.strerror}") from None
-    data = use_copies(with_absent(data), run_dir, warn)
+    data = use_copies(saved_config(data, str(path)), run_dir, warn)
     return parse_train_config(data, str(path), validate)
 
 
