@@ -188,7 +188,7 @@ def test_a_saved_config_with_a_removed_option_off_loads_and_with_it_on_is_refuse
         with pytest.raises(AttributeError):
             _default(key)
     saved = json.loads(json.dumps(dataclasses.asdict(load_train_config("gpu"))))
-    saved["env"]["commands"]["p_mirror"] = 0.0  # as every run saved before a53809c states it
+    saved["env"]["commands"]["p_mirror"] = 0.0  # as runs saved while the option existed state it
     path = tmp_path / "config.json"
     path.write_text(json.dumps(saved))
     assert load_train_config(str(path)) == load_train_config("gpu")

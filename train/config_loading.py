@@ -15,7 +15,14 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from mecanum_jax.config import CONFIG_DIR, ConfigError, find_config, from_mapping, load_toml
+from mecanum_jax.config import (
+    CONFIG_DIR,
+    ConfigError,
+    find_config,
+    from_mapping,
+    invalid,
+    load_toml,
+)
 from train.config import TrainConfig
 
 TRAIN_CONFIG_DIR = CONFIG_DIR / "train"
@@ -60,26 +67,25 @@ def saved_config(data: Any, source: str) -> Any:
     fields: retired ones stated off dropped (:data:`SAVED_RETIRED`; stated otherwise, a
     :class:`ConfigError` naming ``source`` and the field), absent ones filled
     (:func:`with_absent`)."""
-    return with_absent(_without_retired(data, SAVED_RETIRED, source, ""))
+    with _named(source):
+        return with_absent(_without_retired(data, SAVED_RETIRED, ""))
 
 
-def _without_retired(data: Any, retired: dict[str, Any], source: str, where: str) -> Any:
+def _without_retired(data: Any, retired: dict[str, Any], where: str) -> Any:
     if not isinstance(data, dict):
         return data
     out = dict(data)
     for key, off in retired.items():
-        name = f"{where}.{key}" if where else key
         if key not in out:
             continue
+        name = f"{where}.{key}" if where else key
         if isinstance(off, dict):
-            out[key] = _without_retired(out[key], off, source, name)
+            out[key] = _without_retired(out[key], off, name)
         elif out[key] == off:
             del out[key]
         else:
-            raise ConfigError(
-                f"{source}: {name} = {out[key]!r}: this option was removed; a saved config "
-                f"loads only with it off ({off!r})"
-            )
+            why = f"this option was removed; a saved config loads only with it off ({off!r})"
+            raise invalid(name, out[key], why)
     return out
 
 
