@@ -10,7 +10,9 @@
 # Tasks (each writes $OUT/log.txt besides its own files):
 #   bench ARGS...           mecanum-bench ARGS: kinematics or physics throughput
 #   validate ARGS...        the physics validation table (python -m mecanum_jax.sim.validation)
-#   train-bench ARGS...     PPO env steps/s of the gpu config, --variant 'name flags' side by side
+#   train-bench ARGS...     PPO env steps/s of the gpu config, --variant 'name flags' side by side;
+#                           the figures also as $OUT/train_bench.json (BENCH_TAG=T:
+#                           train_bench_T.json, e.g. to bench two source trees in one call)
 #   train MIN ARGS...       mecanum-train --config gpu for MIN minutes (+ mecanum-train flags)
 #   ship MIN ARGS...        train, then package the policy as $OUT/model.tgz with provenance
 #   seeds MIN 'K ...' ARGS  one run of MIN minutes training seeds K... side by side (vmapped),
@@ -252,7 +254,9 @@ if [ "$WARP" = 1 ]; then warp_install || exit 3; fi
 case "$TASK" in
   bench) python3 -m mecanum_jax.bench "$@" 2>&1 | quiet ;;
   validate) python3 -m mecanum_jax.sim.validation "$@" 2>&1 | quiet | tail -40 ;;
-  train-bench) python3 -m train.tools.bench --config gpu --epochs 3 "$@" 2>&1 | quiet | tail -14 ;;
+  train-bench)
+    python3 -m train.tools.bench --config gpu --epochs 3 \
+      --json-out "$O/train_bench${BENCH_TAG:+_$BENCH_TAG}.json" "$@" 2>&1 | quiet | tail -14 ;;
   train)
     min=$1; shift
     rm -rf /tmp/gpu

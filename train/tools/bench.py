@@ -126,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
         "--distributed", action="store_true", help="join a jax.distributed run (process 0 reports)"
     )
     args = parser.parse_args(argv)
-    console = Console()
+    console = Console(width=None if sys.stdout.isatty() else 140)  # a log keeps whole figures
     try:
         init_distributed(args.distributed)
         if args.epochs < 1:
