@@ -140,8 +140,8 @@ def ppo_loss_with_terms(
     The policy runs once on the observations for Brax's loss (which applies it to them
     time-major: it gets these logits transposed), the CAPS terms and the anchor. Of the four
     calls a minibatch had (Brax's, the actions, their successors', the perturbed ones) two
-    remain, plus 1/T of one: 1.31 M against 0.98 M env steps/s for the mirror-averaged
-    `gpu` config on an H100 (docs/benchmarks.md), with the loss equal bit for bit."""
+    remain, plus 1/T of one, with the loss equal bit for bit; what that buys the
+    mirror-averaged `gpu` config is in docs/benchmarks.md."""
     k_ppo, k_smooth = jax.random.split(rng)
     policy = ppo_network.policy_network
     logits = policy.apply(normalizer_params, params.policy, data.observation)
