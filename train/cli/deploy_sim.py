@@ -44,7 +44,7 @@ from mecanum_jax.evaluation import metrics
 from mecanum_jax.evaluation.traces import Trace, summarize, trace_parts
 from train.cli import eval_output
 from train.cli.paths import check_output, resolve_model
-from train.loop.progress import print_error
+from train.loop.progress import print_error, report_console
 
 if TYPE_CHECKING:
     from train.config import TrainConfig
@@ -368,7 +368,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     result = report(trace, eps, args)
     result["wall_s"] = {"prepare": round(t1 - t0, 2), "loop": round(time.time() - t1, 2)}
-    Console(width=None if sys.stdout.isatty() else 120).print(table(result))
+    report_console(120).print(table(result))
     try:
         atomic.write_json(out, result, indent=1)  # whole or not at all
     except OSError as err:

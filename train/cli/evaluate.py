@@ -73,7 +73,7 @@ from train.cli.eval_output import (  # noqa: E402
 from train.cli.eval_target import Target, default_out  # noqa: E402
 from train.cli.paths import check_output, resolve_model  # noqa: E402
 from train.loop import compilation_cache  # noqa: E402
-from train.loop.progress import print_error, rollout_progress  # noqa: E402
+from train.loop.progress import print_error, report_console, rollout_progress  # noqa: E402
 from train.loop.run_records import write_json  # noqa: E402
 from train.store import checkpoint  # noqa: E402
 
@@ -211,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
         if target.restored is None
         else f"{target.label}: policy vs reference controllers"
     )
-    out_console = Console(width=None if sys.stdout.isatty() else 140)
+    out_console = report_console()
     out_console.print(results_table(results, title))
     first = whos(target, args)[0]
     for ref in args.references:

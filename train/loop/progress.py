@@ -20,6 +20,7 @@ epoch. A line at an event restarts the timer.
 from __future__ import annotations
 
 import contextlib
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -39,6 +40,12 @@ def print_error(console: Console, err: BaseException | str, label: str = "error"
     all (a leaf name such as ``['params']`` is not rich markup)."""
     text = f"[bold red]{escape(label)}:[/] {escape(str(err))}"
     console.print(text, soft_wrap=True, markup=True, highlight=False)
+
+
+def report_console(width: int = 140) -> Console:
+    """A console for a printed report: the terminal's width on a terminal, else ``width``
+    columns, so that a log or a pipe keeps whole figures rather than rich's 80."""
+    return Console(width=None if sys.stdout.isatty() else width)
 
 
 def wants_lines(console: Console) -> bool:
@@ -265,6 +272,7 @@ __all__ = [
     "count",
     "duration",
     "evaluation_text",
+    "report_console",
     "rollout_progress",
     "wants_lines",
 ]

@@ -26,7 +26,6 @@ from typing import Any
 
 import jax
 import numpy as np
-from rich.console import Console
 from rich.table import Table
 
 from mecanum_jax.config import ConfigError
@@ -37,7 +36,7 @@ from train.learner.ppo import Learner
 from train.learner.transfer import to_host
 from train.loop import compilation_cache
 from train.loop.distributed import init_distributed
-from train.loop.progress import print_error
+from train.loop.progress import print_error, report_console
 
 
 def measure(cfg: TrainConfig, epochs: int) -> dict[str, Any]:
@@ -126,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
         "--distributed", action="store_true", help="join a jax.distributed run (process 0 reports)"
     )
     args = parser.parse_args(argv)
-    console = Console(width=None if sys.stdout.isatty() else 140)  # a log keeps whole figures
+    console = report_console()
     try:
         init_distributed(args.distributed)
         if args.epochs < 1:

@@ -303,11 +303,10 @@ def main(argv: list[str] | None = None, top: int = 15) -> int:
         result = cold_start(argv, clock)
     result["phases"] = clock.phases
     report = summarize(result, log.programs())
-    from rich.console import Console
-
+    from train.loop.progress import report_console
     from train.loop.run_records import write_json
 
-    console = Console(width=None if sys.stdout.isatty() else 140)
+    console = report_console()
     for t in _tables(report, top):
         console.print(t)
     totals = report["totals"]

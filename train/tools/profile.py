@@ -33,7 +33,6 @@ from typing import Any, NotRequired, TypedDict, TypeVar, TypeVarTuple
 
 import jax
 import numpy as np
-from rich.console import Console
 from rich.table import Table
 
 from mecanum_jax.config import ConfigError
@@ -43,7 +42,7 @@ from train.config_loading import apply_flags, load_train_config
 from train.learner.ppo import Learner
 from train.learner.transfer import first_device, to_host
 from train.loop import compilation_cache
-from train.loop.progress import print_error
+from train.loop.progress import print_error, report_console
 from train.loop.run_records import machine_record, write_json
 from train.tools.profile_parts import EpochParts
 
@@ -256,7 +255,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json-out", default=None)
     parser.add_argument("--trace-dir", default=None, help="also trace one epoch (jax.profiler)")
     args, flags = parser.parse_known_args(argv)
-    console = Console(width=None if sys.stdout.isatty() else 140)
+    console = report_console()
     try:
         if args.repeats < 1:
             raise ConfigError(f"--repeats = {args.repeats}: must be >= 1")
