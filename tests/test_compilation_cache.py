@@ -6,6 +6,7 @@ import jax
 import pytest
 
 from mecanum_jax.config import ConfigError
+from mecanum_jax.tracing import OLDER_CPU_EMITTERS, older_cpu_emitters
 from train.cli import evaluate
 from train.cli import train as cli
 from train.loop import compilation_cache
@@ -69,6 +70,12 @@ def test_apply_sets_jax_options(tmp_path, restore_jax_cache_options):
     configure([FLAG, "off"], {})
     assert not jax.config.jax_enable_compilation_cache
     assert compilation_cache.in_force() is None
+
+
+def test_the_command_lines_ask_for_xlas_older_cpu_emitters(tmp_path, restore_jax_cache_options):
+    environ: dict[str, str] = {}
+    configure([FLAG, str(tmp_path)], environ)
+    assert (OLDER_CPU_EMITTERS in environ.get("XLA_FLAGS", "")) == older_cpu_emitters({})
 
 
 def test_a_small_eager_program_is_written(tmp_path, restore_jax_cache_options):

@@ -1,7 +1,12 @@
 """The CPU's unrolled threefry (mecanum_jax.tracing): the same random bits as JAX's rolled loop,
-lowered without a loop, and installed by every entry point's preparation."""
+lowered without a loop, and installed by every entry point's preparation; and XLA:CPU's
+older emitters, which the command lines ask for."""
 
 from __future__ import annotations
+
+import os
+import subprocess
+import sys
 
 import jax
 import numpy as np
@@ -79,3 +84,36 @@ def test_a_jax_without_the_switch_keeps_its_own_lowering(monkeypatch):
     assert tracing.unroll_threefry() is False  # decided once
     text = jax.jit(lambda k: jax.random.normal(k, (4,))).lower(jax.random.PRNGKey(1)).as_text()
     assert "stablehlo.while" not in text  # the rule installed before is left as it was
+
+
+def test_older_cpu_emitters_adds_the_flag_once_beside_the_callers_flags():
+    environ = {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    assert tracing.older_cpu_emitters(environ, "0.10.2")
+    assert tracing.older_cpu_emitters(environ, "0.10.2")
+    assert environ["XLA_FLAGS"].split() == [
+        "--xla_force_host_platform_device_count=2",
+        tracing.OLDER_CPU_EMITTERS,
+    ]
+
+
+@pytest.mark.parametrize(
+    ("environ", "version"),
+    [({"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true"}, "0.10.2"), ({}, "0.12.0")],
+    ids=["the caller's choice", "an unknown jaxlib"],
+)
+def test_older_cpu_emitters_leaves_a_callers_choice_and_an_unknown_jaxlib(environ, version):
+    before = dict(environ)
+    assert not tracing.older_cpu_emitters(environ, version)
+    assert environ == before
+
+
+def test_the_installed_xla_knows_the_flag_where_it_is_added():
+    """XLA aborts a process over an unknown flag: under the installed jaxlib, a process
+    with the flag added compiles and runs."""
+    environ = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    if not tracing.older_cpu_emitters(environ):
+        pytest.skip("this jaxlib is not one the flag is added under")
+    code = "import jax; print(jax.jit(lambda x: x + 1)(1.0))"
+    done = subprocess.run([sys.executable, "-c", code], env=environ, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "2.0" in done.stdout

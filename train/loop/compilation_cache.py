@@ -25,12 +25,13 @@ from __future__ import annotations
 import dataclasses
 import os
 import sys
-from collections.abc import Mapping
+from collections.abc import Mapping, MutableMapping
 from pathlib import Path
 
 import jax
 
 from mecanum_jax.config import ConfigError
+from mecanum_jax.tracing import older_cpu_emitters
 
 FLAG = "--compilation-cache"
 OFF = "off"
@@ -125,9 +126,11 @@ def split_flag(argv: list[str]) -> tuple[str | None, list[str]]:
     return value, rest
 
 
-def configure(argv: list[str], environ: Mapping[str, str] = os.environ) -> list[str]:
+def configure(argv: list[str], environ: MutableMapping[str, str] = os.environ) -> list[str]:
     """Take ``--compilation-cache`` out of a command line and set the cache (module
-    docstring); returns the other arguments. A bad value exits with status 2."""
+    docstring), and XLA:CPU's older emitters (``mecanum_jax.tracing.older_cpu_emitters``);
+    returns the other arguments. A bad value exits with status 2."""
+    older_cpu_emitters(environ)
     try:
         value, rest = split_flag(argv)
         apply(choose(value, environ), environ)
