@@ -22,7 +22,8 @@ never do in the fast model, and a correction the fast model keeps inside its dea
 turn that yaw into heading (docs/evaluation.md). A candidate without such a report is
 refused, so every candidate is judged by the same rule.
 
-Prints one row per candidate and, last, the path of the chosen one's model (the report's
+Prints one row per candidate, then each one's steady-state aims against ``feedback``
+(:data:`AIMS`: shown, not ranked) and, last, the path of the chosen one's model (the report's
 ``target``), so that a device call can evaluate it on held-out scenarios next::
 
     python scripts/pick_candidate.py tune_s0_1.json tune_s1_2.json ... [--exclude shipped]
@@ -80,6 +81,26 @@ FIGURES = (
     ("tuning_stop_go", "ss_lin"),
 )
 """(scenario, metric) pairs whose ratios to ``analytic`` the geometric mean takes."""
+
+
+AIMS = (
+    ("tuning_randomized", "ss_lin", 0.96),
+    ("tuning_randomized", "ss_wz", 0.87),
+    ("tuning_slippery", "ss_wz", 0.86),
+)
+"""The steady-state wins a policy is to keep, as the largest ratio to ``feedback`` (docs/
+controller.md): printed beside the ranking, not part of it."""
+
+
+def aims_of(scenarios: dict[str, Any]) -> list[str]:
+    """Each of :data:`AIMS` as the policy's ratio to ``feedback`` and its 95% interval,
+    marked ``met`` where the ratio is within the aim and the interval below 1."""
+    cells = []
+    for name, key, aim in AIMS:
+        c = scenarios[name]["compare"]["policy/feedback"][key]
+        met = " met" if c["ratio"] <= aim and c["hi"] < 1 else ""
+        cells.append(f"{c['ratio']:.2f} [{c['lo']:.2f}, {c['hi']:.2f}]{met}")
+    return cells
 
 
 ROLLER_SCENARIOS = ("tuning_dash", "tuning_dash_side", "tuning_cruise")
@@ -191,16 +212,21 @@ def main(argv: list[str] | None = None) -> int:
         bundle[path.stem] = without_episodes(report)
         eligible = not any(x in path.name for x in args.exclude)
         total = losses + on_rollers
-        rows.append((total, gmean, path.name, report["target"], ratios, eligible, on_rollers))
+        aims = aims_of(report["scenarios"])
+        rows.append((total, gmean, path.name, report["target"], ratios, eligible, on_rollers, aims))
     if args.bundle is not None:
         args.bundle.write_text(json.dumps(bundle, indent=1))
     rows.sort(key=lambda r: (r[0], r[1]))
     names = list(rows[0][4])
     print("candidate".ljust(28), "losses", "roller", "gmean", *names)
-    for losses, gmean, name, _, ratios, eligible, on_rollers in rows:
+    for losses, gmean, name, _, ratios, eligible, on_rollers, _aims in rows:
         mark = "" if eligible else " (not a candidate)"
         cells = " ".join(f"{ratios[k]:.3f}" for k in names)
         print(f"{name + mark:28s} {losses:6d} {on_rollers:6d} {gmean:.3f} {cells}")
+    heads = [f"{s.removeprefix('tuning_')}.{k} <= {a}" for s, k, a in AIMS]
+    print("aims, x feedback (shown, not ranked)".ljust(36), *(h.ljust(22) for h in heads))
+    for row in rows:
+        print(f"{row[2]:36s}", *(c.ljust(22) for c in row[7]))
     chosen = [r for r in rows if r[5]]
     if not chosen:
         print("pick_candidate: no eligible candidate", file=sys.stderr)

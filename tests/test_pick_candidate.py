@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from scripts.pick_candidate import FIGURES, ROLLER_SCENARIOS, main, rank_key
+from scripts.pick_candidate import AIMS, FIGURES, ROLLER_SCENARIOS, main, rank_key
 
 SCENARIOS = sorted({s for s, _ in FIGURES})
 
@@ -54,6 +54,30 @@ def test_fewer_losses_beat_a_lower_mean(tmp_path: Path, capsys: pytest.CaptureFi
     out = capsys.readouterr().out.strip().splitlines()
     assert out[-1] == "B"
     assert any("(not a candidate)" in line for line in out)
+
+
+def test_the_steady_aims_are_shown_but_do_not_choose(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """B meets every aim (0.80x feedback, interval below 1) and C none (0.95x: within the
+    ss v aim only, and its interval reaches 0.96); C has the lower mean and is chosen."""
+    for name, rep in {
+        "tune_b_1.json": report("B", 0.80),
+        "tune_c_2.json": report("C", 0.79),
+    }.items():
+        (tmp_path / name).write_text(json.dumps(rep))
+    c = json.loads((tmp_path / "tune_c_2.json").read_text())
+    for scenario, key, _ in AIMS:
+        c["scenarios"][scenario]["compare"]["policy/feedback"][key] = {
+            "ratio": 0.95, "lo": 0.94, "hi": 0.96, "verdict": "better"
+        }  # fmt: skip
+    (tmp_path / "tune_c_2.json").write_text(json.dumps(c))
+    assert main([str(tmp_path / "tune_b_1.json"), str(tmp_path / "tune_c_2.json")]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert out[-1] == "C"
+    rows = {line.split()[0]: line for line in out if line.startswith("tune_") and "[" in line}
+    assert rows["tune_b_1.json"].count(" met") == len(AIMS)
+    assert rows["tune_c_2.json"].count(" met") == 1  # 0.95 <= 0.96 with its interval below 1
 
 
 def test_the_geometric_mean_is_over_every_figure() -> None:
