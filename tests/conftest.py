@@ -16,8 +16,8 @@
   much again for the big programs and twice as fast for the thousands of one-operation
   programs that eager code compiles (a full-tier training CLI test: 104 s of CPU against
   204 s). The installed-wheel test (tests/test_wheel.py) runs its commands as users do,
-  with XLA's defaults. Hypothesis draws 40 examples of each property in the full tier, 20
-  in the fast one.
+  with XLA's defaults but for the older emitters the command lines ask for. Hypothesis
+  draws 40 examples of each property in the full tier, 20 in the fast one.
 """
 
 import dataclasses

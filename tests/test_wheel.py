@@ -73,7 +73,7 @@ def test_wheel_installs_and_runs_from_outside_the_clone(tmp_path):
         print("kinematics ok")
         """
     )
-    # as a user's shell has it: no XLA_FLAGS of the suite's (it compiles with XLA's defaults)
+    # as a user's shell has it: no XLA_FLAGS of the suite's (the commands add their own)
     drop = ("PYTHONPATH", "VIRTUAL_ENV", "XLA_FLAGS")
     env = {k: v for k, v in os.environ.items() if k not in drop}
     env["JAX_PLATFORMS"] = "cpu"
