@@ -5,6 +5,7 @@ the CPU. They check what is measured and printed, never how long anything took."
 import dataclasses
 import io
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -102,6 +103,7 @@ def test_coldstart_lists_phases_and_compiled_programs(tmp_path, capsys):
     loaded = (report["warm_start"] or {}).get("loaded", [])
     assert "epoch" in loaded or any(p["phase"] == "first epoch" for p in report["programs"])
     assert report["totals"]["programs"] == len(report["programs"])
+    assert report["xla_flags"] == os.environ.get("XLA_FLAGS", "")  # what it compiled with
     text = capsys.readouterr().out
     assert "Compiled programs" in text
     assert "first evaluation: policy" in text

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -96,7 +97,8 @@ def keep_rows(path: Path, epoch: int) -> int:
 
 
 def machine_record(cfg: TrainConfig, physics_impl: str) -> dict[str, str]:
-    """Where and when a benchmark ran: device, platform, jax, date, config, physics."""
+    """Where and when a benchmark ran: device, platform, jax, date, config, physics, and the
+    ``XLA_FLAGS`` it compiled with (the command lines add theirs: ``mecanum_jax.tracing``)."""
     return {
         "device": jax.devices()[0].device_kind,
         "platform": jax.default_backend(),
@@ -104,6 +106,7 @@ def machine_record(cfg: TrainConfig, physics_impl: str) -> dict[str, str]:
         "date": time.strftime("%Y-%m-%d"),
         "config": cfg.name,
         "physics_impl": physics_impl,
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
     }
 
 
