@@ -50,7 +50,7 @@ import pytest  # noqa: E402
 from hypothesis import HealthCheck, settings  # noqa: E402
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
-from mecanum_jax.tracing import unroll_threefry  # noqa: E402
+from mecanum_jax.tracing import OLDER_CPU_EMITTERS, unroll_threefry  # noqa: E402
 
 unroll_threefry()  # as every entry point does: the same random bits, compiled sooner
 if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
@@ -69,8 +69,8 @@ settings.register_profile("fast", settings.get_profile("default"), max_examples=
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
 TEST_XLA_FLAGS = (
-    "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
-    " --xla_cpu_use_fusion_emitters=false"
+    "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true "
+    + OLDER_CPU_EMITTERS
 )
 
 
