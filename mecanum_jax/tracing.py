@@ -16,9 +16,9 @@ JAX lowers so itself.
 
 :func:`older_cpu_emitters`, which the trainer's and evaluator's command lines call before
 JAX starts its backend, has XLA:CPU compile with its older emitters
-(``--xla_cpu_use_fusion_emitters=false``): a cold ``tiny`` start's epoch compiles in about
-16 s instead of 28, its evaluation rollout in 7 instead of 13, and ``quick``'s epoch runs
-no slower (docs/profiling.md). Float results move where the emitters round differently.
+(``--xla_cpu_use_fusion_emitters=false``): a cold ``tiny`` start's epoch and evaluation
+rollout compile in about two thirds of the time and run no slower (the figures:
+docs/profiling.md). Float results move where the emitters round differently.
 """
 
 from __future__ import annotations
