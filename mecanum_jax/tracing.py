@@ -70,7 +70,8 @@ def unroll_threefry() -> bool:
 OLDER_CPU_EMITTERS = "--xla_cpu_use_fusion_emitters=false"
 """The ``XLA_FLAGS`` entry :func:`older_cpu_emitters` adds."""
 KNOWN_JAXLIBS = ("0.10.",)
-"""The jaxlib releases whose XLA has that flag (XLA aborts a process over an unknown one)."""
+"""The jaxlib releases whose XLA has that flag (XLA aborts a process over an unknown one:
+the GPU image's jaxlib 0.11.2 does, "Unknown flag in XLA_FLAGS")."""
 
 
 def older_cpu_emitters(
