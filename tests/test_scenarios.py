@@ -285,3 +285,32 @@ def test_every_scripted_floor_is_jittered_so_a_blind_controller_plays_many_episo
     a, b = scenarios.load_scenarios(tmp_path / "s.toml").scenarios
     assert a.randomization == {"friction": [0.9, 1.1], "payload_mass": [1.0, 2.0]}
     assert b.randomization == {"friction": [0.2, 0.3], "payload_mass": [1.0, 2.0]}
+
+
+def test_stress_scenarios_each_leave_the_training_distribution(eval_env):
+    """configs/eval/stress.toml: the training's sensor noise on the tuning seed, each scenario
+    past the shipped recipe's training in a way it names: latency, payload or grip above
+    its range, or legs shorter than its shortest hold; the fast slalom beyond the reach."""
+    from train.config_loading import load_train_config
+
+    trained = load_train_config("gpu").env
+    r = trained.randomization
+    stress = scenarios.load_scenarios("stress")
+    tuning_seed = scenarios.load_scenarios("tuning").scenarios[0].seed
+    for sc in stress.scenarios:
+        assert sc.seed == tuning_seed, sc.name
+        assert sc.noise.scale == 1.0, sc.name
+        rand = sc.randomization_config(1.0)
+        past = {
+            "latency": rand.latency_steps[0] > r.latency_steps[1],
+            "load": rand.payload_mass[0] > r.payload_mass[1],
+            "grip": rand.friction[0] > r.friction[1],
+            "short": sc.scripted
+            and min(leg[3] for leg in sc.commands.sequence) < trained.commands.resample_min_s,
+        }
+        assert any(past.values()), sc.name
+    slalom = stress.select(["fast_slalom"], 2, 4.0).scenarios[0]
+    cmd = np.asarray(episodes.prepare(eval_env, slalom).commands).reshape(-1, 3)
+    cmd = cmd[np.any(cmd != 0.0, axis=-1)]
+    c = eval_env.constants
+    assert np.all(np.asarray(limits.saturation(c.geometry, cmd, c.max_rates)) > 1.0)
