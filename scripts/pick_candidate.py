@@ -42,7 +42,7 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from mecanum_jax.evaluation.compare import score
 
@@ -167,6 +167,20 @@ def without_episodes(report: dict[str, Any]) -> dict[str, Any]:
     return {**report, "scenarios": scenarios}
 
 
+class Row(NamedTuple):
+    """One candidate's line: its losses (with the roller model's), the geometric mean that
+    breaks ties, and what the tables print."""
+
+    losses: int
+    gmean: float
+    name: str
+    target: str
+    ratios: dict[str, float]
+    eligible: bool
+    on_rollers: int
+    aims: list[str]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("reports", nargs="+", type=Path, help="tuning reports (report.json)")
@@ -184,7 +198,7 @@ def main(argv: list[str] | None = None) -> int:
         "model, roller_NAME.json for tune_NAME.json: its losses count too",
     )  # fmt: skip
     args = ap.parse_args(argv)
-    rows = []
+    rows: list[Row] = []
     bundle: dict[str, Any] = {}
     roller: dict[str, int] = {}
     for path in args.roller or []:
@@ -213,25 +227,27 @@ def main(argv: list[str] | None = None) -> int:
         eligible = not any(x in path.name for x in args.exclude)
         total = losses + on_rollers
         aims = aims_of(report["scenarios"])
-        rows.append((total, gmean, path.name, report["target"], ratios, eligible, on_rollers, aims))
+        rows.append(
+            Row(total, gmean, path.name, report["target"], ratios, eligible, on_rollers, aims)
+        )
     if args.bundle is not None:
         args.bundle.write_text(json.dumps(bundle, indent=1))
-    rows.sort(key=lambda r: (r[0], r[1]))
-    names = list(rows[0][4])
+    rows.sort(key=lambda r: (r.losses, r.gmean))
+    names = list(rows[0].ratios)
     print("candidate".ljust(28), "losses", "roller", "gmean", *names)
-    for losses, gmean, name, _, ratios, eligible, on_rollers, _aims in rows:
-        mark = "" if eligible else " (not a candidate)"
-        cells = " ".join(f"{ratios[k]:.3f}" for k in names)
-        print(f"{name + mark:28s} {losses:6d} {on_rollers:6d} {gmean:.3f} {cells}")
+    for row in rows:
+        mark = "" if row.eligible else " (not a candidate)"
+        cells = " ".join(f"{row.ratios[k]:.3f}" for k in names)
+        print(f"{row.name + mark:28s} {row.losses:6d} {row.on_rollers:6d} {row.gmean:.3f} {cells}")
     heads = [f"{s.removeprefix('tuning_')}.{k} <= {a}" for s, k, a in AIMS]
     print("aims, x feedback (shown, not ranked)".ljust(36), *(h.ljust(22) for h in heads))
     for row in rows:
-        print(f"{row[2]:36s}", *(c.ljust(22) for c in row[7]))
-    chosen = [r for r in rows if r[5]]
+        print(f"{row.name:36s}", *(c.ljust(22) for c in row.aims))
+    chosen = [r for r in rows if r.eligible]
     if not chosen:
         print("pick_candidate: no eligible candidate", file=sys.stderr)
         return 2
-    print(chosen[0][3])
+    print(chosen[0].target)
     return 0
 
 
