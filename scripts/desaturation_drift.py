@@ -35,11 +35,7 @@ def desaturations(env: MecanumEnv) -> dict[str, Desaturation]:
     margin = cfg.margin
 
     def uniform(frac: float) -> Desaturation:
-        def f(t: np.ndarray) -> np.ndarray:
-            s = np.asarray(limits.saturation(geom, jnp.asarray(t), m * frac))
-            return t / np.maximum(s, 1.0)[..., None]
-
-        return f
+        return lambda t: np.asarray(limits.desaturate(geom, jnp.asarray(t), m * frac)[0])
 
     def nearest(frac: float) -> Desaturation:
         return lambda t: np.asarray(limits.nearest_feasible(geom, jnp.asarray(t), m * frac, w))
