@@ -20,6 +20,7 @@ from collections.abc import Callable
 import jax.numpy as jnp
 import numpy as np
 
+from mecanum_jax.config import ConfigError
 from mecanum_jax.evaluation import episodes, scenarios
 from mecanum_jax.evaluation.traces import intended_poses
 from mecanum_jax.kinematics import limits
@@ -69,11 +70,15 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.episodes < 1:
         p.error(f"--episodes = {args.episodes}: must be >= 1")
-    sets = scenarios.load_scenarios(args.scenarios)
-    names = args.only or [s.name for s in sets.scenarios if s.scripted]
-    cfg = load_train_config(args.config).env
+    try:
+        sets = scenarios.load_scenarios(args.scenarios)
+        names = args.only or [s.name for s in sets.scenarios if s.scripted]
+        chosen = sets.select(names, args.episodes, None)
+        cfg = load_train_config(args.config).env
+    except ConfigError as e:
+        p.error(str(e))
     env = MecanumEnv(episodes.eval_env_config(cfg, sets))
-    for sc in sets.select(names, args.episodes, None).scenarios:
+    for sc in chosen.scenarios:
         cmd = np.asarray(episodes.prepare(env, sc).commands)
         row = drifts(env, cmd, cfg.control_dt)
         print(sc.name, "  ".join(f"{k} {v:.3f} m" for k, v in row.items()))

@@ -43,7 +43,16 @@ def test_within_reach_nothing_is_desaturated(stress):
     )
 
 
-def test_refuses_no_episodes(capsys):
+@pytest.mark.parametrize(
+    ("argv", "named"),
+    [
+        (["--episodes", "0"], "--episodes = 0"),
+        (["--scenarios", "nosuch"], "scenarios = 'nosuch'"),
+        (["--only", "nosuch"], "scenario 'nosuch'"),
+        (["--config", "nosuch"], "config = 'nosuch'"),
+    ],
+)
+def test_refuses_bad_input_naming_it(argv, named, capsys):
     with pytest.raises(SystemExit):
-        main(["--episodes", "0"])
-    assert "--episodes = 0" in capsys.readouterr().err
+        main(argv)
+    assert named in capsys.readouterr().err
