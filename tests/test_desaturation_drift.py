@@ -53,6 +53,7 @@ def test_within_reach_nothing_is_desaturated(stress):
     ],
 )
 def test_refuses_bad_input_naming_it(argv, named, capsys):
-    with pytest.raises(SystemExit):
+    with pytest.raises(SystemExit) as exit_:
         main(argv)
+    assert exit_.value.code == 2
     assert named in capsys.readouterr().err
