@@ -56,28 +56,51 @@ def test_fewer_losses_beat_a_lower_mean(tmp_path: Path, capsys: pytest.CaptureFi
     assert any("(not a candidate)" in line for line in out)
 
 
-def test_the_steady_aims_are_shown_but_do_not_choose(
+def aims_only(rep: dict, ratio: float, hi: float) -> dict:
+    """``rep`` with each of :data:`AIMS` read as ``ratio`` x feedback, interval up to ``hi``."""
+    for scenario, key, _ in AIMS:
+        rep["scenarios"][scenario]["compare"]["policy/feedback"][key] = {
+            "ratio": ratio, "lo": ratio - 0.01, "hi": hi, "verdict": "better"
+        }  # fmt: skip
+    return rep
+
+
+def test_the_steady_aims_rank_after_the_losses_and_before_the_mean(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """B meets every aim (0.80x feedback, interval below 1) and C none (0.95x: within the
-    ss v aim only, and its interval reaches 0.96); C has the lower mean and is chosen."""
-    for name, rep in {
+    """B meets every aim (0.80x feedback, interval below 1), C one (0.95x: within the ss v
+    aim only, and its interval reaches 0.96) with the lower mean: B is chosen. A meets every
+    aim with the lowest mean, but has a loss: fewer losses still come first."""
+    reports = {
+        "tune_a_0.json": report("A", 0.70, lost_key="ss_wz"),
         "tune_b_1.json": report("B", 0.80),
-        "tune_c_2.json": report("C", 0.79),
-    }.items():
+        "tune_c_2.json": aims_only(report("C", 0.79), 0.95, 0.96),
+    }
+    for name, rep in reports.items():
         (tmp_path / name).write_text(json.dumps(rep))
-    c = json.loads((tmp_path / "tune_c_2.json").read_text())
-    for scenario, key, _ in AIMS:
-        c["scenarios"][scenario]["compare"]["policy/feedback"][key] = {
-            "ratio": 0.95, "lo": 0.94, "hi": 0.96, "verdict": "better"
-        }  # fmt: skip
-    (tmp_path / "tune_c_2.json").write_text(json.dumps(c))
-    assert main([str(tmp_path / "tune_b_1.json"), str(tmp_path / "tune_c_2.json")]) == 0
+    assert main([str(tmp_path / name) for name in reports]) == 0
     out = capsys.readouterr().out.strip().splitlines()
-    assert out[-1] == "C"
+    assert out[-1] == "B"
     rows = {line.split()[0]: line for line in out if line.startswith("tune_") and "[" in line}
     assert rows["tune_b_1.json"].count(" met") == len(AIMS)
     assert rows["tune_c_2.json"].count(" met") == 1  # 0.95 <= 0.96 with its interval below 1
+    ranked = [line.split()[0] for line in out if line.startswith("tune_") and "[" not in line]
+    assert ranked == ["tune_b_1.json", "tune_c_2.json", "tune_a_0.json"]
+
+
+def test_an_aim_whose_interval_reaches_1_is_not_met(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """B is within every aim by its ratio (0.80x) but each interval reaches 1: none is met,
+    so C, which meets them all, is chosen over B's lower mean."""
+    reports = {
+        "tune_b_1.json": aims_only(report("B", 0.78), 0.80, 1.0),
+        "tune_c_2.json": report("C", 0.79),
+    }
+    for name, rep in reports.items():
+        (tmp_path / name).write_text(json.dumps(rep))
+    assert main([str(tmp_path / name) for name in reports]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-1] == "C"
 
 
 def test_the_geometric_mean_is_over_every_figure() -> None:
