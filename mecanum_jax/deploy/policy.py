@@ -73,10 +73,6 @@ class NumpyPolicy:
         return int(self.mean.shape[-1])
 
     @property
-    def action_filter(self) -> float:
-        return self.spec.action_filter
-
-    @property
     def residual_at_stop(self) -> bool:
         return self.spec.residual_at_stop
 

@@ -210,15 +210,6 @@ def consistency_residual(geometry: WheelGeometry, wheel_rates: jax.typing.ArrayL
     return w - apply_rows(J, apply_rows(forward_matrix(geometry), w))
 
 
-def contact_velocities(geometry: WheelGeometry, twist: jax.typing.ArrayLike) -> jax.Array:
-    """Velocities (..., n, 2) m/s of the wheels' contact points, ``v_c + ω × p_i``."""
-    t = checked_twist(twist, finite=False)
-    p = geometry.positions
-    vx = t[..., 0:1] - t[..., 2:3] * p[:, 1].reshape((1,) * (t.ndim - 1) + (-1,))
-    vy = t[..., 1:2] + t[..., 2:3] * p[:, 0].reshape((1,) * (t.ndim - 1) + (-1,))
-    return jnp.stack([vx, vy], axis=-1)
-
-
 class ICR(NamedTuple):
     """The instantaneous centre of rotation of body twists (seed 000 eq. 20).
 

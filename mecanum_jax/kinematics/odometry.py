@@ -94,11 +94,6 @@ def integrate_increment(pose: jax.Array, increment: jax.Array) -> jax.Array:
     )
 
 
-def exact_step(pose: jax.Array, twist: jax.Array, dt: jax.typing.ArrayLike) -> jax.Array:
-    """One exact SE(2) step of a constant twist over dt (scalar or broadcastable (..., 1))."""
-    return integrate_increment(pose, twist * dt)
-
-
 def euler_step(pose: jax.Array, twist: jax.Array, dt: jax.typing.ArrayLike) -> jax.Array:
     """Explicit Euler: position advanced with the heading at the start of the step."""
     world = body_to_world(pose[..., 2], twist)

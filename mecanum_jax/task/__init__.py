@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 from mecanum_jax._lazy import exports
 from mecanum_jax.task.commands import CommandConfig
-from mecanum_jax.task.config import EnvConfig, load_env_config
+from mecanum_jax.task.config import EnvConfig
 from mecanum_jax.task.constants import RobotConstants
 from mecanum_jax.task.observations import NoiseConfig
 from mecanum_jax.task.randomization import RandomizationConfig
@@ -39,7 +39,6 @@ __all__ = [
     "RobotConstants",
     "TrainingEnv",
     "baseline_policy",
-    "load_env_config",
     "reward_terms",
     "scaled_reward_terms",
 ]

@@ -4,11 +4,10 @@ its own values (:meth:`EnvConfig.validate` names the field of any bad value)."""
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 
-from mecanum_jax.config import from_mapping, invalid, load_toml, require, validated_once
+from mecanum_jax.config import from_mapping, invalid, require, validated_once
 from mecanum_jax.sim.description import IMPLS, RobotDescription, resolve_description
 from mecanum_jax.task.commands import CommandConfig
 from mecanum_jax.task.observations import NoiseConfig
@@ -331,11 +330,6 @@ def changed_env(env: EnvConfig, changes: dict[str, object], where: str) -> EnvCo
     return out.validate("env")
 
 
-def load_env_config(path: str | Path) -> EnvConfig:
-    """An :class:`EnvConfig` from a TOML file (all keys optional, unknown keys rejected)."""
-    return from_mapping(EnvConfig, load_toml(path), "env").validate()
-
-
 __all__ = [
     "MAX_OBS_HISTORY",
     "PLAYED_FIELDS",
@@ -348,6 +342,5 @@ __all__ = [
     "RandomizationConfig",
     "RewardConfig",
     "changed_env",
-    "load_env_config",
     "played_with",
 ]
