@@ -24,16 +24,16 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def test_the_shipped_model_restores():
-    """models/o_rectangle restores as a policy, in whichever format it was written (the
-    leaf-index format, at the time of writing)."""
+    """models/o_rectangle restores as a policy (its checkpoint's leaves are named; the
+    leaf-index format of earlier runs: tests/test_checkpoint_format.py)."""
     restored = restore_policy(ROOT / "models" / "o_rectangle")
     assert restored.params["params"]
 
 
 def test_the_shipped_model_plays_the_task_its_config_json_states():
-    """Its checkpoint's config predates fields whose defaults have since changed
-    (``SAVED_ABSENT``): restored, it is the task config.json states, which is how it was
-    trained (``env.path_integrator = "euler"`` was once filled as today's "exact")."""
+    """Restored, it is the task config.json states, which is how it was trained: a field a
+    saved config lacks means the value it ran with (``SAVED_ABSENT``), not today's default
+    (``env.path_integrator = "euler"`` was once filled as today's "exact")."""
     from train.config_loading import config_diff
     from train.store.inputs import load_saved_config
 

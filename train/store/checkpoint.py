@@ -9,8 +9,8 @@ A checkpoint at ``<run>/checkpoints/<epoch>/`` holds three items:
   and the observation layout (so a checkpoint from another robot or layout is refused).
 
 ``train`` and ``env`` are stored as flat dicts of named leaves with checksums, and
-restored by name (:mod:`train.store.leaves`); the leaf-index format of earlier versions
-(the shipped model's among them) is recognised and restored by index.
+restored by name (:mod:`train.store.leaves`); the leaf-index format of versions before
+2026-11-25 is recognised and restored by index.
 
 A newest checkpoint that does not read (corrupt, or cut short mid-write) is set aside as
 ``<epoch>.corrupt`` by :func:`restore`, or passed over with a warning by the readers.
