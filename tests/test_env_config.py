@@ -59,7 +59,7 @@ def test_direct_rates_on_the_defaults_name_every_residual_setting_at_once():
         EnvConfig(residual=False).validate()
     message = str(err.value)
     assert message.startswith("env.residual_space = 'twist': needs residual = true")
-    assert "residual_deadband = 0.01" in message
+    assert "residual_deadband = 0.02" in message
     assert "residual_base = 'feedback'" in message
     EnvConfig(**{**WHEEL, "residual": False}).validate()
 

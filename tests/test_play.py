@@ -30,9 +30,9 @@ def test_a_sections_field_changes_alone():
 
 def test_the_restored_policy_plays_the_changed_task():
     shipped = restore_policy(MODEL)
-    assert shipped.cfg.env.residual_deadband == 0.01  # its own played_with
-    probed = restore_policy(MODEL, play={"residual_deadband": 0.02, "feedback.margin": 0.1})
-    assert probed.cfg.env.residual_deadband == 0.02
+    assert shipped.cfg.env.residual_deadband == 0.02  # as it was trained
+    probed = restore_policy(MODEL, play={"residual_deadband": 0.03, "feedback.margin": 0.1})
+    assert probed.cfg.env.residual_deadband == 0.03
     assert probed.cfg.env.feedback.margin == 0.1
     assert probed.cfg.env.feedback.hold_s == shipped.cfg.env.feedback.hold_s
     check_config_task(probed, ignore=("residual_deadband", "feedback.margin"))

@@ -162,9 +162,9 @@ def _played(tmp_path: Path, deadband: float) -> Path:
 def test_a_model_is_played_as_its_provenance_states_and_keeps_what_it_trained(tmp_path):
     """``provenance.json``'s ``played_with`` sets a play-time field (the network's deadband);
     the checkpoint's config still states what the policy was trained with."""
-    restored = restore_policy(_played(tmp_path, 0.02))
-    assert restored.cfg.env.residual_deadband == 0.02
-    assert restored.meta["config"]["env"]["residual_deadband"] == 0.01
+    restored = restore_policy(_played(tmp_path, 0.03))
+    assert restored.cfg.env.residual_deadband == 0.03
+    assert restored.meta["config"]["env"]["residual_deadband"] == 0.02
 
 
 @pytest.mark.parametrize(
@@ -192,10 +192,10 @@ def test_a_played_model_packed_again_is_played_the_same(tmp_path):
     from train.cli.eval_target import check_config_task
     from train.learner.policy import package_model
 
-    out = package_model(restore_policy(_played(tmp_path, 0.02)), tmp_path / "m", {})
+    out = package_model(restore_policy(_played(tmp_path, 0.03)), tmp_path / "m", {})
     restored = restore_policy(out)
     check_config_task(restored)  # refuses a config.json that differs from the restored task
-    assert restored.cfg.env.residual_deadband == 0.02
+    assert restored.cfg.env.residual_deadband == 0.03
     assert json.loads((out / PROVENANCE).read_text())["played_with"] == {
-        "env.residual_deadband": 0.02
+        "env.residual_deadband": 0.03
     }

@@ -126,7 +126,7 @@ class EnvConfig:
     """Whether the residual acts while the command is a stop (false: the base alone stops)."""
     action_filter: float = 0.7
     """Low-pass factor of the actions, f in [0, 1): applied = f·previous + (1 − f)·new (0: off)."""
-    residual_deadband: float = 0.01
+    residual_deadband: float = 0.02
     """Soft threshold of the network's action, in its units, in [0, 1) (0: off)."""
     residual_ramp_s: float = 0.5
     """Seconds over which the correction ramps in after a command change (>= 0; 0: off)."""
