@@ -7,7 +7,7 @@ them as ``/tmp/tune-reports/tune_NAME.json``) and ranks every candidate against
 1. fewest **losses** against ``analytic`` and against ``feedback`` together
    (``mecanum_jax.evaluation.compare.score``: the paired 95% interval on the worse side and
    an excess above the metric's margin) over the tuning scenarios;
-2. then the most **steady-state aims met** (:data:`AIMS`: the issue's targets for the
+2. then the most **steady-state aims met** (:data:`AIMS`: the project's targets for the
    steady gain, each a ratio to ``feedback`` within its aim and the interval below 1);
 3. then the lowest **geometric mean of the ratios** to ``analytic`` over the figures the
    product is judged on: the training mix's ss v, ss ωz, settling of v and ωz and energy;
