@@ -83,3 +83,25 @@ def test_the_script_prints_the_table_and_refuses_bad_input(tmp_path, capsys):
     assert "nowhere" in capsys.readouterr().err
     assert main([str(tmp_path / "new"), str(tmp_path / "old"), "--tolerance", "2"]) == 2
     assert "--tolerance 2.0" in capsys.readouterr().err
+
+
+def test_the_script_compares_the_policy_against_a_reference_of_the_second(tmp_path, capsys):
+    """--against: the first's policy against the second's `feedback` (a reference played
+    under another config), not against the second's policy."""
+    main = _script().main
+    first = _parts(0.5)
+    second = _parts(1.0)
+    second["nominal"]["feedback"] = _parts(0.25)["nominal"]["policy"]  # better than both
+    for name, parts in (("new", first), ("base", second)):
+        (tmp_path / name).mkdir()
+        paired.save_parts(tmp_path / name / paired.PARTS_FILE, parts)
+    args = [str(tmp_path / "new"), str(tmp_path / "base")]
+    assert main(args) == 0
+    assert "✓" in capsys.readouterr().out  # the policy against the second's policy: better
+    assert main([*args, "--against", "feedback"]) == 0
+    out = capsys.readouterr().out
+    row = next(line for line in out.splitlines() if "| ss ωz |" in line)
+    assert "| 2.0" in row  # against that feedback: twice as large,
+    assert "✗" in row  # and worse
+    assert main([*args, "--against", "nobody"]) == 2
+    assert "'nobody' in the second" in capsys.readouterr().err
