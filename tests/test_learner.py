@@ -1,5 +1,5 @@
 """The PPO learner on the suite's tiny config: devices, its untrained policy, gradient
-clipping, its paired evaluation."""
+clipping, its paired evaluation; and the mirror-averaged policy network."""
 
 import dataclasses
 
@@ -148,3 +148,40 @@ def test_checkpoints_hold_only_numpy_arrays(learner):
         packed = leaves.pack(tree)
         assert packed
         assert all(isinstance(v, np.ndarray) for v in packed.values())
+
+
+def test_the_mirror_averaged_policy_network_is_equivariant_and_the_plain_average():
+    """The trained policy's mirror average (train/learner/state.py): f(g·o) = g·f(o) for
+    every mirror, and it is ¼ Σ_g g⁻¹·π(g·o) of the plain network on the same weights."""
+    from brax.training.acme import running_statistics, specs
+
+    from mecanum_jax.control.symmetry import mirrors
+    from mecanum_jax.task import EnvConfig
+    from mecanum_jax.task.shapes import task_shapes
+    from train.learner.state import make_networks
+
+    cfg = dataclasses.replace(TrainConfig(), env=EnvConfig(symmetric=True)).validate()
+    env = task_shapes(cfg.env)
+    nets = make_networks(env, cfg)
+    plain = make_networks(env, dataclasses.replace(cfg, env=EnvConfig(symmetric=False)))
+    key = jax.random.PRNGKey(1)
+    params = nets.policy_network.init(jax.random.PRNGKey(0))  # the mean layer starts at 0
+    params = jax.tree.map(lambda p: p + 0.3 * jax.random.normal(key, p.shape), params)
+
+    (size,) = env.observation_size["state"]
+    norm = running_statistics.init_state({"state": specs.Array((size,), np.float32)})
+    rng = np.random.default_rng(0)
+    state = rng.normal(size=(64, size)).astype(np.float32)
+    n = env.action_size
+
+    def loc(net, s):
+        with jax.numpy_rank_promotion("allow"):  # Brax's normalizer broadcasts
+            return np.asarray(net.policy_network.apply(norm, params, {"state": s}))[:, :n]
+
+    got = loc(nets, state)
+    want = loc(plain, state)
+    for (oi, os), (ai, sign) in mirrors(env.control):
+        want = want + loc(plain, state[:, oi] * os)[:, ai] * sign
+        np.testing.assert_allclose(loc(nets, state[:, oi] * os), got[:, ai] * sign, atol=2e-6)
+    np.testing.assert_allclose(got, want / 4.0, atol=2e-6)
+    assert np.abs(loc(plain, state) - got).max() > 1e-3  # the average differs from one pass
