@@ -87,12 +87,13 @@ def symmetric_networks(networks: ppo_networks.PPONetworks, env: Shaped) -> ppo_n
         params: Params,
         obs: dict[str, jax.Array],
     ) -> jax.Array:
-        total = policy.apply(processor_params, params, obs)
-        for oi, os, ai, sign in group:
-            mirrored = {**obs, "state": jnp.take(obs["state"], oi, axis=-1) * os}
-            out = policy.apply(processor_params, params, mirrored)
-            loc = jnp.take(out[..., :size], ai, axis=-1) * sign
-            total = total + jnp.concatenate([loc, jnp.take(out[..., size:], ai, axis=-1)], -1)
+        state = obs["state"]
+        views = [state] + [jnp.take(state, oi, axis=-1) * os for oi, os, _, _ in group]
+        out = policy.apply(processor_params, params, {**obs, "state": jnp.stack(views)})
+        total = out[0]
+        for k, (_, _, ai, sign) in enumerate(group, start=1):
+            loc = jnp.take(out[k, ..., :size], ai, axis=-1) * sign
+            total = total + jnp.concatenate([loc, jnp.take(out[k, ..., size:], ai, axis=-1)], -1)
         return total / 4.0
 
     return dataclasses.replace(networks, policy_network=FeedForwardNetwork(policy.init, apply))
