@@ -87,7 +87,7 @@ def symmetric_networks(networks: ppo_networks.PPONetworks, env: Shaped) -> ppo_n
         params: Params,
         obs: dict[str, jax.Array],
     ) -> jax.Array:
-        state = obs["state"]
+        state = obs["state"]  # the four images as one call: 5% faster on a GPU (benchmarks.md)
         views = [state] + [jnp.take(state, oi, axis=-1) * os for oi, os, _, _ in group]
         out = policy.apply(processor_params, params, {**obs, "state": jnp.stack(views)})
         total = out[0]
