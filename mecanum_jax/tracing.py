@@ -1,7 +1,8 @@
 """What every entry point sets before anything is traced.
 
 :func:`prepare_tracing` sets the matmul precision (:mod:`mecanum_jax.precision`: one number
-on every device) and lowers JAX's threefry hash unrolled on the CPU (:func:`unroll_threefry`).
+on every device), lowers JAX's threefry hash unrolled on the CPU (:func:`unroll_threefry`)
+and as JAX's CUDA kernel on GPUs (:func:`threefry_kernel_on_gpus`).
 
 JAX lowers threefry on the CPU as a loop of five rounds (``jax/_src/random/threefry2x32.py``,
 ``use_rolled_loops``) and XLA:CPU compiles each such loop as a call of its own, apart from
@@ -95,8 +96,26 @@ def older_cpu_emitters(
     return OLDER_CPU_EMITTERS in environ.get("XLA_FLAGS", "").split()
 
 
+GPU_THREEFRY_FLAG = "jax_threefry_gpu_kernel_lowering"
+"""The JAX flag :func:`threefry_kernel_on_gpus` sets."""
+GPU_THREEFRY_VAR = GPU_THREEFRY_FLAG.upper()
+"""JAX's own environment variable for it."""
+
+
+def threefry_kernel_on_gpus(environ: MutableMapping[str, str] = os.environ) -> bool:
+    """Lower ``threefry2x32`` on GPUs as JAX's CUDA kernel, one call a draw (no effect on
+    the CPU), unless the environment's :data:`GPU_THREEFRY_VAR` has chosen; returns the
+    setting. JAX's caches and the warm-start store key programs by it."""
+    import jax
+
+    if GPU_THREEFRY_VAR not in environ:
+        jax.config.update(GPU_THREEFRY_FLAG, True)
+    return bool(getattr(jax.config, GPU_THREEFRY_FLAG))
+
+
 def prepare_tracing(precision: str, where: str = "run.matmul_precision") -> None:
     """Before anything is traced: the matmul ``precision`` (``where`` names its field in
-    an error) and the CPU's unrolled threefry."""
+    an error) and the threefry lowerings (the CPU's unrolled, the GPUs' kernel)."""
     set_matmul_precision(precision, where)
     unroll_threefry()
+    threefry_kernel_on_gpus()

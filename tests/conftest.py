@@ -50,9 +50,14 @@ import pytest  # noqa: E402
 from hypothesis import HealthCheck, settings  # noqa: E402
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
-from mecanum_jax.tracing import OLDER_CPU_EMITTERS, unroll_threefry  # noqa: E402
+from mecanum_jax.tracing import (  # noqa: E402
+    OLDER_CPU_EMITTERS,
+    threefry_kernel_on_gpus,
+    unroll_threefry,
+)
 
 unroll_threefry()  # as every entry point does: the same random bits, compiled sooner
+threefry_kernel_on_gpus()  # and so: the command lines' programs share JAX's cache keys
 if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
     jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)

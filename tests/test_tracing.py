@@ -1,6 +1,7 @@
 """The CPU's unrolled threefry (mecanum_jax.tracing): the same random bits as JAX's rolled loop,
-lowered without a loop, and installed by every entry point's preparation; and XLA:CPU's
-older emitters, which the command lines ask for."""
+lowered without a loop, and installed by every entry point's preparation; the GPUs' threefry
+kernel, which the preparation asks for unless the environment chooses; and XLA:CPU's older
+emitters, which the command lines ask for."""
 
 from __future__ import annotations
 
@@ -71,6 +72,32 @@ def test_prepare_tracing_sets_the_precision_and_the_lowering() -> None:
     assert tracing.unroll_threefry()  # idempotent: installed once, reported each time
     text = jax.jit(lambda k: jax.random.normal(k, (4,))).lower(jax.random.PRNGKey(0)).as_text()
     assert "stablehlo.while" not in text
+
+
+def _cuda_module(fn) -> str:
+    """``fn`` of one key lowered for CUDA (no GPU needed), as MLIR text."""
+    return jax.export.export(jax.jit(fn), platforms=["cuda"])(jax.random.PRNGKey(0)).mlir_module()
+
+
+def test_gpus_draw_through_the_threefry_kernel_unless_the_environment_chooses(monkeypatch):
+    """With the flag a CUDA program calls JAX's kernel once per draw instead of holding the
+    hash's rounds; the environment's ``JAX_THREEFRY_GPU_KERNEL_LOWERING`` is left to stand.
+    (The kernel's bits equal the unrolled hash's: checked on the GPU, docs/profiling.md.)"""
+    kernel = "cu_threefry2x32_ffi"
+    before = jax.config.jax_threefry_gpu_kernel_lowering
+    try:
+        jax.config.update("jax_threefry_gpu_kernel_lowering", False)
+        unrolled = _cuda_module(draws)
+        assert kernel not in unrolled
+        monkeypatch.setenv(tracing.GPU_THREEFRY_VAR, "0")
+        assert not tracing.threefry_kernel_on_gpus()
+        monkeypatch.delenv(tracing.GPU_THREEFRY_VAR)
+        assert tracing.threefry_kernel_on_gpus()
+        kernels = _cuda_module(draws)
+        assert kernels.count(kernel) >= 5  # split, normal, uniform, randint, permutation...
+        assert len(kernels) < len(unrolled) / 2
+    finally:
+        jax.config.update("jax_threefry_gpu_kernel_lowering", before)
 
 
 def test_a_jax_without_the_switch_keeps_its_own_lowering(monkeypatch):

@@ -179,6 +179,13 @@ def test_the_key_holds_the_config_the_versions_the_devices_and_the_code(tiny):
     other = dataclasses.replace(tiny, ppo=dataclasses.replace(tiny.ppo, entropy_cost=0.5))
     assert warm_start.run_key(other, jax.devices())["config"] != key["config"]
     assert warm_start.run_key(tiny, jax.devices()) == key  # deterministic
+    # a program lowered with the GPUs' threefry kernel is not served to a run without it
+    flag = jax.config.jax_threefry_gpu_kernel_lowering
+    try:
+        jax.config.update("jax_threefry_gpu_kernel_lowering", not flag)
+        assert warm_start.run_key(tiny, jax.devices())["jax_flags"] != key["jax_flags"]
+    finally:
+        jax.config.update("jax_threefry_gpu_kernel_lowering", flag)
 
 
 def test_it_is_off_where_it_cannot_serve(monkeypatch):

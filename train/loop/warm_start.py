@@ -69,6 +69,7 @@ JAX_FLAGS = (
     "jax_default_matmul_precision",
     "jax_threefry_partitionable",
     "jax_default_prng_impl",
+    "jax_threefry_gpu_kernel_lowering",
 )
 Aval = tuple[tuple[int, ...], str, bool]
 """An argument's shape, dtype and weak type (:func:`_aval`)."""
