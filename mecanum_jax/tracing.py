@@ -102,14 +102,17 @@ GPU_THREEFRY_VAR = GPU_THREEFRY_FLAG.upper()
 """JAX's own environment variable for it."""
 
 
-def threefry_kernel_on_gpus(environ: MutableMapping[str, str] = os.environ) -> bool:
-    """Lower ``threefry2x32`` on GPUs as JAX's CUDA kernel, one call a draw (no effect on
-    the CPU), unless the environment's :data:`GPU_THREEFRY_VAR` has chosen; returns the
-    setting. JAX's caches and the warm-start store key programs by it."""
+def threefry_kernel_on_gpus(
+    environ: MutableMapping[str, str] = os.environ, on: bool = True
+) -> bool:
+    """Lower ``threefry2x32`` on GPUs as JAX's CUDA kernel, one call a draw (``on``; no
+    effect on the CPU), else as JAX's unrolled hash, unless the environment's
+    :data:`GPU_THREEFRY_VAR` has chosen; returns the setting. JAX's caches and the
+    warm-start store key programs by it."""
     import jax
 
     if GPU_THREEFRY_VAR not in environ:
-        jax.config.update(GPU_THREEFRY_FLAG, True)
+        jax.config.update(GPU_THREEFRY_FLAG, on)
     return bool(getattr(jax.config, GPU_THREEFRY_FLAG))
 
 
