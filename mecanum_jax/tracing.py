@@ -15,6 +15,14 @@ JAX's own main branch has since dropped the CPU's loop (jax-ml/jax, commit 1935c
 ``threefry2x32.py`` registers no CPU rule): :func:`unroll_threefry` can go once the lock's
 JAX lowers so itself.
 
+On GPUs JAX lowers the hash unrolled too, and XLA fuses its rounds into the code around
+every draw; with ``jax_threefry_gpu_kernel_lowering`` (:func:`threefry_kernel_on_gpus`) each
+draw is one call of JAX's CUDA kernel instead: the same bits, the `gpu` config's cold start
+16-17 s sooner on one H100 (its epoch compiles in 23-25 s against 37-39 s), for epochs 2.3%
+slower (docs/profiling.md). ``JAX_THREEFRY_GPU_KERNEL_LOWERING=0`` in the environment keeps
+JAX's unrolled hash, for a long run from a warm cache; a learner sharded over several
+devices turns the kernel off (XLA's partitioner cannot split its custom call).
+
 :func:`older_cpu_emitters`, which the trainer's and evaluator's command lines call before
 JAX starts its backend, has XLA:CPU compile with its older emitters
 (``--xla_cpu_use_fusion_emitters=false``): a cold ``tiny`` start's epoch and evaluation
