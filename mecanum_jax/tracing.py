@@ -20,7 +20,7 @@ every draw; with ``jax_threefry_gpu_kernel_lowering`` (:func:`threefry_kernel_on
 draw is one call of JAX's CUDA kernel instead: the same bits, the `gpu` config's cold start
 16-17 s sooner on one H100 (its epoch compiles in 23-25 s against 37-39 s), for epochs 2.3%
 slower (docs/profiling.md). ``JAX_THREEFRY_GPU_KERNEL_LOWERING=0`` in the environment keeps
-JAX's unrolled hash, for a long run from a warm cache; a learner sharded over several
+JAX's unrolled hash, for a long run from a warm cache; a learner whose programs span several
 devices turns the kernel off (XLA's partitioner cannot split its custom call).
 
 :func:`older_cpu_emitters`, which the trainer's and evaluator's command lines call before

@@ -185,24 +185,3 @@ def test_the_mirror_averaged_policy_network_is_equivariant_and_the_plain_average
         np.testing.assert_allclose(loc(nets, state[:, oi] * os), got[:, ai] * sign, atol=2e-6)
     np.testing.assert_allclose(got, want / 4.0, atol=2e-6)
     assert np.abs(loc(plain, state) - got).max() > 1e-3  # the average differs from one pass
-
-
-def test_a_learner_sharded_over_devices_keeps_the_unrolled_threefry(tiny, monkeypatch):
-    """XLA's partitioner cannot split the GPUs' threefry kernel (a custom call): a learner
-    sharded over several devices has draws lowered as JAX's unrolled hash."""
-    from mecanum_jax import tracing
-    from train.learner.ppo import Learner
-
-    monkeypatch.delenv(tracing.GPU_THREEFRY_VAR, raising=False)
-    flag = tracing.GPU_THREEFRY_FLAG
-    before = getattr(jax.config, flag)
-    try:
-        assert tracing.threefry_kernel_on_gpus()
-        sharded = Learner(
-            dataclasses.replace(tiny, run=dataclasses.replace(tiny.run, parallel="sharded"))
-        )
-        assert sharded.parallel == "sharded"
-        assert sharded.n_devices == 2
-        assert not getattr(jax.config, flag)
-    finally:
-        jax.config.update(flag, before)

@@ -8,6 +8,7 @@ import types
 import jax
 import pytest
 
+from mecanum_jax import tracing
 from train.config_loading import load_train_config
 from train.learner import parallel
 
@@ -61,3 +62,21 @@ def test_the_mesh_is_the_sharded_paths_only(how):
     else:
         assert sharding is not None
         assert sharding.spec[0] == parallel.MESH_AXIS
+
+
+@pytest.mark.parametrize("how", ["sharded", "split", "pmap"])
+def test_a_program_over_several_devices_draws_through_the_unrolled_threefry(how, monkeypatch):
+    """XLA's partitioner cannot split the GPUs' threefry kernel (a custom call): where a
+    program spans the devices, the kernel is turned off; pmap's programs keep it."""
+    monkeypatch.delenv(tracing.GPU_THREEFRY_VAR, raising=False)
+    flag = tracing.GPU_THREEFRY_FLAG
+    before = getattr(jax.config, flag)
+    try:
+        assert tracing.threefry_kernel_on_gpus()
+        assert not parallel.partitionable_draws(how, jax.local_devices()[:1])
+        assert getattr(jax.config, flag)
+        spans = parallel.partitionable_draws(how, jax.local_devices())
+        assert spans == (how != "pmap")
+        assert getattr(jax.config, flag) == (how == "pmap")
+    finally:
+        jax.config.update(flag, before)

@@ -15,7 +15,9 @@ MuJoCo Warp's step: on the ``"sharded"`` path it gathers the whole batch onto ev
 device, so under Warp each GPU simulates every robot (2 H200s: 1.01x one), and
 ``jax.shard_map`` of the step crashed. ``"split"`` has no program that both holds the
 physics and spans devices (2 H200s: 1.96x one; docs/benchmarks.md), so ``"auto"`` takes it
-for a Warp run on several GPUs of one process (:func:`choose`).
+for a Warp run on several GPUs of one process (:func:`choose`). For the same reason a
+program that spans several devices draws its random numbers as JAX's unrolled threefry,
+not through the GPUs' threefry kernel, another custom call (:func:`partitionable_draws`).
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jax.stages import Wrapped
+
+from mecanum_jax.tracing import threefry_kernel_on_gpus
 
 if TYPE_CHECKING:
     from train.config import TrainConfig
@@ -75,6 +79,16 @@ def choose(cfg: TrainConfig, devices: Sequence[jax.Device], processes: int) -> s
     return "sharded" if _several_gpus(devices) or processes > 1 else "pmap"
 
 
+def partitionable_draws(how: str, devices: Sequence[jax.Device]) -> bool:
+    """Where a program spans several ``devices`` (``"sharded"``, and ``"split"``'s update),
+    the GPUs' threefry kernel turned off for JAX's unrolled hash, which the partitioner can
+    split (:func:`mecanum_jax.tracing.threefry_kernel_on_gpus`); returns whether it was."""
+    if how == "pmap" or len(devices) < 2:
+        return False
+    threefry_kernel_on_gpus(on=False)
+    return True
+
+
 def mesh_sharding(parallel: str, devices: Sequence[jax.Device]) -> NamedSharding | None:
     """The sharding of the ``(D, ...)`` states over a mesh of ``devices`` (``None``: pmap)."""
     if parallel == "pmap":
@@ -98,4 +112,12 @@ def spread(
     )
 
 
-__all__ = ["AXIS", "MESH_AXIS", "choose", "devices_for", "mesh_sharding", "spread"]
+__all__ = [
+    "AXIS",
+    "MESH_AXIS",
+    "choose",
+    "devices_for",
+    "mesh_sharding",
+    "partitionable_draws",
+    "spread",
+]

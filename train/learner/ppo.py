@@ -47,7 +47,6 @@ from jax.typing import ArrayLike
 from mecanum_jax.host import host_side
 from mecanum_jax.task.controller import allow_rank_promotion
 from mecanum_jax.task.env import MecanumEnv, TrainingEnv
-from mecanum_jax.tracing import threefry_kernel_on_gpus
 from train.config import TrainConfig
 from train.learner import losses, parallel
 from train.learner.iteration import Iteration
@@ -114,10 +113,7 @@ class Learner(Iteration):
         if self.parallel == "pmap":
             self._identity = jax.pmap(lambda *x: x, axis_name=AXIS, devices=self.devices)
         devices = self.devices if self.n_processes == 1 else jax.devices()
-        if self.parallel == "sharded" and len(devices) > 1:
-            # XLA's partitioner cannot split the threefry kernel's custom call (nor MJX
-            # Warp's FFI step, hence "split"): this path keeps JAX's unrolled hash
-            threefry_kernel_on_gpus(on=False)
+        parallel.partitionable_draws(self.parallel, devices)
         self._sharding = parallel.mesh_sharding(self.parallel, devices)
         self._parallel_epoch: Any = (
             SplitEpoch(self) if self.parallel == "split" else self.program(self._epoch)
