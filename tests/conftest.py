@@ -140,6 +140,18 @@ def x64():
         yield
 
 
+@pytest.fixture
+def threefry_flag(monkeypatch):
+    """The name of the GPUs' threefry-kernel flag (mecanum_jax.tracing), the environment's
+    choice of it removed for the test and the flag's value restored after it."""
+    from mecanum_jax import tracing
+
+    monkeypatch.delenv(tracing.GPU_THREEFRY_VAR, raising=False)
+    before = getattr(jax.config, tracing.GPU_THREEFRY_FLAG)
+    yield tracing.GPU_THREEFRY_FLAG
+    jax.config.update(tracing.GPU_THREEFRY_FLAG, before)
+
+
 # --- the process's memory maps ------------------------------------------------------------
 
 

@@ -65,18 +65,12 @@ def test_the_mesh_is_the_sharded_paths_only(how):
 
 
 @pytest.mark.parametrize("how", ["sharded", "split", "pmap"])
-def test_a_program_over_several_devices_draws_through_the_unrolled_threefry(how, monkeypatch):
+def test_a_program_over_several_devices_draws_through_the_unrolled_threefry(how, threefry_flag):
     """XLA's partitioner cannot split the GPUs' threefry kernel (a custom call): where a
     program spans the devices, the kernel is turned off; pmap's programs keep it."""
-    monkeypatch.delenv(tracing.GPU_THREEFRY_VAR, raising=False)
-    flag = tracing.GPU_THREEFRY_FLAG
-    before = getattr(jax.config, flag)
-    try:
-        assert tracing.threefry_kernel_on_gpus()
-        assert not parallel.partitionable_draws(how, jax.local_devices()[:1])
-        assert getattr(jax.config, flag)
-        spans = parallel.partitionable_draws(how, jax.local_devices())
-        assert spans == (how != "pmap")
-        assert getattr(jax.config, flag) == (how == "pmap")
-    finally:
-        jax.config.update(flag, before)
+    assert tracing.threefry_kernel_on_gpus()
+    assert not parallel.partitionable_draws(how, jax.local_devices()[:1])
+    assert getattr(jax.config, threefry_flag)
+    spans = parallel.partitionable_draws(how, jax.local_devices())
+    assert spans == (how != "pmap")
+    assert getattr(jax.config, threefry_flag) == (how == "pmap")

@@ -79,25 +79,23 @@ def _cuda_module(fn) -> str:
     return jax.export.export(jax.jit(fn), platforms=["cuda"])(jax.random.PRNGKey(0)).mlir_module()
 
 
-def test_gpus_draw_through_the_threefry_kernel_unless_the_environment_chooses(monkeypatch):
+def test_gpus_draw_through_the_threefry_kernel_unless_the_environment_chooses(
+    threefry_flag, monkeypatch
+):
     """With the flag a CUDA program calls JAX's kernel once per draw instead of holding the
     hash's rounds; the environment's ``JAX_THREEFRY_GPU_KERNEL_LOWERING`` is left to stand.
     (The kernel's bits equal the unrolled hash's: checked on the GPU, docs/profiling.md.)"""
     kernel = "cu_threefry2x32_ffi"
-    before = jax.config.jax_threefry_gpu_kernel_lowering
-    try:
-        jax.config.update("jax_threefry_gpu_kernel_lowering", False)
-        unrolled = _cuda_module(draws)
-        assert kernel not in unrolled
-        monkeypatch.setenv(tracing.GPU_THREEFRY_VAR, "0")
-        assert not tracing.threefry_kernel_on_gpus()
-        monkeypatch.delenv(tracing.GPU_THREEFRY_VAR)
-        assert tracing.threefry_kernel_on_gpus()
-        kernels = _cuda_module(draws)
-        assert kernels.count(kernel) >= 5  # split, normal, uniform, randint, permutation...
-        assert len(kernels) < len(unrolled) / 2
-    finally:
-        jax.config.update("jax_threefry_gpu_kernel_lowering", before)
+    jax.config.update(threefry_flag, False)
+    unrolled = _cuda_module(draws)
+    assert kernel not in unrolled
+    monkeypatch.setenv(tracing.GPU_THREEFRY_VAR, "0")
+    assert not tracing.threefry_kernel_on_gpus()
+    monkeypatch.delenv(tracing.GPU_THREEFRY_VAR)
+    assert tracing.threefry_kernel_on_gpus()
+    kernels = _cuda_module(draws)
+    assert kernels.count(kernel) >= 5  # split, normal, uniform, randint, permutation...
+    assert len(kernels) < len(unrolled) / 2
 
 
 def test_a_jax_without_the_switch_keeps_its_own_lowering(monkeypatch):

@@ -172,7 +172,7 @@ def _key_of(directory):
     return header
 
 
-def test_the_key_holds_the_config_the_versions_the_devices_and_the_code(tiny):
+def test_the_key_holds_the_config_the_versions_the_devices_and_the_code(tiny, threefry_flag):
     key = warm_start.run_key(tiny, jax.devices())
     assert set(key) >= {"config", "robot", "versions", "devices", "xla_flags", "code"}
     assert set(key["versions"]) >= {"jax", "jaxlib", "mujoco", "mujoco-mjx", "warp-lang"}
@@ -180,12 +180,8 @@ def test_the_key_holds_the_config_the_versions_the_devices_and_the_code(tiny):
     assert warm_start.run_key(other, jax.devices())["config"] != key["config"]
     assert warm_start.run_key(tiny, jax.devices()) == key  # deterministic
     # a program lowered with the GPUs' threefry kernel is not served to a run without it
-    flag = jax.config.jax_threefry_gpu_kernel_lowering
-    try:
-        jax.config.update("jax_threefry_gpu_kernel_lowering", not flag)
-        assert warm_start.run_key(tiny, jax.devices())["jax_flags"] != key["jax_flags"]
-    finally:
-        jax.config.update("jax_threefry_gpu_kernel_lowering", flag)
+    jax.config.update(threefry_flag, not getattr(jax.config, threefry_flag))
+    assert warm_start.run_key(tiny, jax.devices())["jax_flags"] != key["jax_flags"]
 
 
 def test_it_is_off_where_it_cannot_serve(monkeypatch):

@@ -53,6 +53,7 @@ from jax.tree_util import PyTreeDef
 
 import mecanum_jax
 import train
+from mecanum_jax.tracing import GPU_THREEFRY_FLAG
 from train.loop import warp_targets
 from train.loop.program_store import INDEX_SUFFIX, SUFFIX, Key, Log, Store, digest
 from train.loop.stored_baseline import StoredBaseline
@@ -69,7 +70,7 @@ JAX_FLAGS = (
     "jax_default_matmul_precision",
     "jax_threefry_partitionable",
     "jax_default_prng_impl",
-    "jax_threefry_gpu_kernel_lowering",
+    GPU_THREEFRY_FLAG,
 )
 Aval = tuple[tuple[int, ...], str, bool]
 """An argument's shape, dtype and weak type (:func:`_aval`)."""
