@@ -124,6 +124,8 @@ def test_a_model_directory_evaluates_its_packaged_epoch(tmp_path):
     shutil.copytree(ckpts / str(packaged), ckpts / str(packaged + 5))
     assert restore_policy(model).epoch == packaged
     assert restore_policy(model, epoch=packaged + 5).epoch == packaged + 5
+    with pytest.raises(checkpoint.CheckpointError, match=r"epoch = 99999: no such .* epochs: \["):
+        restore_policy(model, epoch=99999)  # named as missing, not as a corrupt checkpoint
     shutil.rmtree(ckpts / str(packaged))
     with pytest.raises(checkpoint.CheckpointError, match=f"names epoch {packaged}"):
         restore_policy(model)
