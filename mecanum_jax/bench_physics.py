@@ -131,11 +131,14 @@ def _check_physics_args(args: PhysicsBench, impls: tuple[str, ...]) -> None:
     bad = sorted(set(args.impls) - set(impls))
     if bad or not args.impls:
         raise ConfigError(f"--impls: {list(args.impls)}: expected {' and/or '.join(impls)}")
-    if args.steps < 1 or args.repeats < 1 or not args.sizes or any(n < 1 for n in args.sizes):
-        raise ConfigError(
-            f"--steps = {args.steps}, --repeats = {args.repeats}, "
-            f"--sizes = {list(args.sizes)}: all must be >= 1"
-        )
+    for flag, values in (
+        ("steps", [args.steps]),
+        ("repeats", [args.repeats]),
+        ("sizes", args.sizes),
+    ):
+        if not values or any(n < 1 for n in values):
+            shown = values[0] if flag != "sizes" else list(values)
+            raise ConfigError(f"--{flag} = {shown}: must be >= 1")
 
 
 def _physics_table(result: dict[str, Any], steps: int) -> Table:

@@ -94,12 +94,20 @@ def test_demo_speed_beyond_any_robot(capsys):
 
 
 @pytest.mark.parametrize(
-    "argv",
-    [["kinematics", "--sizes", "0"], ["kinematics", "--repeats", "0"], ["physics", "--sizes", "0"]],
+    ("argv", "named"),
+    [
+        (["kinematics", "--sizes", "0"], "--sizes"),
+        (["kinematics", "--repeats", "0"], "--repeats"),
+        (["physics", "--sizes", "4", "0"], "--sizes = [4, 0]: must be >= 1"),
+        (["physics", "--repeats", "0"], "--repeats = 0: must be >= 1"),
+    ],
 )
-def test_bench_bad_arguments_exit_2_with_error(argv, capsys):
+def test_bench_bad_arguments_exit_2_with_error(argv, named, capsys):
+    """Refused with one line that names the bad flag and its value, and no other flag."""
     assert bench.main(argv) == 2
-    assert _one_error_line(capsys).startswith("error: --")
+    line = _one_error_line(capsys)
+    assert line.startswith(f"error: {named}")
+    assert "--steps" not in line
 
 
 def test_bench_reports_the_spread_and_warns_when_repeats_disagree(capsys):
