@@ -104,6 +104,8 @@ CASES = [
     (evaluate.main, [str(MODEL), *EVAL, "--export", "--play", "path_tau=1"], "a probe"),
     # a tuple field: its error in plain text (no rich markup)
     (deploy_sim.main, ["--command", "1", "2"], "--command = [1.0, 2.0]"),
+    # a command no robot drives: beyond twice the model's reach (a scenario file's bound)
+    (deploy_sim.main, [str(MODEL), "--command", "0", "0", "1e9"], "beyond twice the reach"),
 ]
 
 

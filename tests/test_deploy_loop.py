@@ -342,7 +342,7 @@ def test_deploy_sim_reproduces_mecanum_eval_on_the_nominal_scenario():
 
     sim_args = deploy_sim.DeploySimArgs(str(MODEL), episodes=E, seconds=S)
     cfg, ctrl = deploy_sim.load_model(sim_args)
-    eps = deploy_sim.episodes(sim_args, cfg)
+    eps = deploy_sim.played(sim_args, cfg)
     np.testing.assert_array_equal(eps.commands, traces["nominal"]["policy"].command)
     plant = Plant(dataclasses.replace(cfg.env, physics_impl="jax").description(), "fast")
     deployed = trace_parts(deploy_sim.play(plant, ctrl, eps), jac, dt)

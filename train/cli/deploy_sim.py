@@ -38,11 +38,12 @@ from mecanum_jax import atomic
 from mecanum_jax._checks import require_platform
 from mecanum_jax.config import ConfigError
 from mecanum_jax.deploy.loop import Controller
-from mecanum_jax.deploy.plant import Plant, PlantParams, SensorChannel
+from mecanum_jax.deploy.plant import Plant, SensorChannel
 from mecanum_jax.deploy.policy import ExportError
 from mecanum_jax.evaluation import metrics
 from mecanum_jax.evaluation.traces import Trace, summarize, trace_parts
 from train.cli import eval_output
+from train.cli.deploy_episodes import Episodes, check_reach, episodes
 from train.cli.paths import check_output, resolve_model
 from train.loop.progress import print_error, report_console
 
@@ -89,21 +90,6 @@ class DeploySimArgs:
     """Bootstrap resamples of the intervals."""
     out: str | None = None
     """Write the figures as JSON here (never overwritten)."""
-
-
-@dataclasses.dataclass
-class Episodes:
-    """What the rehearsal plays, per episode (NumPy)."""
-
-    commands: np.ndarray  # (E, T, 3)
-    params: list[PlantParams]
-    latency: np.ndarray  # (E,) control periods
-    noise_std: np.ndarray  # (E, 3) wheel rate, gyro, accel
-    targets: np.ndarray  # (E, T, 3) the nearest feasible twist of the true robot
-    scripted: bool
-    jacobian: np.ndarray
-    control_dt: float
-    description: str
 
 
 def _check(args: DeploySimArgs) -> None:
@@ -164,77 +150,17 @@ def load_model(args: DeploySimArgs) -> tuple[TrainConfig, Controller]:
     return cfg, controller
 
 
-def episodes(args: DeploySimArgs, cfg: TrainConfig) -> Episodes:
-    """The scenario's episodes (or ``--command``'s), prepared as mecanum-eval prepares
-    them (JAX, before any control loop runs), with ``--latency`` and ``--noise-scale``."""
-    from mecanum_jax.task import NoiseConfig
-    from mecanum_jax.tracing import prepare_tracing
-
-    prepare_tracing(cfg.run.matmul_precision, "run.matmul_precision")
-    eps = _command_episodes(args, cfg) if args.command else _scenario_episodes(args, cfg)
-    if args.latency is not None:
-        eps.latency = np.full(len(eps.commands), args.latency)
-    if args.noise_scale is not None:
-        std = np.asarray(NoiseConfig(scale=args.noise_scale).std(), float)
-        eps.noise_std = np.broadcast_to(std, eps.noise_std.shape).copy()
-    return eps
-
-
-def _scenario_episodes(args: DeploySimArgs, cfg: TrainConfig) -> Episodes:
-    import jax
-    import jax.numpy as jnp
-
-    from mecanum_jax.evaluation import scenarios
-    from mecanum_jax.evaluation.episodes import eval_env_config, prepare
-    from mecanum_jax.task import MecanumEnv
-
-    chosen = scenarios.load_scenarios(args.scenarios).select(
-        [args.scenario or "nominal"], args.episodes, args.seconds
-    )
-    sc = chosen.scenarios[0]
-    task = dataclasses.replace(cfg.env, physics_impl="jax")
-    env = MecanumEnv(eval_env_config(task, chosen))
-    batch = prepare(env, sc)
-    commands = np.asarray(batch.commands, np.float32)
-    targets = jax.vmap(env.feasible_target)(jnp.asarray(commands), batch.params.radius_scale)
-    return Episodes(
-        commands=commands,
-        params=[PlantParams.of(batch.params, i) for i in range(len(commands))],
-        latency=np.asarray(batch.latency, int),
-        noise_std=np.asarray(batch.noise_std, float),
-        targets=np.asarray(targets),
-        scripted=sc.scripted,
-        jacobian=np.asarray(env.jacobian),
-        control_dt=env.config.control_dt,
-        description=f"{sc.name}: {sc.description}",
-    )
-
-
-def _command_episodes(args: DeploySimArgs, cfg: TrainConfig) -> Episodes:
-    """``--command`` held on the nominal robot; its target as ``MecanumEnv.feasible_target``
-    gives it (without building the MJX environment)."""
-    import jax.numpy as jnp
-
-    from mecanum_jax.kinematics import limits
-    from mecanum_jax.kinematics import model as kinematics
-
-    desc = dataclasses.replace(cfg.env, physics_impl="jax").description()
-    geom = desc.build_geometry(warn_singular=False)
-    max_rates = desc.max_wheel_rates(geom).astype(jnp.float32)
-    command = jnp.asarray(args.command, jnp.float32)
-    target = limits.nearest_feasible(geom, command, max_rates, cfg.env.feedback.omega_weight)
-    E = args.episodes or 1
-    T = max(1, round((args.seconds or 5.0) / cfg.env.control_dt))
-    return Episodes(
-        commands=np.broadcast_to(np.asarray(command), (E, T, 3)).copy(),
-        params=[PlantParams.nominal(desc, geom.n_wheels)] * E,
-        latency=np.zeros(E, int),
-        noise_std=np.zeros((E, 3)),
-        targets=np.broadcast_to(np.asarray(target, np.float32), (E, T, 3)).copy(),
-        scripted=True,
-        jacobian=np.asarray(kinematics.jacobian(geom), np.float32),
-        control_dt=cfg.env.control_dt,
-        description=f"constant command {list(args.command)} on the nominal robot",
+def played(args: DeploySimArgs, cfg: TrainConfig) -> Episodes:
+    """The episodes ``args`` ask for (:func:`train.cli.deploy_episodes.episodes`)."""
+    return episodes(
+        cfg,
+        scenarios=args.scenarios,
+        scenario=args.scenario,
+        count=args.episodes,
+        seconds=args.seconds,
+        command=args.command,
+        latency=args.latency,
+        noise_scale=args.noise_scale,
     )
 
 
@@ -347,7 +273,8 @@ def main(argv: list[str] | None = None) -> int:
         name = Path(args.model).name
         out = check_output(args.out or f"runs/deploy-sim-{name}-{stamp}.json", "--out")
         cfg, controller = load_model(args)
-        eps = episodes(args, cfg)
+        check_reach(args.command, controller.spec.command_scale)
+        eps = played(args, cfg)
         plant = Plant(dataclasses.replace(cfg.env, physics_impl="jax").description(), args.fidelity)
     except (ConfigError, ExportError, OSError) as err:
         _error(err)
@@ -378,7 +305,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-__all__ = ["DeploySimArgs", "Episodes", "episodes", "load_model", "main", "play", "report"]
+__all__ = ["DeploySimArgs", "load_model", "main", "play", "played", "report"]
 
 
 if __name__ == "__main__":
