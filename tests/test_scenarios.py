@@ -167,6 +167,24 @@ def test_scenario_selection_errors(shipped):
         scenarios.load_scenarios("nonexistent")
 
 
+def test_si_commands_beyond_twice_the_reach_are_named_when_played(eval_env, tmp_path):
+    """units = "si" cannot be bounded in the file (it names no robot): the robot that plays
+    it refuses a segment beyond twice its reach, as units = "reach" refuses beyond 2."""
+    path = tmp_path / "si.toml"
+    seq = "[[0.5, 0.0, 0.0, 1.0], [0.0, 0.0, 1e9, 1.0]]"
+    path.write_text(
+        f'[scenarios.a]\nseconds = 2.0\ncommands = {{ kind = "sequence", units = "si", '
+        f"sequence = {seq} }}\n"
+    )
+    sc = scenarios.load_scenarios(path).scenarios[0]
+    with pytest.raises(ConfigError, match=r"scenarios\.a\.commands\.sequence\[1\] = .*twice"):
+        episodes.scripted_commands(eval_env, sc)
+    within = dataclasses.replace(
+        sc, commands=dataclasses.replace(sc.commands, sequence=((0.5, 0.0, 0.0, 2.0),))
+    )
+    np.testing.assert_allclose(episodes.scripted_commands(eval_env, within)[0], [0.5, 0.0, 0.0])
+
+
 def test_singular_pass_needs_a_layout_with_singular_directions(shipped):
     env3 = MecanumEnv(EnvConfig(robot="centripetal3"))
     sc = shipped.select(["singular_pass"]).scenarios[0]

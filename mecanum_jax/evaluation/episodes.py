@@ -84,8 +84,15 @@ def scripted_commands(env: MecanumEnv, scenario: Scenario) -> np.ndarray:
             segments.append((np.zeros(3), c.pause_s))
 
     if c.kind == "sequence":
-        for seg in c.sequence:
+        for i, seg in enumerate(c.sequence):
             twist = np.asarray(seg[:3], np.float64)
+            if c.units == "si" and np.any(np.abs(twist) > 2 * scale):  # reach's [-2, 2]
+                raise invalid(
+                    f"scenarios.{scenario.name}.commands.sequence[{i}]",
+                    list(seg),
+                    f"beyond twice the reach of robot {env.desc.robot.name!r} "
+                    f"({np.round(scale, 3).tolist()} m/s, m/s, rad/s)",
+                )
             twist = reachable @ (twist * scale if c.units == "reach" else twist)
             segments.append((twist, seg[3]))
     elif c.kind == "six_modes":

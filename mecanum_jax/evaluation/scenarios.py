@@ -22,7 +22,8 @@ File format (every key optional except the scenario tables themselves)::
     kind = "random"          # random | sequence | six_modes | singular_pass
     p_beyond = 0.0           # random: keys of the task's [env.commands], overriding it
     # sequence = [[vx, vy, wz, seconds], ...], units = "reach" (fraction of each axis'
-    #   largest feasible speed) or "si" (m/s, rad/s); zero command after the last segment
+    #   largest feasible speed, within [-2, 2]) or "si" (m/s, rad/s, within twice the
+    #   playing robot's reach); zero command after the last segment
     # six_modes / singular_pass: speed (fraction of the reach in each direction),
     #   segment_s, pause_s
 
