@@ -137,6 +137,28 @@ def test_implausible_dimensions_are_refused_with_the_override_named(change, mess
     assert parse_description(data).geometry.wheel_radius == data["geometry"]["wheel_radius"]
 
 
+@pytest.mark.parametrize(
+    ("motors", "message"),
+    [
+        (
+            {"max_motor_rpm": 1e9, "gear_ratio": 19.0},
+            r"max_motor_rpm = 1000000000.0 .* 2.756e\+05 m/s",
+        ),
+        ({"max_motor_rpm": 9000.0, "gear_ratio": 0.001}, r"gear_ratio = 0.001 .* 4.712e\+04 m/s"),
+        ({"max_motor_rpm": 0.5, "gear_ratio": 19.0}, r"max_motor_rpm = 0.5 .* 0.0001378 m/s"),
+    ],
+)
+def test_motors_that_turn_no_wheel_plausibly_are_refused(motors, message):
+    """A wheel's top rim speed (motor limit through the gears, times the radius) outside
+    1 cm/s–100 m/s: rpm typed as rad/s, or an inverted gear ratio; the override accepts it."""
+    data = {**_rect(), "motors": motors}
+    with pytest.raises(ConfigError, match=message) as err:
+        parse_description(data, "x.toml")
+    assert "outside 0.01–100 m/s; set allow_implausible = true" in str(err.value)
+    data["robot"]["allow_implausible"] = True
+    assert parse_description(data).motors.max_motor_rpm == motors["max_motor_rpm"]
+
+
 def test_a_wide_wheel_is_refused_and_the_override_keeps_the_fingerprint():
     data = {**_rect(), "body": {"wheel_width": 0.5}}
     with pytest.raises(ConfigError, match=r"body.wheel_width = 0.5 m is wider than 4 wheel radii"):

@@ -202,6 +202,10 @@ def parse_description(data: dict, source: str = "robot description") -> RobotDes
         for i, s in enumerate(m.signs):
             if s not in (-1, 1):
                 raise ConfigError(f"{source}: motors.signs[{i}] = {s!r}: expected +1 or -1")
+    try:
+        plausible.check_motors_plausible(desc.robot, m, geometry)
+    except ConfigError as err:
+        raise ConfigError(f"{source}: {err}") from None
     return desc
 
 

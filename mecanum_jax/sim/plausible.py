@@ -21,12 +21,15 @@ import numpy as np
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.kinematics.geometry import WheelGeometry
-from mecanum_jax.sim.specs import BodySpec, GeometrySpec, RobotSpec
+from mecanum_jax.sim.specs import BodySpec, GeometrySpec, MotorSpec, RobotSpec
 
 MIN_LENGTH, MAX_LENGTH = 0.001, 5.0
 """The plausible range of a robot's lengths, m: 1 mm to 5 m."""
 MAX_WIDTH_PER_RADIUS = 4.0
 """The widest plausible wheel, in wheel radii (twice its diameter)."""
+MIN_RIM_SPEED, MAX_RIM_SPEED = 0.01, 100.0
+"""The plausible range of a wheel's top rim speed, m/s (motor limit, gear ratio and
+radius together): 1 cm/s to 100 m/s; mecanum robots reach a few."""
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 OVERRIDE = "set allow_implausible = true in [robot] to accept"
 
@@ -102,4 +105,22 @@ def check_plausible(
         )
 
 
-__all__ = ["MAX_LENGTH", "MIN_LENGTH", "check_name", "check_plausible"]
+def check_motors_plausible(robot: RobotSpec, motors: MotorSpec, wheels: WheelGeometry) -> None:
+    """Raise :class:`ConfigError` where the motors, through their gears, would turn a wheel's
+    rim slower or faster than :data:`MIN_RIM_SPEED`–:data:`MAX_RIM_SPEED` (rpm typed as rad/s,
+    a gear ratio inverted), unless ``robot.allow_implausible``."""
+    if robot.allow_implausible:
+        return
+    rate = motors.max_motor_rpm / motors.gear_ratio * 2 * math.pi / 60  # wheel rad/s
+    for name, radius in zip(wheels.names, np.asarray(wheels.radii, float), strict=True):
+        rim = rate * float(radius)
+        if not MIN_RIM_SPEED <= rim <= MAX_RIM_SPEED:
+            raise ConfigError(
+                f"robot {robot.name!r}: motors.max_motor_rpm = {motors.max_motor_rpm!r} through "
+                f"motors.gear_ratio = {motors.gear_ratio!r} turns wheel {name!r} (radius "
+                f"{radius:g} m) at {rim:.4g} m/s at its rim, outside {MIN_RIM_SPEED:g}–"
+                f"{MAX_RIM_SPEED:g} m/s; {OVERRIDE}"
+            )
+
+
+__all__ = ["MAX_LENGTH", "MIN_LENGTH", "check_motors_plausible", "check_name", "check_plausible"]
