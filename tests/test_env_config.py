@@ -25,6 +25,8 @@ from mecanum_jax.task import EnvConfig, MecanumEnv
         ({"noise": {"gyro": "big"}}, "env.noise.gyro = 'big'"),
         ({"action_filter": 1.0}, "env.action_filter = 1.0"),
         ({"action_filter": -0.1}, "env.action_filter = -0.1"),
+        ({"residual_scale": 1e9}, "env.residual_scale = 1000000000.0: must be in"),
+        ({"residual_scale": 0.0}, "env.residual_scale = 0.0: must be in"),
         ({"colour": "red"}, "env.colour = 'red': unknown key"),
         (
             {"robot": "centripetal3", "symmetric": True},

@@ -29,7 +29,8 @@ class EnvConfig:
     (± residual_scale · max_rate); or "twist", a correction of the body twist
     (± residual_scale of the largest feasible vx, vy, ωz) mapped through the nominal
     inverse model, so the policy cannot drive the wheels against each other (the
-    inverse model's null space, which squeezes the rollers and only costs energy).
+    inverse model's null space, which squeezes the rollers and only costs energy);
+    residual_scale is in (0, 2].
 
     residual_base (with residual = true): the controller the residual corrects.
     "analytic": the nominal inverse model, desaturated uniformly (the baseline).
@@ -202,10 +203,12 @@ class EnvConfig:
         require(
             self,
             where,
-            ("control_dt", "physics_timestep", "contact_timeconst", "residual_scale"),
+            ("control_dt", "physics_timestep", "contact_timeconst"),
             lambda v: v > 0,
             "must be > 0",
         )
+        # beyond twice the reach (or the wheels' limit) every correction is clipped anyway
+        require(self, where, ("residual_scale",), lambda v: 0 < v <= 2, "must be in (0, 2]")
         ratio = self.control_dt / self.physics_timestep
         if abs(ratio - round(ratio)) > 1e-6:
             raise invalid(
