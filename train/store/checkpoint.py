@@ -179,14 +179,14 @@ def _newest_clean(
     mgr = manager(run_dir, create=False)
     try:
         saved = sorted(mgr.all_steps(), reverse=True)
-        if not saved:
-            raise CheckpointError(f"{str(run_dir)!r}: no checkpoints in {CHECKPOINT_DIR}/")
         if epoch is not None and not checkpoint_path(run_dir, epoch).exists():
             raise CheckpointError(
                 f"epoch = {epoch}: no such checkpoint in {str(run_dir / CHECKPOINT_DIR)!r}; "
                 f"its epochs: {sorted(saved)}"
             )
         epochs = saved if epoch is None else [epoch]
+        if not epochs:
+            raise CheckpointError(f"{str(run_dir)!r}: no checkpoints in {CHECKPOINT_DIR}/")
         bad = []
         for ep in epochs:
             try:
