@@ -27,6 +27,8 @@ from mecanum_jax.task import EnvConfig, MecanumEnv
         ({"action_filter": -0.1}, "env.action_filter = -0.1"),
         ({"residual_scale": 1e9}, "env.residual_scale = 1000000000.0: must be in"),
         ({"residual_scale": 0.0}, "env.residual_scale = 0.0: must be in"),
+        ({"physics_timestep": 1e-7}, "env.physics_timestep = 1e-07: 200000 physics steps"),
+        ({"control_dt": 100.0}, "env.physics_timestep = 0.005: 20000 physics steps"),
         ({"colour": "red"}, "env.colour = 'red': unknown key"),
         (
             {"robot": "centripetal3", "symmetric": True},

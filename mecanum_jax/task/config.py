@@ -18,6 +18,8 @@ from mecanum_jax.task.reward import RewardConfig
 RESIDUAL_SPACES = ("wheel", "twist")
 RESIDUAL_BASES = ("analytic", "feedback")
 MAX_OBS_HISTORY = 50
+MAX_SUBSTEPS = 100
+"""Physics steps per control period at most (the shipped config takes 4)."""
 """The most earlier sensor frames a policy may observe (1 s at the default 20 ms)."""
 
 
@@ -104,7 +106,7 @@ class EnvConfig:
     control_dt: float = 0.02
     """Control period, s (> 0, a whole multiple of physics_timestep)."""
     physics_timestep: float = 0.005
-    """MJX physics step, s (> 0)."""
+    """MJX physics step, s (> 0; at most MAX_SUBSTEPS of them per control period)."""
     contact_timeconst: float = 0.01
     """Contact solver time constant, s (> 0; about 2 physics steps or more)."""
     solver_iterations: int = 0
@@ -215,6 +217,13 @@ class EnvConfig:
                 f"{where}.control_dt",
                 self.control_dt,
                 f"must be a whole multiple of physics_timestep = {self.physics_timestep}",
+            )
+        if round(ratio) > MAX_SUBSTEPS:  # each one a physics step of every robot, every period
+            raise invalid(
+                f"{where}.physics_timestep",
+                self.physics_timestep,
+                f"{round(ratio)} physics steps per control period (control_dt = "
+                f"{self.control_dt} s); at most {MAX_SUBSTEPS}",
             )
         require(self, where, ("episode_length",), lambda v: v >= 1, "must be >= 1")
         require(
