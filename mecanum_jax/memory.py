@@ -108,4 +108,4 @@ def _gib(n: float) -> str:
     return f"{n / 2**30:.1f} GiB"
 
 
-__all__ = ["available_bytes", "evaluation_bytes", "require_memory", "training_bytes"]
+__all__ = ["BASE_BYTES", "available_bytes", "evaluation_bytes", "require_memory", "training_bytes"]

@@ -209,6 +209,28 @@ def test_the_estimates_grow_with_the_batch():
         memory.require_memory(10**15, "huge", "use fewer")
 
 
+@pytest.mark.parametrize(
+    ("run", "named"),
+    [
+        ({"num_eval_envs": 10**8}, "run.num_eval_envs = 100000000, run.eval_episode_length = 30"),
+        ({"eval_episode_length": 10**8}, "run.num_eval_envs = 4, run.eval_episode_length"),
+    ],
+)
+def test_a_periodic_evaluation_too_large_for_memory_is_named(run, named):
+    """The evaluation's traces count, and the refusal names them, not the batch (10^8
+    evaluation steps had run a tiny run on, unrefused, until it was killed)."""
+    import dataclasses
+
+    from train.config_loading import load_train_config
+
+    cfg = load_train_config("tiny")
+    cfg = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, **run))
+    with pytest.raises(ConfigError, match="needs about") as err:
+        train._require_memory(cfg)
+    assert str(err.value).startswith(named)
+    assert "--run.num-eval-envs" in str(err.value)
+
+
 def test_gpu_config_on_a_cpu_warns_at_start(tmp_path, capsys):
     full = tmp_path / "full"
     full.mkdir()

@@ -116,16 +116,25 @@ def _check_meta(meta: argparse.Namespace) -> None:
 
 
 def _require_memory(cfg: TrainConfig) -> None:
-    """Refuse a config whose estimated footprint (mecanum_jax.memory) exceeds the memory."""
-    p, seeds = cfg.ppo, len(cfg.run.seeds)
-    need = memory.training_bytes(
-        seeds * p.num_envs,
-        seeds * p.batch_size * p.num_minibatches,
-        p.unroll_length,
-        seeds * cfg.run.num_eval_envs,
+    """Refuse a config whose estimated footprint (mecanum_jax.memory) exceeds the memory,
+    naming the larger part: the training batch, or the periodic evaluation's traces (its
+    two scenarios, each of run.num_eval_envs episodes a seed)."""
+    p, r, seeds = cfg.ppo, cfg.run, len(cfg.run.seeds)
+    train = memory.training_bytes(
+        seeds * p.num_envs, seeds * p.batch_size * p.num_minibatches, p.unroll_length, 0
     )
-    where = f"ppo.num_envs = {p.num_envs}, ppo.batch_size = {p.batch_size} ({seeds} seed(s))"
-    memory.require_memory(need, where, "use fewer --ppo.num-envs and --ppo.batch-size")
+    evaluation = memory.evaluation_bytes(2 * seeds * r.num_eval_envs, r.eval_episode_length, 1)
+    need = train + evaluation - memory.BASE_BYTES
+    if evaluation > train:
+        where = (
+            f"run.num_eval_envs = {r.num_eval_envs}, run.eval_episode_length = "
+            f"{r.eval_episode_length} ({seeds} seed(s))"
+        )
+        fix = "use fewer --run.num-eval-envs or a shorter --run.eval-episode-length"
+    else:
+        where = f"ppo.num_envs = {p.num_envs}, ppo.batch_size = {p.batch_size} ({seeds} seed(s))"
+        fix = "use fewer --ppo.num-envs and --ppo.batch-size"
+    memory.require_memory(need, where, fix)
 
 
 def _config_file(name: str) -> Path:
