@@ -131,14 +131,11 @@ def _check_physics_args(args: PhysicsBench, impls: tuple[str, ...]) -> None:
     bad = sorted(set(args.impls) - set(impls))
     if bad or not args.impls:
         raise ConfigError(f"--impls: {list(args.impls)}: expected {' and/or '.join(impls)}")
-    for flag, values in (
-        ("steps", [args.steps]),
-        ("repeats", [args.repeats]),
-        ("sizes", args.sizes),
-    ):
-        if not values or any(n < 1 for n in values):
-            shown = values[0] if flag != "sizes" else list(values)
-            raise ConfigError(f"--{flag} = {shown}: must be >= 1")
+    for flag, value in (("steps", args.steps), ("repeats", args.repeats)):
+        if value < 1:
+            raise ConfigError(f"--{flag} = {value}: must be >= 1")
+    if not args.sizes or any(n < 1 for n in args.sizes):
+        raise ConfigError(f"--sizes = {list(args.sizes)}: must be >= 1")
 
 
 def _physics_table(result: dict[str, Any], steps: int) -> Table:

@@ -18,9 +18,9 @@ from mecanum_jax.task.reward import RewardConfig
 RESIDUAL_SPACES = ("wheel", "twist")
 RESIDUAL_BASES = ("analytic", "feedback")
 MAX_OBS_HISTORY = 50
+"""The most earlier sensor frames a policy may observe (1 s at the default 20 ms)."""
 MAX_SUBSTEPS = 100
 """Physics steps per control period at most (the shipped config takes 4)."""
-"""The most earlier sensor frames a policy may observe (1 s at the default 20 ms)."""
 
 
 @dataclasses.dataclass(frozen=True)
