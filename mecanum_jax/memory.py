@@ -76,12 +76,11 @@ def _virtual_bytes() -> int:
         return 0
 
 
-def training_bytes(num_envs: int, trajectories: int, unroll_length: int, eval_envs: int) -> int:
+def training_bytes(num_envs: int, trajectories: int, unroll_length: int) -> int:
     """The estimated peak memory of training ``num_envs`` environments that collect
-    ``trajectories`` × ``unroll_length`` transitions per iteration (all seeds together),
-    with ``eval_envs`` evaluation environments beside them."""
-    envs = num_envs + eval_envs
-    return BASE_BYTES + envs * TRAIN_ENV_BYTES + trajectories * unroll_length * TRAIN_STEP_BYTES
+    ``trajectories`` × ``unroll_length`` transitions per iteration (all seeds together);
+    its periodic evaluation is :func:`evaluation_bytes`."""
+    return BASE_BYTES + num_envs * TRAIN_ENV_BYTES + trajectories * unroll_length * TRAIN_STEP_BYTES
 
 
 def evaluation_bytes(robots: int, steps: int, players: int) -> int:

@@ -202,8 +202,8 @@ def test_evaluation_too_large_for_memory_is_refused(tmp_path):
 
 
 def test_the_estimates_grow_with_the_batch():
-    small = memory.training_bytes(8, 16, 10, 32)
-    assert memory.training_bytes(10_000_000, 10_000_000, 10, 32) > 100 * small
+    small = memory.training_bytes(8, 16, 10)
+    assert memory.training_bytes(10_000_000, 10_000_000, 10) > 100 * small
     memory.require_memory(small, "tiny", "")  # the tiny config fits anywhere
     with pytest.raises(ConfigError, match=r"huge: needs about .* GiB .* available on cpu"):
         memory.require_memory(10**15, "huge", "use fewer")

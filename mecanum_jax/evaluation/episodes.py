@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mecanum_jax.config import invalid
-from mecanum_jax.evaluation.scenarios import JUDGE_COMMANDS, Scenario, ScenarioSet
+from mecanum_jax.evaluation.scenarios import JUDGE_COMMANDS, MAX_REACH, Scenario, ScenarioSet
 from mecanum_jax.host import host_side
 from mecanum_jax.kinematics import limits, singularity
 from mecanum_jax.kinematics.modes import SIX_MODES
@@ -86,7 +86,7 @@ def scripted_commands(env: MecanumEnv, scenario: Scenario) -> np.ndarray:
     if c.kind == "sequence":
         for i, seg in enumerate(c.sequence):
             twist = np.asarray(seg[:3], np.float64)
-            if c.units == "si" and np.any(np.abs(twist) > 2 * scale):  # reach's [-2, 2]
+            if c.units == "si" and np.any(np.abs(twist) > MAX_REACH * scale):
                 raise invalid(
                     f"scenarios.{scenario.name}.commands.sequence[{i}]",
                     list(seg),

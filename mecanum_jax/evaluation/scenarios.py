@@ -69,6 +69,10 @@ EVAL_DIR = CONFIG_DIR / "eval"
 SCENARIO_STREAM = 0x5CE7
 TASK_STREAM = 0x7A5C
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+MAX_REACH = 2.0
+"""The most a played command asks on any axis, in multiples of the robot's reach there
+(units = "reach" in the file; "si" and mecanum-deploy-sim's --command once the robot is
+known)."""
 CommandKind = Literal["random", "sequence", "six_modes", "singular_pass"]
 
 
@@ -245,9 +249,11 @@ def _validate_commands(s: Scenario, where: str) -> None:
         for i, seg in enumerate(c.sequence):
             if seg[3] <= 0:
                 raise invalid(f"{w}.sequence[{i}]", list(seg), "a segment lasts > 0 seconds")
-            if c.units == "reach" and max(abs(x) for x in seg[:3]) > 2:
+            if c.units == "reach" and max(abs(x) for x in seg[:3]) > MAX_REACH:
                 raise invalid(
-                    f"{w}.sequence[{i}]", list(seg), 'units = "reach": components in [-2, 2]'
+                    f"{w}.sequence[{i}]",
+                    list(seg),
+                    f'units = "reach": components in [-{MAX_REACH:g}, {MAX_REACH:g}]',
                 )
         total = sum(seg[3] for seg in c.sequence)
         if total > s.seconds + 1e-9:
@@ -259,7 +265,13 @@ def _validate_commands(s: Scenario, where: str) -> None:
     if c.kind != "random" and s.mix:
         key = sorted(s.mix)[0]
         raise invalid(f"{w}.{key}", s.mix[key], 'command-mix keys only apply to kind = "random"')
-    require(c, w, ("speed",), lambda v: 0 < v <= 2, "must be in (0, 2] (fraction of reach)")
+    require(
+        c,
+        w,
+        ("speed",),
+        lambda v: 0 < v <= MAX_REACH,
+        f"must be in (0, {MAX_REACH:g}] (fraction of reach)",
+    )
     require(c, w, ("segment_s",), lambda v: v > 0, "must be > 0")
     require(c, w, ("pause_s",), lambda v: v >= 0, "must be >= 0")
 
@@ -367,6 +379,7 @@ def load_scenarios(
 
 __all__ = [
     "JUDGE_COMMANDS",
+    "MAX_REACH",
     "Scenario",
     "ScenarioCommands",
     "ScenarioSet",

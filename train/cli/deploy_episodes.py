@@ -13,6 +13,7 @@ import numpy as np
 
 from mecanum_jax.config import ConfigError
 from mecanum_jax.deploy.plant import PlantParams
+from mecanum_jax.evaluation.scenarios import MAX_REACH
 
 if TYPE_CHECKING:
     from train.config import TrainConfig
@@ -36,7 +37,7 @@ class Episodes:
 def check_reach(command: Sequence[float], reach: np.ndarray) -> None:
     """``--command`` within twice the model's reach (``command_scale``) on each axis, as
     a scenario file's commands are."""
-    if command and np.any(np.abs(np.asarray(command)) > 2 * np.asarray(reach)):
+    if command and np.any(np.abs(np.asarray(command)) > MAX_REACH * np.asarray(reach)):
         shown = np.round(np.asarray(reach, float), 3).tolist()
         raise ConfigError(f"--command = {list(command)}: beyond twice the reach {shown}")
 

@@ -121,10 +121,10 @@ def _require_memory(cfg: TrainConfig) -> None:
     two scenarios, each of run.num_eval_envs episodes a seed)."""
     p, r, seeds = cfg.ppo, cfg.run, len(cfg.run.seeds)
     train = memory.training_bytes(
-        seeds * p.num_envs, seeds * p.batch_size * p.num_minibatches, p.unroll_length, 0
+        seeds * p.num_envs, seeds * p.batch_size * p.num_minibatches, p.unroll_length
     )
     evaluation = memory.evaluation_bytes(2 * seeds * r.num_eval_envs, r.eval_episode_length, 1)
-    need = train + evaluation - memory.BASE_BYTES
+    need = train + evaluation - memory.BASE_BYTES  # one process: its base counted once
     if evaluation > train:
         where = (
             f"run.num_eval_envs = {r.num_eval_envs}, run.eval_episode_length = "
