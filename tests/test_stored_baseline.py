@@ -90,3 +90,49 @@ def test_a_damaged_or_stale_file_is_played_again(tmp_path, damage):
     assert (len(calls), again.store.loaded, again.store.written) == (2, [], ["baseline"])
     assert any("baseline" in line and "unusable" in line for line in lines), lines
     _same(decode(program_store.unframe(path.read_bytes())[1]), _result())  # rewritten whole
+
+
+def _episodes(seed=0):
+    from mecanum_jax.evaluation.episodes import EpisodeBatch
+
+    rng = np.random.default_rng(seed)
+    batch = EpisodeBatch(
+        rng.integers(0, 2**32, (4, 2), dtype=np.uint32),
+        {"friction": rng.random((4, 4), np.float32), "mass": rng.random(4, np.float32)},
+        rng.integers(0, 3, 4).astype(np.int32),
+        rng.random((4, 3), np.float32),
+        rng.random((4, 30, 3), np.float32),
+    )
+    return {"randomized": batch, "nominal": batch._replace(latency=np.zeros(4, np.int32))}
+
+
+def test_the_episodes_read_back_bit_for_bit_and_a_damaged_file_is_drawn_again(tmp_path):
+    import jax
+
+    from train.loop.stored_baseline import EPISODES_SUFFIX, decode_episodes, stored_episodes
+
+    def same(a, b):
+        (la, ta), (lb, tb) = jax.tree.flatten(a), jax.tree.flatten(b)
+        assert ta == tb
+        for x, y in zip(la, lb, strict=True):
+            assert (np.asarray(x).dtype, np.asarray(x).tobytes()) == (y.dtype, y.tobytes())
+
+    drawn = []
+
+    def kept(lines):
+        draw = lambda: drawn.append(1) or _episodes()  # noqa: E731
+        return stored_episodes(draw, program_store.Store(tmp_path, {"run": "a"}, lines.append))
+
+    same(_episodes(), kept([])())
+    loaded = kept([])
+    same(loaded(), jax.tree.map(np.asarray, _episodes()))
+    assert (len(drawn), loaded.store.loaded) == (1, ["episodes"])
+    with pytest.raises(AssertionError):
+        same(decode_episodes(loaded.encode(_episodes(seed=1))), _episodes())
+    (path,) = tmp_path.glob(f"*{EPISODES_SUFFIX}")
+    path.write_bytes(program_store.frame(loaded.key, b"not episodes"))
+    lines: list[str] = []
+    again = kept(lines)
+    same(again(), _episodes())
+    assert (len(drawn), again.store.written) == (2, ["episodes"])
+    assert "unusable" in lines[0]

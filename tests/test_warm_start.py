@@ -225,7 +225,7 @@ def test_a_warm_start_of_the_tiny_run_matches_a_cold_one_bit_for_bit(tmp_path):
         logs.append(run.stderr)
         return json.loads(out.read_text())
 
-    names = ["baseline", "epoch", "reset", "rollout"]
+    names = ["baseline", "episodes", "epoch", "reset", "rollout"]
     cold, warm = start("cold"), start("warm")
     assert sorted(warm["warm_start"]["loaded"]) == names
     assert warm["warm_start"]["written"] == []
@@ -242,7 +242,7 @@ def test_a_warm_start_of_the_tiny_run_matches_a_cold_one_bit_for_bit(tmp_path):
             program_store.Store(store, {}, print).path(json.loads(payload)).unlink()
     rebuilt = start("rebuilt")
     assert (sorted(rebuilt["warm_start"]["loaded"]), rebuilt["warm_start"]["written"]) == (
-        ["baseline", "epoch", "reset"],
+        ["baseline", "episodes", "epoch", "reset"],
         ["rollout"],
     )
     assert not any("failed to run" in log for log in logs), logs

@@ -84,12 +84,14 @@ class PeriodicEvaluation:
         """Run the rollout through ``wrap(jitted rollout)`` (train/loop/warm_start.py)."""
         self.evaluator._run = wrap(self.evaluator._run)
 
+    def draw(self) -> dict[str, episodes.EpisodeBatch]:
+        """Every scenario's episodes, drawn now (train/loop/warm_start.py keeps them)."""
+        return {s.name: episodes.prepare(self.env, s) for s in self.scenarios.scenarios}
+
     def batches(self) -> dict[str, episodes.EpisodeBatch]:
         """The episodes, drawn once (the same for every evaluation of the run)."""
         if self._batches is None:
-            self._batches = {
-                s.name: episodes.prepare(self.env, s) for s in self.scenarios.scenarios
-            }
+            self._batches = self.draw()
         return self._batches
 
     def play(self, who: str, params: object = None) -> Result:

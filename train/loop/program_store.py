@@ -10,6 +10,7 @@ import os
 import pickle
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -55,6 +56,8 @@ class Store:
         self.fresh = fresh
         self.loaded: list[str] = []
         self.written: list[str] = []
+        self.ahead: Ahead | None = None
+        """Programs loaded ahead, while the run was being built (:class:`Ahead`)."""
         self.load_s: dict[str, dict[str, float]] = {}
         """Seconds each loaded program took: its file read and checked (``read``), its
         Warp targets made (``targets``), the executable loaded onto the devices
@@ -129,18 +132,14 @@ class Store:
         times: dict[str, float] = {}
 
         def parse(payload: bytes) -> Compiled:
-            t1 = time.perf_counter()
-            times["read"] = t1 - t0
-            serialized, in_tree, out_tree, devices, targets = pickle.loads(payload)
-            if targets and not warp_targets.register(targets, self.tracers):
-                raise ValueError("its MuJoCo Warp FFI targets cannot be made here")
-            t2 = time.perf_counter()
-            times["targets"] = t2 - t1
-            compiled = _deserialize(serialized, in_tree, out_tree, devices)
-            times["deserialize"] = time.perf_counter() - t2
-            return compiled
+            return _parse(payload, t0, times, self.tracers)
 
-        compiled = self.read(name, full_key, SUFFIX, parse)
+        loaded = self.ahead.take(full_key) if self.ahead is not None else None
+        compiled: Compiled | None = None
+        if loaded is not None:
+            compiled, times = loaded
+        else:
+            compiled = self.read(name, full_key, SUFFIX, parse)
         if compiled is None:
             return None
         if not read_back:
@@ -161,6 +160,76 @@ class Store:
             return
         self.write(full_key, payload)
         self.written.append(name)
+
+
+class Ahead:
+    """A run's stored programs loaded ahead on a background thread, while the run builds
+    its model and environment (the executable's load releases Python's lock): every index
+    entry under the run's ``key`` whose program is named in ``order``, in that order, read,
+    checked and deserialized as :meth:`Store.load` does. :meth:`take` hands over what it
+    loaded; an entry it could not load (stale, corrupt, or calling MuJoCo Warp, whose
+    targets the store makes on the run's own thread) is left to :meth:`Store.load`, which
+    checks it again, logs it and makes it anew."""
+
+    def __init__(self, directory: Path, key: Key, order: Sequence[str]):
+        run = json.loads(json.dumps(key, default=repr))
+        found: list[tuple[int, Key]] = []
+        for path in directory.glob(f"*{INDEX_SUFFIX}"):
+            try:
+                header, payload = unframe(path.read_bytes())
+                assert isinstance(header, dict)
+                name = header.pop("program", None)
+                header.pop("signature", None)
+                if header == run and name in order and (program := json.loads(payload)):
+                    found.append((order.index(name), program))
+            except Exception:  # not this run's intact entry: Store.load judges it
+                continue
+        pool = ThreadPoolExecutor(1, thread_name_prefix="mecanum-ahead")
+        self._loads: dict[str, Future[tuple[Compiled, dict[str, float]] | None]] = {
+            digest(program): pool.submit(_load_ahead, directory, program)
+            for _, program in sorted(found, key=lambda f: f[0])
+        }
+        pool.shutdown(wait=False)
+
+    def take(self, program_key: Key) -> tuple[Compiled, dict[str, float]] | None:
+        """The executable stored under ``program_key`` and its load's times, if loaded
+        ahead (waiting for it where it is still loading); else ``None``."""
+        future = self._loads.pop(digest(program_key), None)
+        try:
+            return None if future is None else future.result()
+        except Exception:  # Store.load reads the file again and logs what is wrong
+            return None
+
+
+def _load_ahead(directory: Path, program_key: Key) -> tuple[Compiled, dict[str, float]] | None:
+    t0 = time.perf_counter()
+    blob = (directory / f"{digest(program_key)[:40]}{SUFFIX}").read_bytes()
+    header, payload = unframe(blob)
+    if header != json.loads(json.dumps(program_key, default=repr)):
+        return None
+    times: dict[str, float] = {}
+    return _parse(payload, t0, times, None), times
+
+
+def _parse(
+    payload: bytes,
+    t0: float,
+    times: dict[str, float],
+    tracers: Sequence[warp_targets.Tracer] | None,
+) -> Compiled:
+    """A stored program's executable, loaded; ``times`` gets its phases' seconds from
+    ``t0``. ``tracers``: what makes its MuJoCo Warp targets (``None``: refuse a program
+    that calls them)."""
+    t1 = time.perf_counter()
+    times["read"] = t1 - t0
+    serialized, in_tree, out_tree, devices, targets = pickle.loads(payload)
+    if targets and (tracers is None or not warp_targets.register(targets, tracers)):
+        raise ValueError("its MuJoCo Warp FFI targets cannot be made here")
+    t2 = time.perf_counter()
+    times["targets"] = t2 - t1
+    compiled = _deserialize(serialized, in_tree, out_tree, devices)
+    times["deserialize"] = time.perf_counter() - t2
+    return compiled
 
 
 def _deserialize(

@@ -99,7 +99,9 @@ class RunSteps:
             differs = [f for f in config_diff(learner.cfg, self.cfg) if f not in LOGGING_ONLY]
             if differs:
                 raise ValueError(f"learner was built for another config: {differs}")
-        return learner or warm_start.attach(Learner(self.cfg), self.console.log)
+            return learner
+        ahead = warm_start.load_ahead(self.cfg)  # loads while the learner is built
+        return warm_start.attach(Learner(self.cfg), self.console.log, ahead)
 
     @staticmethod
     def _fresh(learner: Learner) -> Placed:

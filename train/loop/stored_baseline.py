@@ -1,31 +1,41 @@
-"""The baseline's figures kept with the run's programs (train/loop/warm_start.py).
+"""Values kept with the run's programs (train/loop/warm_start.py): the evaluation's
+episodes and the baseline's figures on them.
 
-A run evaluates the ``analytic`` baseline once, on its fixed held-out episodes, before the
-first epoch's comparison. Those figures are a pure function of what the run's key holds
-(the config with its evaluation's episodes, the robot, the code, the versions, devices and
-flags), so :class:`StoredBaseline` keeps them beside the stored programs under that key: a
-later start of the same run reads them back instead of playing the baseline again (on one
-H200 under Warp 3.3 s off a warm start of about 30 s, docs/profiling.md). The file holds every
-scenario's values and per-episode parts exactly as computed (float bits kept), is written
-atomically and checksummed by :class:`~train.loop.program_store.Store`, and a file that does
-not read back whole is logged, removed and made again, never trusted.
+A run draws its held-out episodes (robots, floors, commands) once and evaluates the
+``analytic`` baseline on them once, before the first epoch's comparison. Both are a pure
+function of what the run's key holds (the config with its evaluation's episodes, the robot,
+the code, the versions, devices and flags), so :class:`Kept` keeps them beside the stored
+programs under that key: a later start of the same run reads them back instead of drawing
+and playing again (the baseline: on one H200 under Warp 3.3 s off a warm start of about
+30 s; the episodes' samplers: about 0.8 s of the 2-core CPU's warm start,
+docs/profiling.md). Each file holds its values exactly as computed (float bits kept), is
+written atomically and checksummed by :class:`~train.loop.program_store.Store`, and a file
+that does not read back whole is logged, removed and made again, never trusted.
 """
 
 from __future__ import annotations
 
 import io
 import json
+import pickle
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Generic, TypeVar
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
+from mecanum_jax.evaluation.episodes import EpisodeBatch
 from mecanum_jax.evaluation.metrics import Part
+from mecanum_jax.host import on_host
 from train.learner.periodic import Result
 from train.loop.program_store import Key, Store
 
 SUFFIX = ".baseline"
 NAME = "baseline"
+EPISODES_SUFFIX = ".episodes"
+EPISODES = "episodes"
+T = TypeVar("T")
 
 
 def encode(result: Result) -> bytes:
@@ -62,24 +72,71 @@ def decode(payload: bytes) -> Result:
     return Result(meta["values"], parts)
 
 
-class StoredBaseline:
-    """``evaluate(ts)`` (the learner's ``evaluate_baseline``) served from ``store``: the
-    figures read back where the run's key holds them, else played and written."""
+def encode_episodes(batches: dict[str, EpisodeBatch]) -> bytes:
+    """``batches`` as bytes: their tree and every leaf as a NumPy array (dtypes kept)."""
+    leaves, tree = jax.tree.flatten(batches)
+    return pickle.dumps((tree, [np.asarray(x) for x in leaves]))
+
+
+def decode_episodes(payload: bytes) -> dict[str, EpisodeBatch]:
+    """The episodes :func:`encode_episodes` wrote, as host arrays (``mecanum_jax.host``)."""
+    tree, leaves = pickle.loads(payload)
+    with on_host():
+        batches = jax.tree.unflatten(tree, [jnp.asarray(x) for x in leaves])
+    if not all(isinstance(b, EpisodeBatch) for b in batches.values()):
+        raise ValueError("not the evaluation's episodes")
+    return batches
+
+
+class Kept(Generic[T]):
+    """``make()``'s value served from ``store`` under the run's key and ``name``: read back
+    where the store holds it, else made and written."""
+
+    def __init__(
+        self,
+        make: Callable[..., T],
+        store: Store,
+        name: str,
+        suffix: str,
+        codec: tuple[Callable[[T], bytes], Callable[[bytes], T]],
+    ):
+        self.make = make
+        self.store = store
+        self.name = name
+        self.suffix = suffix
+        self.encode, self.decode = codec
+        self.key: Key = {**store.key, "program": name}
+
+    def __call__(self, *args: Any) -> T:
+        value = self.store.read(self.name, self.key, self.suffix, self.decode)
+        if value is not None:
+            self.store.loaded.append(self.name)
+            return value
+        value = self.make(*args)
+        self.store.write(self.key, self.encode(value), self.suffix)
+        self.store.written.append(self.name)
+        return value
+
+
+class StoredBaseline(Kept[Result]):
+    """``evaluate(ts)`` (the learner's ``evaluate_baseline``) served from ``store``."""
 
     def __init__(self, evaluate: Callable[[Any], Result], store: Store):
-        self.evaluate = evaluate
-        self.store = store
-        self.key: Key = {**store.key, "program": NAME}
-
-    def __call__(self, ts: Any) -> Result:
-        result = self.store.read(NAME, self.key, SUFFIX, decode)
-        if result is not None:
-            self.store.loaded.append(NAME)
-            return result
-        result = self.evaluate(ts)
-        self.store.write(self.key, encode(result), SUFFIX)
-        self.store.written.append(NAME)
-        return result
+        super().__init__(evaluate, store, NAME, SUFFIX, (encode, decode))
 
 
-__all__ = ["StoredBaseline", "decode", "encode"]
+def stored_episodes(draw: Callable[[], dict[str, EpisodeBatch]], store: Store) -> Kept:
+    """``draw()`` (the periodic evaluation's) served from ``store``."""
+    return Kept(draw, store, EPISODES, EPISODES_SUFFIX, (encode_episodes, decode_episodes))
+
+
+__all__ = [
+    "EPISODES_SUFFIX",
+    "Kept",
+    "StoredBaseline",
+    "decode",
+    "decode_episodes",
+    "encode",
+    "encode_episodes",
+    "stored_episodes",
+]

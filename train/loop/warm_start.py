@@ -25,8 +25,11 @@ its functions, which left every start after an edit tracing again. A file is tru
 its checksum, its stored key and its deserialization all pass; else it is compiled again
 and rewritten, with a log line.
 
-The baseline's first evaluation, whose figures the run's key fixes too, is kept beside
-them (train/loop/stored_baseline.py).
+The evaluation's episodes and the baseline's first figures on them, which the run's key
+fixes too, are kept beside them (train/loop/stored_baseline.py). On one CPU device the
+stored programs load on a thread while the learner is built (:func:`load_ahead`: loading
+the epoch's executable is most of a warm start there, and XLA releases Python's lock
+while it loads).
 
 Off (:func:`why_not`), with a log line, where the store cannot serve: no persistent
 cache, several processes, several CPU devices, ``run.parallel = "split"``, or
@@ -55,8 +58,8 @@ import mecanum_jax
 import train
 from mecanum_jax.tracing import GPU_THREEFRY_FLAG
 from train.loop import warp_targets
-from train.loop.program_store import INDEX_SUFFIX, SUFFIX, Key, Log, Store, digest
-from train.loop.stored_baseline import StoredBaseline
+from train.loop.program_store import INDEX_SUFFIX, SUFFIX, Ahead, Key, Log, Store, digest
+from train.loop.stored_baseline import StoredBaseline, stored_episodes
 
 if TYPE_CHECKING:
     from train.config import TrainConfig
@@ -256,10 +259,28 @@ def why_not(learner: Learner, environ: Mapping[str, str] = os.environ) -> str | 
     return None
 
 
-def attach(learner: Any, log: Log = print) -> Any:
-    """Serve ``learner``'s reset, epoch and evaluation rollout, and the baseline's figures
-    (train/loop/stored_baseline.py), from a :class:`Store` in the compilation cache's
-    directory (once per learner; :func:`store_of` gives it), unless
+def load_ahead(cfg: TrainConfig) -> Ahead | None:
+    """Start loading ``cfg``'s stored programs on a background thread, before its learner
+    is built (:class:`~train.loop.program_store.Ahead`; :func:`attach` takes them): on one
+    CPU device, where the store serves (``None`` elsewhere; on a GPU the executables load
+    when first called, as before)."""
+    from train.loop import compilation_cache
+
+    directory = compilation_cache.in_force()
+    local = jax.local_devices()
+    off = os.environ.get(ENV_VAR, "").lower() in ("0", "off", "false", "no")
+    if off or directory is None or jax.process_count() > 1 or len(local) != 1:
+        return None
+    if local[0].platform != "cpu":
+        return None
+    return Ahead(directory / SUBDIR, run_key(cfg, local), ("reset", "epoch", "rollout"))
+
+
+def attach(learner: Any, log: Log = print, ahead: Ahead | None = None) -> Any:
+    """Serve ``learner``'s reset, epoch and evaluation rollout, and the evaluation's
+    episodes and the baseline's figures (train/loop/stored_baseline.py), from a
+    :class:`Store` in the compilation cache's directory (once per learner; :func:`store_of`
+    gives it), with the programs ``ahead`` loaded (:func:`load_ahead`), unless
     :func:`why_not` (said in a log line). Returns ``learner``."""
     if store_of(learner) is not None:
         return learner
@@ -278,11 +299,13 @@ def attach(learner: Any, log: Log = print) -> Any:
     # on a GPU an executable read from JAX's persistent cache serializes whole
     fresh = learner.devices[0].platform == "cpu"
     store = Store(directory / SUBDIR, key, log, tracers, fresh)
+    store.ahead = ahead
     # the learner's and the evaluator's jitted programs, wrapped in place (their calls
     # and lowerings go through the wrappers unchanged)
     learner._reset = Stored(learner._reset, "reset", store)
     learner._parallel_epoch = Stored(learner._parallel_epoch, "epoch", store)
     learner.evaluation.store_programs(lambda fn: Stored(fn, "rollout", store))
+    learner.evaluation.draw = stored_episodes(learner.evaluation.draw, store)
     learner.evaluate_baseline = StoredBaseline(learner.evaluate_baseline, store)
     learner.warm_store = store
     return learner
@@ -301,6 +324,7 @@ __all__ = [
     "Stored",
     "attach",
     "code_hash",
+    "load_ahead",
     "run_key",
     "store_of",
     "why_not",

@@ -158,11 +158,14 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             raise SystemExit(2) from None
         prepare_tracing(cfg.run.matmul_precision)
     with clock.phase("model and environment build"):
-        learner = Learner(cfg)
         if args.warm_start == "on":
             from train.loop import warm_start
 
-            warm_start.attach(learner, lambda line: print(line, file=sys.stderr))
+            ahead = warm_start.load_ahead(cfg)  # loads while the learner is built
+            learner = Learner(cfg)
+            warm_start.attach(learner, lambda line: print(line, file=sys.stderr), ahead)
+        else:
+            learner = Learner(cfg)
     from train.loop.aot import can_compile_together, compile_together, first_runs_alone
     from train.loop.run_steps import in_thread
 
