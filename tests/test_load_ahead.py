@@ -44,6 +44,7 @@ def test_a_warm_start_takes_the_program_loaded_ahead(tmp_path, monkeypatch):
     monkeypatch.setattr(program_store, "_deserialize", None)
     store, warm = _warm(tmp_path, {"run": "a"}, ahead)
     assert (store.loaded, store.written, ahead._loads) == (["epoch"], [], {})
+    assert store.loaded_ahead == ["epoch"]
     assert sorted(store.load_s["epoch"]) == ["deserialize", "read", "targets"]
     np.testing.assert_array_equal(np.asarray(cold), np.asarray(warm))
 
@@ -81,9 +82,17 @@ def test_a_program_calling_mujoco_warp_is_left_to_the_runs_own_thread(tmp_path):
     assert ahead.take(header) is None
 
 
-def test_load_ahead_serves_one_cpu_device_with_the_cache_on(monkeypatch, tiny):
+def test_nothing_is_loaded_ahead_where_the_store_is_off_or_on_several_devices(
+    monkeypatch, tiny, tmp_path
+):
     monkeypatch.setattr("train.loop.compilation_cache.in_force", lambda: None)
     assert warm_start.load_ahead(tiny) is None
+    monkeypatch.setattr("train.loop.compilation_cache.in_force", lambda: tmp_path)
+    one = jax.local_devices()[:1]
+    monkeypatch.setattr(jax, "local_devices", lambda: one)
+    assert isinstance(warm_start.load_ahead(tiny), program_store.Ahead)  # can fail
+    monkeypatch.setattr(jax, "local_devices", lambda: one * 2)
+    assert warm_start.load_ahead(tiny) is None
+    monkeypatch.setattr(jax, "local_devices", lambda: one)
     monkeypatch.setenv(warm_start.ENV_VAR, "off")
-    monkeypatch.setattr("train.loop.compilation_cache.in_force", lambda: "/nonexistent")
     assert warm_start.load_ahead(tiny) is None

@@ -228,6 +228,7 @@ def test_a_warm_start_of_the_tiny_run_matches_a_cold_one_bit_for_bit(tmp_path):
     names = ["baseline", "episodes", "epoch", "reset", "rollout"]
     cold, warm = start("cold"), start("warm")
     assert sorted(warm["warm_start"]["loaded"]) == names
+    assert warm["warm_start"]["loaded_ahead"] == ["reset", "epoch", "rollout"]  # on a thread
     assert warm["warm_start"]["written"] == []
     assert not any(p["name"] == "jit(_rollout)" for p in warm["programs"])  # not traced
     store = tmp_path / "cache" / warm_start.SUBDIR

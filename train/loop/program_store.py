@@ -58,6 +58,7 @@ class Store:
         self.written: list[str] = []
         self.ahead: Ahead | None = None
         """Programs loaded ahead, while the run was being built (:class:`Ahead`)."""
+        self.loaded_ahead: list[str] = []
         self.load_s: dict[str, dict[str, float]] = {}
         """Seconds each loaded program took: its file read and checked (``read``), its
         Warp targets made (``targets``), the executable loaded onto the devices
@@ -138,6 +139,7 @@ class Store:
         compiled: Compiled | None = None
         if loaded is not None:
             compiled, times = loaded
+            self.loaded_ahead.append(name)
         else:
             compiled = self.read(name, full_key, SUFFIX, parse)
         if compiled is None:

@@ -228,6 +228,7 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
         if store is None
         else {
             "loaded": store.loaded,
+            "loaded_ahead": store.loaded_ahead,
             "written": store.written,
             "load_s": store.load_s,
             "dir": str(store.directory),
