@@ -7,7 +7,7 @@ function of what the run's key holds (the config with its evaluation's episodes,
 the code, the versions, devices and flags), so :class:`Kept` keeps them beside the stored
 programs under that key: a later start of the same run reads them back instead of drawing
 and playing again (the baseline: on one H200 under Warp 3.3 s off a warm start of about
-30 s; the episodes' samplers: about 0.8 s of the 2-core CPU's warm start,
+30 s; the episodes' samplers: about 0.4 s of the 2-core CPU's warm start,
 docs/profiling.md). Each file holds its values exactly as computed (float bits kept), is
 written atomically and checksummed by :class:`~train.loop.program_store.Store`, and a file
 that does not read back whole is logged, removed and made again, never trusted.
