@@ -65,7 +65,7 @@ class Store:
         (``deserialize``)."""
 
     def path(self, full_key: Key, suffix: str = SUFFIX) -> Path:
-        return self.directory / f"{digest(full_key)[:40]}{suffix}"
+        return _path(self.directory, full_key, suffix)
 
     def program_key(self, lowered_text: str, sig: object) -> Key:
         """An executable's key: the lowered program and what compiles it."""
@@ -74,16 +74,7 @@ class Store:
         return {**compiler, "lowered": text, "signature": repr(sig)}
 
     def _payload(self, full_key: Key, suffix: str = SUFFIX) -> bytes | None:
-        """The payload kept under ``full_key`` (``None``: none); raises if the file is not
-        this key's intact entry."""
-        try:
-            blob = self.path(full_key, suffix).read_bytes()
-        except FileNotFoundError:
-            return None
-        header, payload = unframe(blob)
-        if header != json.loads(json.dumps(full_key, default=repr)):
-            raise ValueError("its key differs (a stale entry)")
-        return payload
+        return _payload(self.directory, full_key, suffix)
 
     def read(self, name: str, full_key: Key, suffix: str, parse: Callable[[bytes], T]) -> T | None:
         """``parse`` of the payload kept under ``full_key`` (``None``: none); a file that is
@@ -136,7 +127,7 @@ class Store:
             return _parse(payload, t0, times, self.tracers)
 
         loaded = self.ahead.take(full_key) if self.ahead is not None else None
-        compiled: Compiled | None = None
+        compiled: Compiled | None
         if loaded is not None:
             compiled, times = loaded
             self.loaded_ahead.append(name)
@@ -174,7 +165,7 @@ class Ahead:
     checks it again, logs it and makes it anew."""
 
     def __init__(self, directory: Path, key: Key, order: Sequence[str]):
-        run = json.loads(json.dumps(key, default=repr))
+        run = _as_read(key)
         found: list[tuple[int, Key]] = []
         for path in directory.glob(f"*{INDEX_SUFFIX}"):
             try:
@@ -205,12 +196,33 @@ class Ahead:
 
 def _load_ahead(directory: Path, program_key: Key) -> tuple[Compiled, dict[str, float]] | None:
     t0 = time.perf_counter()
-    blob = (directory / f"{digest(program_key)[:40]}{SUFFIX}").read_bytes()
-    header, payload = unframe(blob)
-    if header != json.loads(json.dumps(program_key, default=repr)):
+    payload = _payload(directory, program_key, SUFFIX)
+    if payload is None:
         return None
     times: dict[str, float] = {}
     return _parse(payload, t0, times, None), times
+
+
+def _path(directory: Path, full_key: Key, suffix: str) -> Path:
+    return directory / f"{digest(full_key)[:40]}{suffix}"
+
+
+def _as_read(key: Key) -> object:
+    """``key`` as a file's header reads back (JSON, values it cannot hold as their repr)."""
+    return json.loads(json.dumps(key, default=repr))
+
+
+def _payload(directory: Path, full_key: Key, suffix: str) -> bytes | None:
+    """The payload kept under ``full_key`` (``None``: none); raises if the file is not
+    this key's intact entry."""
+    try:
+        blob = _path(directory, full_key, suffix).read_bytes()
+    except FileNotFoundError:
+        return None
+    header, payload = unframe(blob)
+    if header != _as_read(full_key):
+        raise ValueError("its key differs (a stale entry)")
+    return payload
 
 
 def _parse(

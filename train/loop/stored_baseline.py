@@ -125,7 +125,9 @@ class StoredBaseline(Kept[Result]):
         super().__init__(evaluate, store, NAME, SUFFIX, (encode, decode))
 
 
-def stored_episodes(draw: Callable[[], dict[str, EpisodeBatch]], store: Store) -> Kept:
+def stored_episodes(
+    draw: Callable[[], dict[str, EpisodeBatch]], store: Store
+) -> Kept[dict[str, EpisodeBatch]]:
     """``draw()`` (the periodic evaluation's) served from ``store``."""
     return Kept(draw, store, EPISODES, EPISODES_SUFFIX, (encode_episodes, decode_episodes))
 

@@ -239,11 +239,15 @@ def _aval(x: Any) -> Aval:
     return (np.shape(x), str(dtype), weak)
 
 
+def _switched_off(environ: Mapping[str, str]) -> bool:
+    return environ.get(ENV_VAR, "").lower() in ("0", "off", "false", "no")
+
+
 def why_not(learner: Learner, environ: Mapping[str, str] = os.environ) -> str | None:
     """Why the store cannot serve ``learner`` (``None``: it can)."""
     from train.loop import compilation_cache
 
-    if environ.get(ENV_VAR, "").lower() in ("0", "off", "false", "no"):
+    if _switched_off(environ):
         return f"{ENV_VAR}={environ[ENV_VAR]}"
     if compilation_cache.in_force() is None:
         return "the persistent compilation cache is off"
@@ -268,10 +272,9 @@ def load_ahead(cfg: TrainConfig) -> Ahead | None:
 
     directory = compilation_cache.in_force()
     local = jax.local_devices()
-    off = os.environ.get(ENV_VAR, "").lower() in ("0", "off", "false", "no")
-    if off or directory is None or jax.process_count() > 1 or len(local) != 1:
+    if _switched_off(os.environ) or directory is None or jax.process_count() > 1:
         return None
-    if local[0].platform != "cpu":
+    if len(local) != 1 or local[0].platform != "cpu":
         return None
     return Ahead(directory / SUBDIR, run_key(cfg, local), ("reset", "epoch", "rollout"))
 
