@@ -28,6 +28,8 @@ JAX starts its backend, has XLA:CPU compile with its older emitters
 (``--xla_cpu_use_fusion_emitters=false``): a cold ``tiny`` start's epoch and evaluation
 rollout compile in about two thirds of the time and run no slower (the figures:
 docs/profiling.md). Float results move where the emitters round differently.
+:func:`reproducible_gpu_ops`, which the evaluator's command line calls, has XLA:GPU run
+only deterministic ops: the same episodes give the same figures in every process.
 """
 
 from __future__ import annotations
@@ -102,6 +104,49 @@ def older_cpu_emitters(
     if name not in flags and jaxlib_version.startswith(KNOWN_JAXLIBS):
         environ["XLA_FLAGS"] = f"{flags} {OLDER_CPU_EMITTERS}".strip()
     return OLDER_CPU_EMITTERS in environ.get("XLA_FLAGS", "").split()
+
+
+REPRODUCIBLE_GPU_OPS = "--xla_gpu_exclude_nondeterministic_ops=true"
+"""The ``XLA_FLAGS`` entry :func:`reproducible_gpu_ops` adds."""
+REPRODUCIBLE_JAXLIBS = ("0.10.", "0.11.")
+"""The jaxlib releases whose XLA has that flag (the lock's 0.10.2, the GPU image's 0.11.2)."""
+
+
+def reproducible_gpu_ops(
+    environ: MutableMapping[str, str] = os.environ,
+    jaxlib_version: str | None = None,
+    started: bool | None = None,
+) -> bool:
+    """Have XLA:GPU run only deterministic ops (no atomic scatter-adds in MJX's contacts),
+    so that two processes playing the same episodes on one GPU give the same figures bit for
+    bit; ``mecanum-eval`` calls it. Without it one H100 parted 63 of 80 per-episode figures
+    between two runs; with it none, for a rollout about 18% slower (docs/evaluation.md). No
+    effect on the CPU, which is deterministic anyway.
+
+    Left alone where ``XLA_FLAGS`` names the flag already (``=false`` keeps XLA's faster
+    default), under a jaxlib not in :data:`REPRODUCIBLE_JAXLIBS`, and once JAX has started
+    its backend (``started``; XLA read ``XLA_FLAGS`` then, and a changed variable would
+    change only the persistent cache's keys). Returns whether the flag is in force."""
+    if jaxlib_version is None:
+        from jaxlib.version import __version__
+
+        jaxlib_version = __version__
+    if started is None:
+        started = _backend_started()
+    flags = environ.get("XLA_FLAGS", "")
+    name = REPRODUCIBLE_GPU_OPS.split("=")[0]
+    if name not in flags and not started and jaxlib_version.startswith(REPRODUCIBLE_JAXLIBS):
+        environ["XLA_FLAGS"] = f"{flags} {REPRODUCIBLE_GPU_OPS}".strip()
+    return REPRODUCIBLE_GPU_OPS in environ.get("XLA_FLAGS", "").split()
+
+
+def _backend_started() -> bool:
+    try:
+        from jax._src import xla_bridge
+
+        return bool(xla_bridge.backends_are_initialized())
+    except (ImportError, AttributeError):  # another JAX: leave XLA_FLAGS as it is
+        return True
 
 
 GPU_THREEFRY_FLAG = "jax_threefry_gpu_kernel_lowering"

@@ -1,7 +1,7 @@
 """The CPU's unrolled threefry (mecanum_jax.tracing): the same random bits as JAX's rolled loop,
 lowered without a loop, and installed by every entry point's preparation; the GPUs' threefry
 kernel, which the preparation asks for unless the environment chooses; and XLA:CPU's older
-emitters, which the command lines ask for."""
+emitters, which the command lines ask for; and the evaluator's reproducible GPU ops."""
 
 from __future__ import annotations
 
@@ -142,3 +142,48 @@ def test_the_installed_xla_knows_the_flag_where_it_is_added():
     done = subprocess.run([sys.executable, "-c", code], env=environ, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
     assert "2.0" in done.stdout
+
+
+def test_reproducible_gpu_ops_adds_the_flag_once_beside_the_callers_flags():
+    environ = {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    assert tracing.reproducible_gpu_ops(environ, "0.11.2", started=False)
+    assert tracing.reproducible_gpu_ops(environ, "0.10.2", started=False)
+    assert environ["XLA_FLAGS"].split() == [
+        "--xla_force_host_platform_device_count=2",
+        tracing.REPRODUCIBLE_GPU_OPS,
+    ]
+
+
+@pytest.mark.parametrize(
+    ("environ", "version", "started"),
+    [
+        ({"XLA_FLAGS": "--xla_gpu_exclude_nondeterministic_ops=false"}, "0.11.2", False),
+        ({}, "0.12.0", False),
+        ({}, "0.11.2", True),
+    ],
+    ids=["the caller's choice", "an unknown jaxlib", "a started backend"],
+)
+def test_reproducible_gpu_ops_leaves_a_choice_an_unknown_jaxlib_and_a_started_backend(
+    environ, version, started
+):
+    before = dict(environ)
+    assert not tracing.reproducible_gpu_ops(environ, version, started=started)
+    assert environ == before
+
+
+def test_mecanum_eval_asks_for_reproducible_gpu_ops_before_jax_starts():
+    """In a fresh process the evaluator's command line adds the flag before anything starts
+    JAX's backend (XLA reads ``XLA_FLAGS`` once), and the installed XLA knows it: the
+    process runs on."""
+    environ = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    if not tracing.reproducible_gpu_ops(dict(environ), started=False):
+        pytest.skip("this jaxlib is not one the flag is added under")
+    code = (
+        "import os\nfrom train.cli import evaluate\ntry:\n    evaluate.main(['--help'])\n"
+        "except SystemExit:\n    pass\nimport jax\nprint(jax.jit(lambda x: x + 1)(1.0))\n"
+        "print(os.environ['XLA_FLAGS'])"
+    )
+    done = subprocess.run([sys.executable, "-c", code], env=environ, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "2.0" in done.stdout
+    assert tracing.REPRODUCIBLE_GPU_OPS in done.stdout.split()

@@ -43,6 +43,12 @@
 #                           of the same machine: do the steady-state figures agree to 1%?
 #                           (scripts/eval_agreement.py; e.g. tuning tuning_nominal 64 checks a
 #                           tuning table without playing held-out episodes)
+#   repeat [MODEL [N]]      MODEL (default models/o_rectangle) on N (default 16) nominal and
+#                           slippery episodes, JAX physics, in two processes as mecanum-eval
+#                           runs (XLA's deterministic ops), then in two with XLA's default
+#                           (--xla_gpu_exclude_nondeterministic_ops=false): how many per-episode
+#                           figures part between the two of each, and the rollouts' seconds
+#                           ($OUT/repeat_{det,xla}{1,2}.json)
 #   fidelity [MODEL] [N]    MODEL (default models/o_rectangle) and the references on N (default
 #                           8) nominal and N randomized episodes in the reference roller model,
 #                           then in the fast one (JAX physics): $OUT/fidelity_{reference,fast}_*.json
@@ -139,6 +145,34 @@ evaluate() {  # MODEL SCENARIOS OUT_DIR [flags]
   local model=$1 set=$2 dir=$3; shift 3
   rm -rf "$dir"  # scratch of an earlier call on this warm machine
   /usr/bin/time -f "wall %e s" python3 -m train.cli.evaluate "$model" --scenarios "$set" --out "$dir" "$@"
+}
+
+repeat() {  # [MODEL [N]]: the same episodes twice, with mecanum-eval's deterministic ops and without
+  local r x
+  for r in det1 det2 xla1 xla2; do
+    x="${XLA_FLAGS:-}"; case $r in xla*) x="$x --xla_gpu_exclude_nondeterministic_ops=false" ;; esac
+    rm -rf "/tmp/repeat-$r"
+    XLA_FLAGS="$x" python3 -m train.cli.evaluate "${1:-models/o_rectangle}" --only nominal slippery \
+      --episodes "${2:-16}" --references feedback --physics-impl jax --no-plots \
+      --out "/tmp/repeat-$r" 2>&1 | tail -1
+    cp "/tmp/repeat-$r/report.json" "$O/repeat_$r.json"
+  done
+  python3 - "$O" <<'PY'
+import json, sys
+def load(n):
+    return json.load(open(f"{sys.argv[1]}/repeat_{n}.json"))
+for kind in ("det", "xla"):
+    a, b = load(kind + "1"), load(kind + "2")
+    parted = total = 0
+    for name, sc in a["scenarios"].items():
+        for who, figures in sc["per_episode"].items():
+            for key, values in figures.items():
+                other = b["scenarios"][name]["per_episode"][who][key]
+                parted += sum(x != y for x, y in zip(values, other, strict=True))
+                total += len(values)
+    rollout = [r["timing"]["rollout_s"] for r in (a, b)]
+    print(f"{kind}: {parted} of {total} per-episode figures part; rollouts {rollout} s")
+PY
 }
 
 package() {  # RUN_DIR MODEL_DIR MINUTES "flags" [SEED]: the run's policy (of training seed
@@ -278,6 +312,7 @@ case "$TASK" in
       echo "eval-$set/*.png"; done))
     [ "${AGREE:-1}" = 1 ] && agree "${1:-models/o_rectangle}" ;;  # AGREE=0: skip the check
   agree) agree "${1:-models/o_rectangle}" "${@:2}" ;;
+  repeat) repeat "$@" ;;
   ab) ab "$@" ;;
   multi-gpu) multi_gpu "$@" ;;
   profile) profile "$@" ;;

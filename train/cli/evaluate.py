@@ -43,7 +43,7 @@ import numpy as np  # noqa: E402
 import tyro  # noqa: E402
 from rich.console import Console  # noqa: E402
 
-from mecanum_jax import atomic  # noqa: E402
+from mecanum_jax import atomic, tracing  # noqa: E402
 from mecanum_jax._checks import require_platform  # noqa: E402
 from mecanum_jax.config import ConfigError  # noqa: E402
 from mecanum_jax.deploy.write import export_policy  # noqa: E402
@@ -186,6 +186,7 @@ def _parse(argv: list[str], prog: str, cls: type) -> Any:
 def main(argv: list[str] | None = None) -> int:
     """``mecanum-eval``: see the module docstring."""
     checkpoint.quiet_closed_loop_noise()
+    tracing.reproducible_gpu_ops()  # one GPU, the same figures in every process
     argv = compilation_cache.configure(sys.argv[1:] if argv is None else argv)
     args = _parse(argv, "mecanum-eval", EvalArgs)
     t_start = time.time()
