@@ -117,9 +117,9 @@ def reproducible_gpu_ops(
     jaxlib_version: str | None = None,
     started: bool | None = None,
 ) -> bool:
-    """Have XLA:GPU run only deterministic ops (no atomic scatter-adds in MJX's contacts),
+    """Have XLA:GPU run only deterministic ops (no scatter-adds by atomics, for instance),
     so that two processes playing the same episodes on one GPU give the same figures bit for
-    bit; ``mecanum-eval`` calls it. Without it one H100 parted 63 of 80 per-episode figures
+    bit; ``mecanum-eval`` calls it. Without it one H100 parted 252 of 320 per-episode figures
     between two runs; with it none, for a rollout about 18% slower (docs/evaluation.md). No
     effect on the CPU, which is deterministic anyway.
 
