@@ -95,15 +95,24 @@ def older_cpu_emitters(
     Left alone where ``XLA_FLAGS`` names the flag already (the caller's choice stands:
     ``=true`` keeps XLA's default) and under a jaxlib not in :data:`KNOWN_JAXLIBS`. JAX's
     persistent cache and the warm-start store key their programs by ``XLA_FLAGS``."""
+    return _add_xla_flag(environ, OLDER_CPU_EMITTERS, _known(jaxlib_version, KNOWN_JAXLIBS))
+
+
+def _known(jaxlib_version: str | None, releases: tuple[str, ...]) -> bool:
     if jaxlib_version is None:
         from jaxlib.version import __version__
 
         jaxlib_version = __version__
+    return jaxlib_version.startswith(releases)
+
+
+def _add_xla_flag(environ: MutableMapping[str, str], flag: str, allowed: bool) -> bool:
+    """Add ``flag`` (``--name=value``) to ``XLA_FLAGS`` where ``allowed`` and the variable
+    does not name it already; returns whether ``flag`` is in force."""
     flags = environ.get("XLA_FLAGS", "")
-    name = OLDER_CPU_EMITTERS.split("=")[0]
-    if name not in flags and jaxlib_version.startswith(KNOWN_JAXLIBS):
-        environ["XLA_FLAGS"] = f"{flags} {OLDER_CPU_EMITTERS}".strip()
-    return OLDER_CPU_EMITTERS in environ.get("XLA_FLAGS", "").split()
+    if allowed and flag.split("=")[0] not in flags:
+        environ["XLA_FLAGS"] = f"{flags} {flag}".strip()
+    return flag in environ.get("XLA_FLAGS", "").split()
 
 
 REPRODUCIBLE_GPU_OPS = "--xla_gpu_exclude_nondeterministic_ops=true"
@@ -127,17 +136,10 @@ def reproducible_gpu_ops(
     default), under a jaxlib not in :data:`REPRODUCIBLE_JAXLIBS`, and once JAX has started
     its backend (``started``; XLA read ``XLA_FLAGS`` then, and a changed variable would
     change only the persistent cache's keys). Returns whether the flag is in force."""
-    if jaxlib_version is None:
-        from jaxlib.version import __version__
-
-        jaxlib_version = __version__
     if started is None:
         started = _backend_started()
-    flags = environ.get("XLA_FLAGS", "")
-    name = REPRODUCIBLE_GPU_OPS.split("=")[0]
-    if name not in flags and not started and jaxlib_version.startswith(REPRODUCIBLE_JAXLIBS):
-        environ["XLA_FLAGS"] = f"{flags} {REPRODUCIBLE_GPU_OPS}".strip()
-    return REPRODUCIBLE_GPU_OPS in environ.get("XLA_FLAGS", "").split()
+    allowed = not started and _known(jaxlib_version, REPRODUCIBLE_JAXLIBS)
+    return _add_xla_flag(environ, REPRODUCIBLE_GPU_OPS, allowed)
 
 
 def _backend_started() -> bool:
