@@ -29,7 +29,7 @@ class RandomizationConfig:
 
     enabled: bool = True
     """Randomize at all (false: the nominal robot, no payload, no latency)."""
-    friction: tuple[float, float] = (0.1, 1.2)
+    friction: tuple[float, float] = (0.1, 1.5)
     """Floor friction coefficient range [lo, hi] (> 0)."""
     wheel_friction_spread: float = 0.1
     """Per-wheel relative friction spread around the floor's, ± fraction in [0, 1)."""
