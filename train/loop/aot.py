@@ -15,12 +15,13 @@ docs/profiling.md.)"""
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import jax
 from jax.stages import Compiled, Lowered
 
+from train.learner.periodic import Result
 from train.learner.ppo import Learner
 from train.learner.shapes import Host
 from train.learner.state import TrainingState, fresh_state
@@ -106,6 +107,24 @@ def compile_together(learner: Learner) -> tuple[Host, Compiled]:
     return host, compiled_reset
 
 
+def begin_baseline(learner: Learner, ts: TrainingState, env_state: Any) -> Future[Result]:
+    """The baseline's first evaluation, begun in a thread of its own. Where it runs beside
+    the first epoch (not :func:`first_runs_alone`) and :func:`can_compile_together`, the
+    epoch is traced and lowered first, on this thread, and compiled here once the thread
+    has begun: tracing holds Python's lock, so the two traces at once each waited on the
+    other and the epoch's compilation, the start's longest step, began seconds later
+    (docs/profiling.md)."""
+    lowered = None
+    if not first_runs_alone(learner) and can_compile_together(learner):
+        lowered = learner.lower_epoch(ts, env_state)
+    pool = ThreadPoolExecutor(1, thread_name_prefix="baseline-eval")
+    job = pool.submit(learner.evaluate_baseline, first_device(ts))
+    pool.shutdown(wait=False)
+    if lowered is not None:
+        learner.compile_epoch(ts, env_state, lowered)
+    return job
+
+
 def trace_baseline(learner: Learner, ts_first_device: TrainingState) -> list[Lowered]:
     """Trace and lower the programs of the baseline's evaluation
     (:meth:`~train.learner.ppo.Learner.evaluate_baseline`), running nothing; the lowered
@@ -123,6 +142,7 @@ def env_keys_shape(learner: Learner) -> jax.ShapeDtypeStruct:
 
 __all__ = [
     "abstract_state",
+    "begin_baseline",
     "can_compile_together",
     "compile_together",
     "env_keys_shape",

@@ -7,10 +7,7 @@ the finish (the last checkpoint, summary.json), and status.json after each.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import TypeVarTuple
 
 import jax
 import numpy as np
@@ -37,8 +34,6 @@ from train.store import checkpoint
 # Fields the compiled learner never reads: a learner built without them serves the run.
 LOGGING_ONLY = {"run.wandb_project", "run.progress_every_s"}
 
-Ts = TypeVarTuple("Ts")
-
 
 class RunSteps:
     """The steps of :meth:`train.loop.run.Run.train` (a subclass), on the run's config,
@@ -63,7 +58,8 @@ class RunSteps:
 
     def _set_up(self, learner: Learner | None) -> Session:
         """The learner; its state, fresh or restored; the logs; and the baseline's
-        evaluation, begun in a thread beside the first epoch's compilation (where
+        evaluation, begun in a thread beside the first epoch's compilation, which set-up
+        does (:func:`train.loop.aot.begin_baseline`; where
         :func:`first_runs_alone`: finished first, and compiled together with the reset and
         the epoch, :func:`train.loop.aot.compile_together`). The checkpoint manager opens at
         the first save."""
@@ -86,7 +82,7 @@ class RunSteps:
             barrier("epoch-compiled")
         self._logs.open(loop.steps(loop.epoch) + 1 if (self.dir / "tb").exists() else None)
         self._report(loop, "running")
-        loop.baseline_job = job = in_thread(learner.evaluate_baseline, first_device(loop.state))
+        loop.baseline_job = job = aot.begin_baseline(learner, loop.state, loop.env_state)
         if first_runs_alone(learner):
             job.result()
         loop.setup_s = time.time() - t_start
@@ -219,12 +215,4 @@ class RunSteps:
         return summary
 
 
-def in_thread(fn: Callable[[*Ts], Result], *args: *Ts) -> Future[Result]:
-    """``fn(*args)`` begun in a thread of its own."""
-    pool = ThreadPoolExecutor(1, thread_name_prefix="baseline-eval")
-    job = pool.submit(fn, *args)
-    pool.shutdown(wait=False)
-    return job
-
-
-__all__ = ["LOGGING_ONLY", "RunSteps", "TrainingDiverged", "in_thread"]
+__all__ = ["LOGGING_ONLY", "RunSteps", "TrainingDiverged"]

@@ -166,8 +166,12 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             warm_start.attach(learner, lambda line: print(line, file=sys.stderr), ahead)
         else:
             learner = Learner(cfg)
-    from train.loop.aot import can_compile_together, compile_together, first_runs_alone
-    from train.loop.run_steps import in_thread
+    from train.loop.aot import (
+        begin_baseline,
+        can_compile_together,
+        compile_together,
+        first_runs_alone,
+    )
 
     baseline_first = first_runs_alone(learner)  # as mecanum-train orders them
     on = args.compile_together == "on"
@@ -192,7 +196,8 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             extra["values"] = job.result().values
 
     # as mecanum-train: first and alone, or begun beside the first epoch and awaited after it
-    job = in_thread(learner.evaluate_baseline, first_device(ts))
+    with clock.phase("the epoch compiled, the baseline's evaluation begun"):
+        job = begin_baseline(learner, ts, env)
     if baseline_first:
         baseline(job)
     epoch("first epoch")
