@@ -99,9 +99,13 @@ def test_coldstart_lists_phases_and_compiled_programs(tmp_path, capsys):
     ]
     assert all(p["s"] >= 0 for p in report["phases"])
     assert report["programs"], "no compiled program listed"
-    # the epoch's, compiled, or loaded from the warm-start store (train/loop/warm_start.py)
+    # the epoch's, compiled before the baseline's thread begins (train.loop.aot.begin_baseline),
+    # or loaded from the warm-start store (train/loop/warm_start.py)
     loaded = (report["warm_start"] or {}).get("loaded", [])
-    assert "epoch" in loaded or any(p["phase"] == "first epoch" for p in report["programs"])
+    before = "the epoch compiled, the baseline's evaluation begun"
+    assert phases.index(before) == phases.index("first epoch") - 1
+    epoch = [p for p in report["programs"] if p["name"] == "jit(_fun)" and p["phase"] == before]
+    assert "epoch" in loaded or epoch
     assert report["totals"]["programs"] == len(report["programs"])
     assert report["xla_flags"] == os.environ.get("XLA_FLAGS", "")  # what it compiled with
     text = capsys.readouterr().out
