@@ -191,6 +191,12 @@ class Learner(Iteration):
         lowered = self.lower_epoch(ts, env_state) if lowered is None else lowered
         self._compiled_epoch = lowered.compile()
 
+    @property
+    def epoch_compiled(self) -> bool:
+        """Whether :meth:`compile_epoch` has compiled :meth:`epoch` (a learner that served
+        an earlier run has)."""
+        return self._compiled_epoch is not None
+
     def lower_epoch(self, ts: TrainingState, env_state: PackedEnv) -> Lowered:
         """:meth:`epoch` traced and lowered for these states, compiled by nothing yet."""
         if self.parallel == "split":

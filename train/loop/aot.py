@@ -113,9 +113,10 @@ def begin_baseline(learner: Learner, ts: TrainingState, env_state: Any) -> Futur
     epoch is traced and lowered first, on this thread, and compiled here once the thread
     has begun: tracing holds Python's lock, so the two traces at once each waited on the
     other and the epoch's compilation, the start's longest step, began seconds later
-    (docs/profiling.md)."""
+    (docs/profiling.md). A learner whose epoch is compiled already (one that served an
+    earlier run) is not traced again."""
     lowered = None
-    if not first_runs_alone(learner) and can_compile_together(learner):
+    if not (first_runs_alone(learner) or learner.epoch_compiled) and can_compile_together(learner):
         lowered = learner.lower_epoch(ts, env_state)
     pool = ThreadPoolExecutor(1, thread_name_prefix="baseline-eval")
     job = pool.submit(learner.evaluate_baseline, first_device(ts))
