@@ -120,7 +120,7 @@ class Learner(Iteration):
         )
         # reset on one device, then :meth:`place` spreads it (a pmapped MJX reset crashed
         # XLA's compiler on 2 H200s with jax 0.11.2)
-        self._reset = jax.jit(jax.vmap(jax.vmap(self.train_env.reset)))
+        self._reset = jax.jit(jax.vmap(parallel.over_seeds(self.train_env.reset, self.n_seeds)))
         self._env_template = jax.eval_shape(
             self.train_env.reset, jax.ShapeDtypeStruct((self.envs_per_device, 2), jnp.uint32)
         )
@@ -171,7 +171,7 @@ class Learner(Iteration):
     def program(self, fn: Callable[..., object]) -> Wrapped:
         """``fn`` of one seed's states as the epoch runs: vmapped over seeds, then spread over
         the devices as ``run.parallel`` says (train/learner/parallel.py)."""
-        return parallel.spread(fn, self.parallel, self.devices, self._sharding)
+        return parallel.spread(fn, self.parallel, self.devices, self._sharding, self.n_seeds)
 
     def epoch(self, ts: TrainingState, env_state: PackedEnv) -> Epoch:
         """One compiled epoch on all devices and seeds: ``(state, env_state, metrics)``.
