@@ -1,11 +1,5 @@
 """Training spread over devices: the sharded and split paths against pmap on the suite's
-two CPU devices, and 256 robots on the CPU.
-
-The paths are compared with two seeds side by side: then every path batches the epoch over
-seeds, and the programs differ only in how they spread it. A one-seed pmap epoch is not
-batched at all (``train.learner.parallel.over_seeds``), so its rounding differs from the
-sharded path's, and in 20 steps one of the tiny run's 8 robots carries that difference into
-a different trajectory."""
+two CPU devices, and 256 robots on the CPU."""
 
 import dataclasses
 import itertools
@@ -20,23 +14,11 @@ from train.learner.transfer import to_host
 from train.loop.run import Run
 
 
-@pytest.fixture(scope="module")
-def two_seeds(tiny):
-    return dataclasses.replace(tiny, run=dataclasses.replace(tiny.run, seeds=(0, 1)))
-
-
-@pytest.fixture(scope="module")
-def pmap_learner(two_seeds):
-    """Brax's pmap path, the reference (two seeds: see the module)."""
-    return Learner(two_seeds)
-
-
 @pytest.mark.full
-def test_sharded_parallel_trains_like_pmap(full_run, two_seeds, pmap_learner, tmp_path):
+def test_sharded_parallel_trains_like_pmap(full_run, tiny, learner, tmp_path):
     """``run.parallel = "sharded"`` (jit over a device mesh, the workaround for pmap's
     compiler crash on 2 GPUs) computes Brax's pmap path's epoch, on both devices."""
-    learner = pmap_learner
-    cfg = dataclasses.replace(two_seeds, run=dataclasses.replace(two_seeds.run, parallel="sharded"))
+    cfg = dataclasses.replace(tiny, run=dataclasses.replace(tiny.run, parallel="sharded"))
     sharded = Learner(cfg)
     assert sharded.parallel == "sharded"
     host = to_host(learner.init())
@@ -63,12 +45,11 @@ def test_sharded_parallel_trains_like_pmap(full_run, two_seeds, pmap_learner, tm
 
 
 @pytest.mark.full
-def test_split_parallel_trains_like_pmap(full_run, two_seeds, pmap_learner, tmp_path):
+def test_split_parallel_trains_like_pmap(full_run, tiny, learner, tmp_path):
     """``run.parallel = "split"`` (each device's rollouts in a program of its own, the
     update over the mesh: train/learner/split_epoch.py) computes Brax's pmap path's epoch, with
     each device's robots stepped on that device, and a whole run goes through it."""
-    learner = pmap_learner
-    cfg = dataclasses.replace(two_seeds, run=dataclasses.replace(two_seeds.run, parallel="split"))
+    cfg = dataclasses.replace(tiny, run=dataclasses.replace(tiny.run, parallel="split"))
     split = Learner(cfg)
     assert split.parallel == "split"
     with pytest.raises(ValueError, match="compiles its programs on first use"):

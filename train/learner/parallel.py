@@ -24,10 +24,9 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jax.stages import Wrapped
@@ -97,38 +96,17 @@ def mesh_sharding(parallel: str, devices: Sequence[jax.Device]) -> NamedSharding
     return NamedSharding(Mesh(np.array(devices), (MESH_AXIS,)), PartitionSpec(MESH_AXIS))
 
 
-def over_seeds(fn: Callable[..., Any], n_seeds: int) -> Callable[..., Any]:
-    """``fn`` of one seed's states over a leading seed axis of every argument and result:
-    ``jax.vmap``, or for one seed ``fn`` itself between taking index 0 and putting the axis
-    back. Batching an epoch over a seed axis of size 1 re-batches every scan of the MJX step
-    that vmap over the robots had batched already: without it a one-seed start traces 2 s
-    less and reaches its first evaluation 2–3 s sooner on the 2-core CPU (``tiny``,
-    docs/profiling.md). Its rounding differs from a batched program's, so a one-seed run no
-    longer repeats seed 0 of a run of several seeds (nor the sharded path) bit for bit."""
-    if n_seeds != 1:
-        return jax.vmap(fn)
-
-    def one_seed(*args: Any) -> Any:
-        out = fn(*jax.tree.map(lambda x: x[0], args))
-        return jax.tree.map(lambda x: jnp.expand_dims(x, 0), out)
-
-    return one_seed
-
-
 def spread(
     fn: Callable[..., object],
     parallel: str,
     devices: Sequence[jax.Device],
     sharding: NamedSharding | None,
-    n_seeds: int,
 ) -> Wrapped:
-    """``fn`` of one seed's states as one program over ``n_seeds`` seeds and the devices
-    (see the module)."""
-    seeds = over_seeds(fn, n_seeds)
+    """``fn`` of one seed's states as one program over seeds and devices (see the module)."""
     if sharding is None:
-        return jax.pmap(seeds, axis_name=AXIS, devices=devices)
+        return jax.pmap(jax.vmap(fn), axis_name=AXIS, devices=devices)
     return jax.jit(
-        jax.vmap(seeds, axis_name=AXIS, spmd_axis_name=MESH_AXIS),
+        jax.vmap(jax.vmap(fn), axis_name=AXIS, spmd_axis_name=MESH_AXIS),
         in_shardings=sharding,
         out_shardings=sharding,
     )
@@ -140,7 +118,6 @@ __all__ = [
     "choose",
     "devices_for",
     "mesh_sharding",
-    "over_seeds",
     "partitionable_draws",
     "spread",
 ]

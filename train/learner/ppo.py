@@ -119,9 +119,7 @@ class Learner(Iteration):
             SplitEpoch(self) if self.parallel == "split" else self.program(self._epoch)
         )
         # reset on one device, then :meth:`place` spreads it (a pmapped MJX reset crashed
-        # XLA's compiler on 2 H200s with jax 0.11.2); vmapped over the seeds even for one
-        # (not parallel.over_seeds): MuJoCo Warp's batch-wide leaves come out of vmap
-        # without its axis, as `leaves.batch_wide` and the learner's fresh ones have them
+        # XLA's compiler on 2 H200s with jax 0.11.2)
         self._reset = jax.jit(jax.vmap(jax.vmap(self.train_env.reset)))
         self._env_template = jax.eval_shape(
             self.train_env.reset, jax.ShapeDtypeStruct((self.envs_per_device, 2), jnp.uint32)
@@ -173,7 +171,7 @@ class Learner(Iteration):
     def program(self, fn: Callable[..., object]) -> Wrapped:
         """``fn`` of one seed's states as the epoch runs: vmapped over seeds, then spread over
         the devices as ``run.parallel`` says (train/learner/parallel.py)."""
-        return parallel.spread(fn, self.parallel, self.devices, self._sharding, self.n_seeds)
+        return parallel.spread(fn, self.parallel, self.devices, self._sharding)
 
     def epoch(self, ts: TrainingState, env_state: PackedEnv) -> Epoch:
         """One compiled epoch on all devices and seeds: ``(state, env_state, metrics)``.

@@ -42,7 +42,7 @@ from jax.stages import Wrapped
 
 from mecanum_jax.task.controller import allow_rank_promotion
 from train.config import TrainConfig
-from train.learner.parallel import AXIS, over_seeds
+from train.learner.parallel import AXIS
 from train.learner.shapes import Epoch, Metrics, PackedEnv, Updated
 from train.learner.state import TrainingState, epoch_metrics
 
@@ -58,7 +58,6 @@ class SplitLearner(Protocol):
     cfg: TrainConfig
     devices: list[jax.Device]
     n_processes: int
-    n_seeds: int
 
     @property
     def sharding(self) -> NamedSharding | None: ...
@@ -117,7 +116,7 @@ class SplitEpoch:
         self.sharding = learner.sharding
         self.iterations = learner.cfg.run.epoch_iterations
         # (1, S, ...) in: the device's slice, its seeds vmapped (no collectives)
-        self._rollout = jax.jit(jax.vmap(over_seeds(self._rollout_one, learner.n_seeds)))
+        self._rollout = jax.jit(jax.vmap(jax.vmap(self._rollout_one)))
         self._update = learner.program(self._update_one)
         self._finish = learner.program(self._finish_one)
         # one worker thread per device but the first, always the same one for a device
