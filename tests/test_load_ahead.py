@@ -1,7 +1,9 @@
-"""Programs loaded ahead (train/loop/program_store.py's ``Ahead``), while a run builds its
-learner: a warm start takes the very executable the store holds for its run, never one of
-another run's key, and an entry that does not load is left to the store, which logs it and
-makes it again."""
+"""Programs loaded ahead (train/loop/program_store.py's ``Ahead``), from the moment a run's
+config is known while it imports the trainer and builds its learner: a warm start takes the
+very executable the store holds for its run, never one of another run's key, and an entry
+that does not load is left to the store, which logs it and makes it again."""
+
+import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -75,8 +77,8 @@ def test_a_program_calling_mujoco_warp_is_left_to_the_runs_own_thread(tmp_path):
     _cold(tmp_path, {"run": "a"})
     (path,) = tmp_path.glob(f"*{warm_start.SUFFIX}")
     header, payload = program_store.unframe(path.read_bytes())
-    serialized, in_tree, out_tree, devices, _ = program_store.pickle.loads(payload)
-    with_targets = (serialized, in_tree, out_tree, devices, ["mujoco_warp_step_0"])
+    serialized, trees, devices, _ = program_store.pickle.loads(payload)
+    with_targets = (serialized, trees, devices, ["mujoco_warp_step_0"])
     path.write_bytes(program_store.frame(header, program_store.pickle.dumps(with_targets)))
     ahead = program_store.Ahead(tmp_path, {"run": "a"}, ORDER)
     assert ahead.take(header) is None
@@ -96,3 +98,31 @@ def test_nothing_is_loaded_ahead_where_the_store_is_off_or_on_several_devices(
     monkeypatch.setattr(jax, "local_devices", lambda: one)
     monkeypatch.setenv(warm_start.ENV_VAR, "off")
     assert warm_start.load_ahead(tiny) is None
+
+
+def test_loading_begun_before_the_trainer_imports_is_the_one_the_run_takes(
+    tiny, tmp_path, monkeypatch
+):
+    """``mecanum-train`` begins loading its stored programs once its config is known
+    (:func:`warm_start.begin_loading`, before the trainer's imports); the learner's own
+    :func:`warm_start.load_ahead` then takes that loading, for that run only."""
+    made: list[program_store.Ahead] = []
+
+    class Counted(program_store.Ahead):
+        def __init__(self, *args):
+            made.append(self)
+            super().__init__(*args)
+
+    monkeypatch.setattr(warm_start, "Ahead", Counted)
+    monkeypatch.setattr(warm_start, "_BEGUN", {})  # this test's own, put back after it
+    monkeypatch.setattr("train.loop.compilation_cache.in_force", lambda: tmp_path)
+    monkeypatch.setattr(warm_start.jax, "local_devices", lambda: jax.devices("cpu")[:1])
+    warm_start.begin_loading(tiny)
+    assert len(made) == 1
+    assert warm_start.load_ahead(tiny) is made[0]  # the one begun
+    again = warm_start.load_ahead(tiny)  # taken once: a later learner begins its own
+    assert again is made[1]
+    other = dataclasses.replace(tiny, ppo=dataclasses.replace(tiny.ppo, entropy_cost=0.5))
+    warm_start.begin_loading(tiny)
+    assert warm_start.load_ahead(other) is made[3]  # not another run's
+    assert made[3].key != made[2].key

@@ -225,10 +225,10 @@ def test_a_warm_start_of_the_tiny_run_matches_a_cold_one_bit_for_bit(tmp_path):
         logs.append(run.stderr)
         return json.loads(out.read_text())
 
-    names = ["baseline", "episodes", "epoch", "reset", "rollout"]
+    names = ["baseline", "episodes", "epoch", "fresh", "reset", "rollout"]
     cold, warm = start("cold"), start("warm")
     assert sorted(warm["warm_start"]["loaded"]) == names
-    assert warm["warm_start"]["loaded_ahead"] == ["reset", "epoch", "rollout"]  # on a thread
+    assert warm["warm_start"]["loaded_ahead"] == ["fresh", "reset", "epoch", "rollout"]
     assert warm["warm_start"]["written"] == []
     assert not any(p["name"] == "jit(_rollout)" for p in warm["programs"])  # not traced
     store = tmp_path / "cache" / warm_start.SUBDIR
@@ -243,7 +243,7 @@ def test_a_warm_start_of_the_tiny_run_matches_a_cold_one_bit_for_bit(tmp_path):
             program_store.Store(store, {}, print).path(json.loads(payload)).unlink()
     rebuilt = start("rebuilt")
     assert (sorted(rebuilt["warm_start"]["loaded"]), rebuilt["warm_start"]["written"]) == (
-        ["baseline", "episodes", "epoch", "reset"],
+        ["baseline", "episodes", "epoch", "fresh", "reset"],
         ["rollout"],
     )
     assert not any("failed to run" in log for log in logs), logs

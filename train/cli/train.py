@@ -38,7 +38,7 @@ from mecanum_jax.sim.description import require_impl
 from train.cli.paths import check_input_dir, check_output
 from train.config import TrainConfig
 from train.config_loading import TRAIN_CONFIG_DIR, apply_flags, load_train_config
-from train.loop import compilation_cache, curve
+from train.loop import compilation_cache, curve, warm_start
 from train.loop.distributed import init_distributed
 from train.loop.divergence import TrainingDiverged
 from train.loop.progress import print_error
@@ -203,6 +203,7 @@ def main(argv: list[str] | None = None) -> int:
             else:  # Run.resume names the missing config.json
                 cfg = apply_flags(TrainConfig(), rest, prog, description)
             require_impl(cfg.env.physics_impl, "env.physics_impl")
+            warm_start.begin_loading(cfg)  # the stored programs, while the trainer imports
             from train.loop.run import Run
 
             run = _hold(Run.resume(meta.resume, overrides=cfg, console=console))
@@ -234,6 +235,7 @@ def main(argv: list[str] | None = None) -> int:
             run_dir = meta.run_dir or f"runs/{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
             check_output(run_dir, "--run-dir", empty_dir_ok=True)
             config_file = _config_file(meta.config or "quick")
+            warm_start.begin_loading(cfg)  # the stored programs, while the trainer imports
             from train.loop.run import Run
 
             run = _hold(Run.create(cfg, run_dir, config_file=config_file, console=console))

@@ -89,6 +89,8 @@ class Learner(Iteration):
         self.networks = make_networks(self.env, cfg)
         self.make_policy = ppo_networks.make_inference_fn(self.networks)
         self.optimizer = make_optimizer(cfg)
+        # a seed's fresh training state, one program (train.loop.warm_start may store it)
+        self._fresh = fresh_state_program(cfg, self.env, self.networks, self.optimizer)
         loss: Callable[..., tuple[jax.Array, types.Metrics]] = ppo_losses.compute_ppo_loss
         if p.smoothness.enabled or p.anchor.enabled:  # losses.py's terms
             loss = functools.partial(
@@ -146,9 +148,8 @@ class Learner(Iteration):
         seeds = self.cfg.run.seeds
         D, E = self.n_devices, self.envs_per_device
         states, env_keys = [], []
-        fresh = fresh_state_program(self.cfg, self.env, self.networks, self.optimizer)
         for seed in seeds:
-            state, k_env = fresh(np.uint32(seed))  # (run.seeds: 0 <= seed < 2**32)
+            state, k_env = self._fresh(np.uint32(seed))  # (run.seeds: 0 <= seed < 2**32)
             states.append(state)
             k_env = jax.random.fold_in(k_env, jax.process_index())
             env_keys.append(jax.random.split(k_env, D * E).reshape(D, E, -1))

@@ -5,6 +5,7 @@ written atomically, so a killed writer leaves nothing partial under a final name
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import pickle
@@ -12,7 +13,7 @@ import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import jax
 from jax.stages import Compiled
@@ -20,7 +21,7 @@ from jax.tree_util import PyTreeDef
 
 from train.loop import warp_targets
 
-MAGIC = b"mecanum-jax executable 2\n"
+MAGIC = b"mecanum-jax executable 3\n"
 SUFFIX = ".jaxexe"
 INDEX_SUFFIX = ".index"
 Log = Callable[[str], None]
@@ -147,7 +148,10 @@ class Store:
         try:
             devices = [d.id for d in compiled.runtime_executable().local_devices()]
             targets = warp_targets.used(compiled.as_text()) if self.tracers else []
-            payload = pickle.dumps((*serialize_executable.serialize(compiled), devices, targets))
+            serialized, in_tree, out_tree = serialize_executable.serialize(compiled)
+            # the pytrees apart: reading them imports the trainer's modules (see Ahead)
+            trees = pickle.dumps((in_tree, out_tree))
+            payload = pickle.dumps((serialized, trees, devices, targets))
         except Exception as err:
             self.log(f"warm start: {name} cannot be stored ({err}); it compiles on each start")
             return
@@ -156,8 +160,10 @@ class Store:
 
 
 class Ahead:
-    """A run's stored programs loaded ahead on a background thread, while the run builds
-    its model and environment (the executable's load releases Python's lock): every index
+    """A run's stored programs loaded ahead on a background thread, while the run imports
+    the trainer and builds its model and environment (the executable's load releases
+    Python's lock; the pytrees, whose classes need the trainer's modules, are read by
+    :meth:`take`, on the run's thread): every index
     entry under the run's ``key`` whose program is named in ``order``, in that order, read,
     checked and deserialized as :meth:`Store.load` does. :meth:`take` hands over what it
     loaded; an entry it could not load (stale, corrupt, or calling MuJoCo Warp, whose
@@ -165,6 +171,7 @@ class Ahead:
     checks it again, logs it and makes it anew."""
 
     def __init__(self, directory: Path, key: Key, order: Sequence[str]):
+        self.key = key
         run = _as_read(key)
         found: list[tuple[int, Key]] = []
         for path in directory.glob(f"*{INDEX_SUFFIX}"):
@@ -178,7 +185,7 @@ class Ahead:
             except Exception:  # not this run's intact entry: Store.load judges it
                 continue
         pool = ThreadPoolExecutor(1, thread_name_prefix="mecanum-ahead")
-        self._loads: dict[str, Future[tuple[Compiled, dict[str, float]] | None]] = {
+        self._loads: dict[str, Future[_Half | None]] = {
             digest(program): pool.submit(_load_ahead, directory, program)
             for _, program in sorted(found, key=lambda f: f[0])
         }
@@ -189,18 +196,53 @@ class Ahead:
         ahead (waiting for it where it is still loading); else ``None``."""
         future = self._loads.pop(digest(program_key), None)
         try:
-            return None if future is None else future.result()
+            half = None if future is None else future.result()
+            return None if half is None else _finish(half)
         except Exception:  # Store.load reads the file again and logs what is wrong
             return None
 
 
-def _load_ahead(directory: Path, program_key: Key) -> tuple[Compiled, dict[str, float]] | None:
+class _Half(NamedTuple):
+    """An executable loaded ahead, its pytrees still pickled (:meth:`Ahead.take` ends it)."""
+
+    unloaded: Any
+    args_flat: list[Any]
+    no_kwargs: bool
+    trees: bytes
+    times: dict[str, float]
+
+
+def _load_ahead(directory: Path, program_key: Key) -> _Half | None:
+    """The heavy half of ``deserialize_and_load`` (XLA's load, which needs no module of
+    the trainer), with that function's own steps (jax 0.10-0.11); a failure here leaves
+    the program to :meth:`Store.load`."""
+    from jax.experimental import serialize_executable
+
     t0 = time.perf_counter()
     payload = _payload(directory, program_key, SUFFIX)
     if payload is None:
         return None
-    times: dict[str, float] = {}
-    return _parse(payload, t0, times, None), times
+    serialized, trees, device_ids, targets = pickle.loads(payload)
+    if targets:
+        raise ValueError("it calls MuJoCo Warp: its targets are made on the run's thread")
+    t1 = time.perf_counter()
+    by_id = {d.id: d for d in jax.local_devices()}
+    devices = [by_id[i] for i in device_ids]
+    unpickler = serialize_executable._JaxPjrtUnpickler(
+        io.BytesIO(serialized), devices[0].client, devices
+    )
+    unloaded, args_flat, no_kwargs = unpickler.load()
+    times = {"read": t1 - t0, "targets": 0.0, "deserialize": time.perf_counter() - t1}
+    return _Half(unloaded, args_flat, no_kwargs, trees, times)
+
+
+def _finish(half: _Half) -> tuple[Compiled, dict[str, float]]:
+    """:func:`_load_ahead`'s executable as a ``Compiled``, its pytrees read (on the run's
+    thread, whose imports they need)."""
+    in_tree, out_tree = pickle.loads(half.trees)
+    args_info = in_tree.unflatten(half.args_flat)
+    compiled = Compiled(half.unloaded.load(), [], args_info, out_tree, no_kwargs=half.no_kwargs)
+    return compiled, half.times
 
 
 def _path(directory: Path, full_key: Key, suffix: str) -> Path:
@@ -236,7 +278,8 @@ def _parse(
     that calls them)."""
     t1 = time.perf_counter()
     times["read"] = t1 - t0
-    serialized, in_tree, out_tree, devices, targets = pickle.loads(payload)
+    serialized, trees, devices, targets = pickle.loads(payload)
+    in_tree, out_tree = pickle.loads(trees)
     if targets and (tracers is None or not warp_targets.register(targets, tracers)):
         raise ValueError("its MuJoCo Warp FFI targets cannot be made here")
     t2 = time.perf_counter()

@@ -27,9 +27,10 @@ and rewritten, with a log line.
 
 The evaluation's episodes and the baseline's first figures on them, which the run's key
 fixes too, are kept beside them (train/loop/stored_baseline.py). On one CPU device the
-stored programs load on a thread while the learner is built (:func:`load_ahead`: loading
-the epoch's executable is most of a warm start there, and XLA releases Python's lock
-while it loads).
+stored programs load on a thread from the moment the config is known, while the trainer
+imports and the learner is built (:func:`begin_loading`, :func:`load_ahead`: loading the
+epoch's executable is most of a warm start there, and XLA releases Python's lock while it
+loads); this module imports no trainer module, so it can begin before them.
 
 Off (:func:`why_not`), with a log line, where the store cannot serve: no persistent
 cache, several processes, several CPU devices, ``run.parallel = "split"``, or
@@ -56,10 +57,9 @@ from jax.tree_util import PyTreeDef
 
 import mecanum_jax
 import train
-from mecanum_jax.tracing import GPU_THREEFRY_FLAG
+from mecanum_jax.tracing import GPU_THREEFRY_FLAG, prepare_tracing
 from train.loop import warp_targets
 from train.loop.program_store import INDEX_SUFFIX, SUFFIX, Ahead, Key, Log, Store, digest
-from train.loop.stored_baseline import StoredBaseline, stored_episodes
 
 if TYPE_CHECKING:
     from train.config import TrainConfig
@@ -263,11 +263,15 @@ def why_not(learner: Learner, environ: Mapping[str, str] = os.environ) -> str | 
     return None
 
 
+_BEGUN: dict[str, Ahead] = {}
+"""Loads :func:`begin_loading` began, by their run's key, until :func:`load_ahead` takes one."""
+
+
 def load_ahead(cfg: TrainConfig) -> Ahead | None:
     """Start loading ``cfg``'s stored programs on a background thread, before its learner
-    is built (:class:`~train.loop.program_store.Ahead`; :func:`attach` takes them): on one
-    CPU device, where the store serves (``None`` elsewhere; on a GPU the executables load
-    when first called, as before)."""
+    is built (:class:`~train.loop.program_store.Ahead`; :func:`attach` takes them), or
+    the loading :func:`begin_loading` began for the same run: on one CPU device, where the
+    store serves (``None`` elsewhere; on a GPU the executables load when first called)."""
     from train.loop import compilation_cache
 
     directory = compilation_cache.in_force()
@@ -276,7 +280,21 @@ def load_ahead(cfg: TrainConfig) -> Ahead | None:
         return None
     if len(local) != 1 or local[0].platform != "cpu":
         return None
-    return Ahead(directory / SUBDIR, run_key(cfg, local), ("reset", "epoch", "rollout"))
+    key = run_key(cfg, local)
+    begun = _BEGUN.pop(digest(key), None)
+    return begun or Ahead(directory / SUBDIR, key, ("fresh", "reset", "epoch", "rollout"))
+
+
+def begin_loading(cfg: TrainConfig) -> None:
+    """:func:`load_ahead` now, before the trainer's modules are imported (this module
+    imports none of them): the executables load on a thread while the run imports and
+    builds, and the run's own :func:`load_ahead` takes them. Sets what the run sets before
+    it traces (``prepare_tracing``: the run's key holds those flags)."""
+    prepare_tracing(cfg.run.matmul_precision)
+    ahead = load_ahead(cfg)
+    if ahead is not None:
+        _BEGUN.clear()  # one run's at a time
+        _BEGUN[digest(ahead.key)] = ahead
 
 
 def attach(learner: Any, log: Log = print, ahead: Ahead | None = None) -> Any:
@@ -292,6 +310,7 @@ def attach(learner: Any, log: Log = print, ahead: Ahead | None = None) -> Any:
         log(f"warm start off: {reason}; the programs are traced and compiled as usual")
         return learner
     from train.loop import compilation_cache
+    from train.loop.stored_baseline import StoredBaseline, stored_episodes  # (imports MJX)
 
     directory = compilation_cache.in_force()
     assert directory is not None
@@ -305,6 +324,8 @@ def attach(learner: Any, log: Log = print, ahead: Ahead | None = None) -> Any:
     store.ahead = ahead
     # the learner's and the evaluator's jitted programs, wrapped in place (their calls
     # and lowerings go through the wrappers unchanged)
+    if fresh:  # a seed's fresh training state, made on the host: on a GPU run not stored
+        learner._fresh = Stored(learner._fresh, "fresh", store)
     learner._reset = Stored(learner._reset, "reset", store)
     learner._parallel_epoch = Stored(learner._parallel_epoch, "epoch", store)
     learner.evaluation.store_programs(lambda fn: Stored(fn, "rollout", store))
@@ -326,6 +347,7 @@ __all__ = [
     "Store",
     "Stored",
     "attach",
+    "begin_loading",
     "code_hash",
     "load_ahead",
     "run_key",

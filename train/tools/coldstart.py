@@ -1,15 +1,16 @@
 """Cold start of training: from process start to the first evaluation, phase by phase.
 
-Runs what ``mecanum-train`` runs before its first evaluation, in its order: imports, the
-config, the model and environment build (:class:`train.learner.ppo.Learner`); where the baseline
-runs first (``train.loop.aot.first_runs_alone``, as under Warp) the reset, the epoch and the
+Runs what ``mecanum-train`` runs before its first evaluation, in its order: the config,
+the trainer's imports (the stored programs loading meanwhile), the model and environment
+build (:class:`train.learner.ppo.Learner`); where the baseline runs first
+(``train.loop.aot.first_runs_alone``, as under Warp) the reset, the epoch and the
 evaluation compiled together before any of them runs (``train.loop.aot.compile_together``,
 unless ``--compile-together off``); the robots' reset; the evaluation of the analytic
 baseline (first where the baseline runs first; elsewhere begun beside the first epoch, as
 ``mecanum-train`` does, and its phase is the wait for it after that epoch); the first
 epoch; the policy's evaluation (``mecanum-train`` evaluates each session's first epoch);
-and then a second epoch
-(compiled already: the first one's compilation shows as the difference). With
+and then a second epoch (compiled already: the first one's compilation shows as the
+difference). With
 ``--to-end``, the rest of the run's epochs and the trained policy's evaluation follow: the
 time from a fresh process to a trained, evaluated policy.
 
@@ -102,19 +103,18 @@ class Clock:
 
 def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
     """The phases (see the module docstring); returns the report's head."""
-    with clock.phase("imports: trainer (MJX, Brax, Flax, optax)"):
+    # as mecanum-train: the config before the trainer's modules, so that the stored
+    # programs load on a thread while those import (train.loop.warm_start.begin_loading)
+    with clock.phase("imports: jax, the config's modules"):
         import jax
 
         from train.loop import compilation_cache
 
         argv = compilation_cache.configure(argv)
-        import numpy as np
-
         from mecanum_jax.config import ConfigError
         from mecanum_jax.tracing import prepare_tracing
         from train.config_loading import apply_flags, load_train_config
-        from train.learner.ppo import Learner
-        from train.learner.transfer import first_device
+        from train.loop import warm_start
     cache_dir = compilation_cache.in_force()
     with clock.phase("config (load, flags, validation)"):
         parser = argparse.ArgumentParser(
@@ -157,11 +157,16 @@ def cold_start(argv: list[str], clock: Clock) -> dict[str, Any]:
             print(f"error: {err}", file=sys.stderr)
             raise SystemExit(2) from None
         prepare_tracing(cfg.run.matmul_precision)
+        if args.warm_start == "on":
+            warm_start.begin_loading(cfg)
+    with clock.phase("imports: trainer (MJX, Brax, Flax, optax)"):
+        import numpy as np
+
+        from train.learner.ppo import Learner
+        from train.learner.transfer import first_device
     with clock.phase("model and environment build"):
         if args.warm_start == "on":
-            from train.loop import warm_start
-
-            ahead = warm_start.load_ahead(cfg)  # loads while the learner is built
+            ahead = warm_start.load_ahead(cfg)  # loading since the config
             learner = Learner(cfg)
             warm_start.attach(learner, lambda line: print(line, file=sys.stderr), ahead)
         else:
