@@ -114,7 +114,7 @@ def test_loading_begun_before_the_trainer_imports_is_the_one_the_run_takes(
             super().__init__(*args)
 
     monkeypatch.setattr(warm_start, "Ahead", Counted)
-    monkeypatch.setattr(warm_start, "_BEGUN", {})  # this test's own, put back after it
+    monkeypatch.setattr(warm_start, "_begun", None)  # this test's own, put back after it
     monkeypatch.setattr("train.loop.compilation_cache.in_force", lambda: tmp_path)
     monkeypatch.setattr(warm_start.jax, "local_devices", lambda: jax.devices("cpu")[:1])
     warm_start.begin_loading(tiny)

@@ -214,8 +214,9 @@ class _Half(NamedTuple):
 
 def _load_ahead(directory: Path, program_key: Key) -> _Half | None:
     """The heavy half of ``deserialize_and_load`` (XLA's load, which needs no module of
-    the trainer), with that function's own steps (jax 0.10-0.11); a failure here leaves
-    the program to :meth:`Store.load`."""
+    the trainer), with that function's own steps as jax 0.10.2 takes them (its private
+    unpickler); a failure here, as on a jax whose steps differ, leaves the program to
+    :meth:`Store.load`, which reads it through the public function."""
     from jax.experimental import serialize_executable
 
     t0 = time.perf_counter()
@@ -226,8 +227,7 @@ def _load_ahead(directory: Path, program_key: Key) -> _Half | None:
     if targets:
         raise ValueError("it calls MuJoCo Warp: its targets are made on the run's thread")
     t1 = time.perf_counter()
-    by_id = {d.id: d for d in jax.local_devices()}
-    devices = [by_id[i] for i in device_ids]
+    devices = _local_devices(device_ids)
     unpickler = serialize_executable._JaxPjrtUnpickler(
         io.BytesIO(serialized), devices[0].client, devices
     )
@@ -289,14 +289,19 @@ def _parse(
     return compiled
 
 
+def _local_devices(device_ids: list[int]) -> list[jax.Device]:
+    """This process's devices of those ids, in their order (a missing one raises)."""
+    by_id = {d.id: d for d in jax.local_devices()}
+    return [by_id[i] for i in device_ids]
+
+
 def _deserialize(
     serialized: bytes, in_tree: PyTreeDef, out_tree: PyTreeDef, device_ids: list[int]
 ) -> Compiled:
     """The executable, loaded onto the devices it was compiled for."""
     from jax.experimental import serialize_executable
 
-    by_id = {d.id: d for d in jax.local_devices()}
-    devices = [by_id[i] for i in device_ids]
+    devices = _local_devices(device_ids)
     return serialize_executable.deserialize_and_load(
         serialized, in_tree, out_tree, backend=devices[0].client, execution_devices=devices
     )

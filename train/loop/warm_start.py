@@ -263,8 +263,8 @@ def why_not(learner: Learner, environ: Mapping[str, str] = os.environ) -> str | 
     return None
 
 
-_BEGUN: dict[str, Ahead] = {}
-"""Loads :func:`begin_loading` began, by their run's key, until :func:`load_ahead` takes one."""
+_begun: Ahead | None = None
+"""The loading :func:`begin_loading` began, until :func:`load_ahead` takes it."""
 
 
 def load_ahead(cfg: TrainConfig) -> Ahead | None:
@@ -280,9 +280,12 @@ def load_ahead(cfg: TrainConfig) -> Ahead | None:
         return None
     if len(local) != 1 or local[0].platform != "cpu":
         return None
+    global _begun
     key = run_key(cfg, local)
-    begun = _BEGUN.pop(digest(key), None)
-    return begun or Ahead(directory / SUBDIR, key, ("fresh", "reset", "epoch", "rollout"))
+    begun, _begun = _begun, None
+    if begun is not None and begun.key == key:  # this run's
+        return begun
+    return Ahead(directory / SUBDIR, key, ("fresh", "reset", "epoch", "rollout"))
 
 
 def begin_loading(cfg: TrainConfig) -> None:
@@ -290,11 +293,9 @@ def begin_loading(cfg: TrainConfig) -> None:
     imports none of them): the executables load on a thread while the run imports and
     builds, and the run's own :func:`load_ahead` takes them. Sets what the run sets before
     it traces (``prepare_tracing``: the run's key holds those flags)."""
+    global _begun
     prepare_tracing(cfg.run.matmul_precision)
-    ahead = load_ahead(cfg)
-    if ahead is not None:
-        _BEGUN.clear()  # one run's at a time
-        _BEGUN[digest(ahead.key)] = ahead
+    _begun = load_ahead(cfg)
 
 
 def attach(learner: Any, log: Log = print, ahead: Ahead | None = None) -> Any:
