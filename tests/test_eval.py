@@ -7,6 +7,9 @@ checkpoint tests use the session's tiny trained run (``full_run`` in conftest.py
 
 import dataclasses
 import json
+import os
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -162,6 +165,10 @@ def test_policy_and_baseline_face_the_same_episodes(full_run, small):
         )
 
 
+_KEPT_XLA_FLAGS = ("--xla_force_host_platform_device_count", "--xla_cpu_use_fusion_emitters")
+"""The suite's XLA flags that a command line's process keeps (not the unoptimized ones)."""
+
+
 def _run_cli(argv):
     return cli.main([str(a) for a in argv])
 
@@ -283,20 +290,50 @@ def test_interrupted_evaluation_leaves_no_complete_looking_report(tmp_path, monk
 
 
 @pytest.mark.full
-def test_run_many_chunks_and_pads_like_single_runs(eval_env, shipped, baseline_evaluator):
-    """Jobs merged, cut into chunks of 4 robots (the last padded) and split back give the
-    same traces as one batch per job."""
-    chosen = shipped.select(["payload", "singular_pass"], episodes=3, seconds=1.0)
+def test_an_episode_reads_the_same_in_any_row_and_set(eval_env, shipped):
+    """Jobs merged, cut into chunks of 16 robots (the last padded by wrapping round) and
+    split back give each job's traces alone, bit for bit, though the second job's episodes
+    sit in other rows of a chunk of the same shape."""
+    chosen = shipped.select(["payload", "slippery"], episodes=20, seconds=1.0)
     batches = [episodes.prepare(eval_env, s) for s in chosen.scenarios]
-    chunked = evaluation.Evaluator(eval_env, max_batch=4)
+    ev = evaluation.Evaluator(eval_env, max_batch=16)
+    assert ev.guard == 8  # the suite runs on the CPU
     calls = []
-    jobs = [(b, "analytic") for b in batches]
-    many = chunked.run_many(jobs, progress=lambda d, t: calls.append(t))
-    assert calls == [2, 2]  # 6 episodes in chunks of 4: two calls of one compiled program
-    for b, got in zip(batches, many, strict=True):
-        want = baseline_evaluator.run(b)
-        for x, y in zip(got, want, strict=True):
-            np.testing.assert_allclose(x, y, atol=1e-4)
+    together = ev.run_many(
+        [(b, "feedback") for b in batches], progress=lambda d, t: calls.append(t)
+    )
+    assert calls == [3, 3, 3]  # 40 episodes in chunks of 16: three calls of one program
+    for b, got in zip(batches, together, strict=True):
+        alone = ev.run(b, who="feedback")
+        for x, y in zip(got, alone, strict=True):
+            np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.full  # two command lines, each compiling its rollout with XLA's optimizations
+def test_the_command_line_reads_an_episode_the_same_in_any_row(tmp_path):
+    """Where XLA vectorizes (the command line's flags, not the suite's unoptimized ones), a
+    chunk's last 8 rows are rounded another way; the guard rows keep every episode out of
+    them. Swapping the references moves each one's episodes by 8 rows of a 16-row chunk:
+    their per-episode figures stay equal bit for bit (with ``batching.CPU_GUARD_ROWS = 0``
+    they differ: 2-core AVX-512 CPU, 2026-12-08)."""
+    env = dict(os.environ)
+    env["XLA_FLAGS"] = " ".join(
+        f for f in env.get("XLA_FLAGS", "").split() if f.split("=")[0] in _KEPT_XLA_FLAGS
+    )
+    parts = []
+    for refs in (["feedback", "analytic"], ["analytic", "feedback"]):
+        out = tmp_path / "-".join(refs)
+        argv = ["baseline", "--only", "payload", "--episodes", "8", "--seconds", "2"]
+        argv += ["--max-batch", "16", "--no-plots", "--out", str(out), "--references", *refs]
+        run = [sys.executable, "-m", "train.cli.evaluate", *argv]
+        done = subprocess.run(run, env=env, capture_output=True, text=True, timeout=900)
+        assert done.returncode == 0, done.stderr[-3000:]
+        parts.append(np.load(out / "parts.npz"))
+    a, b = parts
+    assert sorted(a.keys()) == sorted(b.keys())
+    assert json.loads(str(a["kinds"])) == json.loads(str(b["kinds"]))  # in the references' order
+    differ = [k for k in a.files if k != "kinds" and not np.array_equal(a[k], b[k])]
+    assert not differ, differ
 
 
 @pytest.mark.parametrize(

@@ -28,6 +28,7 @@ from brax.training.types import PolicyParams
 
 from mecanum_jax.evaluation.episodes import EpisodeBatch
 from mecanum_jax.evaluation.traces import Trace
+from mecanum_jax.sim.batching import guard_rows
 from mecanum_jax.task import REFERENCES, MecanumEnv
 from mecanum_jax.task.controller import task_info
 
@@ -59,7 +60,9 @@ class Evaluator:
     episode axis (each episode with its own controller code) and cut into chunks of at most
     ``max_batch`` robots, the last one padded, so a whole evaluation is a few calls of one
     compiled program. On a GPU one chunk holds everything; on CPU keep ``max_batch`` at 64
-    (``batching.CPU_CHUNK``: larger vmapped MJX batches deadlock jaxlib 0.10.2's CPU backend).
+    (``batching.CPU_CHUNK``: larger vmapped MJX batches deadlock jaxlib 0.10.2's CPU backend),
+    and each chunk of fast robots plays ``batching.CPU_GUARD_ROWS`` more, wrapped round and
+    dropped, so that an episode's figures do not depend on its row or its set.
     """
 
     def __init__(self, env: MecanumEnv, apply: PolicyApply | None = None, max_batch: int = 64):
@@ -68,6 +71,7 @@ class Evaluator:
         self.env = env
         self.apply = apply
         self.max_batch = max_batch
+        self.guard = guard_rows(env.robot.fidelity, env.robot.impl)
         self._run: jax.stages.Wrapped = jax.jit(self._rollout)
 
     def _feasible_targets(self, batch: EpisodeBatch) -> jax.Array:
@@ -180,7 +184,8 @@ class Evaluator:
     ) -> list[tuple[tuple[int, ...], EpisodeBatch, np.ndarray, int]]:
         """The compiled calls of :meth:`run_many`: ``(job indices, episodes, controller
         codes, episodes kept)``, each of ``max_batch`` episodes at most; batches of equal
-        length concatenated, the last chunk padded by wrapping round."""
+        length concatenated, the last chunk padded by wrapping round, and each followed by
+        :attr:`guard` rows, wrapped round too, that are played and dropped."""
         codes = [who_code(who) for _, who in jobs]
         if self.apply is None and LEARNED in codes:
             raise ValueError("this Evaluator has no learned policy: evaluate a reference")
@@ -197,11 +202,8 @@ class Evaluator:
             total = len(flags)
             size = min(self.max_batch, total)
             for lo in range(0, total, size):
-                take = (
-                    (np.arange(lo, lo + size) % total)
-                    if lo + size > total
-                    else slice(lo, lo + size)
-                )
+                end = lo + size + self.guard
+                take = np.arange(lo, end) % total if end > total else slice(lo, end)
                 part = jax.tree.map(lambda x, t=take: x[t], merged)
                 chunks.append((tuple(idx), part, flags[take], min(size, total - lo)))
         return chunks

@@ -19,6 +19,21 @@ batch itself holds. 64 fast robots run, and are the fastest chunk measured
 (docs/benchmarks.md)."""
 
 
+CPU_GUARD_ROWS = 8
+"""Rows a CPU evaluation chunk of fast robots plays past its episodes and drops. XLA:CPU's
+vectorized loops run a batch's last 8 rows in their epilogue, rounded another way, so
+without them an episode's figures moved with its row in the chunk, and a scenario read
+differently alone and in a set (2-core AVX-512 CPU, jaxlib 0.10.2: every chunk size tried,
+16 to 64); with them every episode is computed by the vector loop, for 12.5% more rows in a
+chunk of 64 (docs/evaluation.md). None for the reference model, whose closed-loop rollout
+hangs from 6 robots (:data:`~mecanum_jax.task.fidelity.CPU_EVAL_BATCH`)."""
+
+
+def guard_rows(fidelity: str, impl: str) -> int:
+    """:data:`CPU_GUARD_ROWS` for fast ``jax`` physics on the CPU backend, else 0."""
+    return CPU_GUARD_ROWS if cpu_chunk(fidelity, impl) and fidelity == "fast" else 0
+
+
 def cpu_chunk(fidelity: str = "fast", impl: str = "jax") -> int:
     """:data:`CPU_CHUNK` for the ``jax`` implementation on the CPU backend; 0 (no chunking)
     on accelerators and for ``warp`` (whose batch shares one contact buffer, and which does
@@ -42,4 +57,4 @@ def chunked_vmap(fn: Callable[P, R], chunk: int) -> Callable[P, R]:
     return mapped
 
 
-__all__ = ["CPU_CHUNK", "chunked_vmap", "cpu_chunk"]
+__all__ = ["CPU_CHUNK", "CPU_GUARD_ROWS", "chunked_vmap", "cpu_chunk", "guard_rows"]
