@@ -342,6 +342,7 @@ def test_the_command_line_reads_an_episode_the_same_in_any_row(tmp_path):
         (["--video", "--video-episode", 5], "--video-episode = 5: scenarios have 2 episodes"),
         (["--video-scenarios", "nominal"], "--video-scenarios: needs --video"),
         (["--max-batch", 0], "--max-batch = 0: must be >= 1"),
+        (["--max-batch", 248], "--max-batch = 248: the fast model's evaluation hangs on the CPU"),
         (["--fps", 0], "--fps = 0: must be in [1, 50]"),
         (["--progress-every-s", 0], "--progress-every-s = 0.0: must be > 0 seconds"),
         (["--export"], "--export: the baseline has no weights"),

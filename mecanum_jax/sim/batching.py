@@ -19,6 +19,10 @@ batch itself holds. 64 fast robots run, and are the fastest chunk measured
 (docs/benchmarks.md)."""
 
 
+CPU_HANG_ROWS = 256
+"""Fast robots from which one vmapped MJX batch hangs jaxlib 0.10's CPU backend (the 2-core
+CPU: :data:`CPU_CHUNK`; an evaluation of 248 episodes and its guard rows hung, 2026-12-08)."""
+
 CPU_GUARD_ROWS = 8
 """Rows a CPU evaluation chunk of fast robots plays past its episodes and drops. XLA:CPU's
 vectorized loops run a batch's last 8 rows in their epilogue, rounded another way, so
@@ -57,4 +61,11 @@ def chunked_vmap(fn: Callable[P, R], chunk: int) -> Callable[P, R]:
     return mapped
 
 
-__all__ = ["CPU_CHUNK", "CPU_GUARD_ROWS", "chunked_vmap", "cpu_chunk", "guard_rows"]
+__all__ = [
+    "CPU_CHUNK",
+    "CPU_GUARD_ROWS",
+    "CPU_HANG_ROWS",
+    "chunked_vmap",
+    "cpu_chunk",
+    "guard_rows",
+]

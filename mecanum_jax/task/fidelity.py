@@ -21,7 +21,7 @@ import dataclasses
 import jax
 
 from mecanum_jax.config import ConfigError, invalid
-from mecanum_jax.sim.batching import CPU_CHUNK
+from mecanum_jax.sim.batching import CPU_CHUNK, CPU_GUARD_ROWS, CPU_HANG_ROWS
 from mecanum_jax.sim.description import RobotDescription, resolve_description
 from mecanum_jax.sim.mjcf import FIDELITIES, Fidelity
 from mecanum_jax.task.config import EnvConfig
@@ -91,8 +91,10 @@ def cpu_batch(fidelity: Fidelity) -> int:
 
 def eval_batch(fidelity: Fidelity, requested: int | None, field: str, gpu_default: int) -> int:
     """Robots per compiled evaluation rollout: ``requested``, or the default of the backend
-    (:func:`cpu_batch` on the CPU, ``gpu_default`` elsewhere). On the CPU a reference batch
-    known to hang (above :data:`CPU_EVAL_BATCH`) is a :class:`ConfigError` naming ``field``."""
+    (:func:`cpu_batch` on the CPU, ``gpu_default`` elsewhere). On the CPU a batch known to
+    hang (a reference one above :data:`CPU_EVAL_BATCH`, a fast one that reaches
+    ``batching.CPU_HANG_ROWS`` with its guard rows) is a :class:`ConfigError` naming
+    ``field``."""
     cpu = jax.default_backend() == "cpu"
     if requested is None:
         return cpu_batch(fidelity) if cpu else gpu_default
@@ -102,6 +104,14 @@ def eval_batch(fidelity: Fidelity, requested: int | None, field: str, gpu_defaul
             requested,
             f"the reference model's evaluation hangs on the CPU from 6 robots per batch; "
             f"use at most {CPU_EVAL_BATCH[fidelity]}",
+        )
+    if cpu and fidelity == "fast" and requested + CPU_GUARD_ROWS >= CPU_HANG_ROWS:
+        raise invalid(
+            field,
+            requested,
+            f"the fast model's evaluation hangs on the CPU from {CPU_HANG_ROWS} robots per "
+            f"batch, its {CPU_GUARD_ROWS} guard rows included; use at most "
+            f"{CPU_HANG_ROWS - CPU_GUARD_ROWS - 1} (64 is the fastest)",
         )
     return requested
 

@@ -60,8 +60,9 @@ class EvalArgs:
     video_format: Literal["mp4", "gif"] = "mp4"
     """mp4 (H.264 through imageio-ffmpeg: pip install 'mecanum-jax[video]') or gif (Pillow)."""
     max_batch: int | None = None
-    """Robots per compiled rollout (default: 64 on CPU, where larger MJX batches deadlock
-    jaxlib 0.10.2; 16384 on GPU, so a whole evaluation is one rollout)."""
+    """Robots per compiled rollout (default: 64 on CPU, the fastest, each with 8 guard rows;
+    from 256 rows jaxlib 0.10.2 deadlocks, so at most 247; 16384 on GPU, so a whole
+    evaluation is one rollout)."""
     physics_impl: str = ""
     """MJX implementation to simulate with: "jax", "warp" (the warp extra), or "" (the
     task's own, except that a Warp task evaluates under JAX on the CPU, where Warp's kernels
