@@ -73,10 +73,13 @@ settings.register_profile(
 settings.register_profile("fast", settings.get_profile("default"), max_examples=20)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
-TEST_XLA_FLAGS = (
-    "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true "
-    + OLDER_CPU_EMITTERS
+UNOPTIMIZED_XLA_FLAGS = (
+    "--xla_backend_optimization_level=0",
+    "--xla_llvm_disable_expensive_passes=true",
 )
+"""The suite's XLA flags that a command line started as a user's would (``optimized_env``)
+goes without."""
+TEST_XLA_FLAGS = " ".join((*UNOPTIMIZED_XLA_FLAGS, OLDER_CPU_EMITTERS))
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -94,6 +97,16 @@ def pytest_configure(config: pytest.Config) -> None:
         os.environ["XLA_FLAGS"] = f"{flags} {TEST_XLA_FLAGS}"
     if not config.getoption("--full") and "HYPOTHESIS_PROFILE" not in os.environ:
         settings.load_profile("fast")
+
+
+@pytest.fixture(scope="session")
+def optimized_env() -> dict[str, str]:
+    """This process's environment without :data:`UNOPTIMIZED_XLA_FLAGS`, for a command
+    line whose programs must compile as a user's do (XLA's vectorized loops included)."""
+    env = dict(os.environ)
+    flags = env.get("XLA_FLAGS", "").split()
+    env["XLA_FLAGS"] = " ".join(f for f in flags if f not in UNOPTIMIZED_XLA_FLAGS)
+    return env
 
 
 # Full-tier files that run for minutes on 2 cores (fresh training processes, a wheel

@@ -7,7 +7,6 @@ checkpoint tests use the session's tiny trained run (``full_run`` in conftest.py
 
 import dataclasses
 import json
-import os
 import subprocess
 import sys
 
@@ -165,10 +164,6 @@ def test_policy_and_baseline_face_the_same_episodes(full_run, small):
         )
 
 
-_KEPT_XLA_FLAGS = ("--xla_force_host_platform_device_count", "--xla_cpu_use_fusion_emitters")
-"""The suite's XLA flags that a command line's process keeps (not the unoptimized ones)."""
-
-
 def _run_cli(argv):
     return cli.main([str(a) for a in argv])
 
@@ -310,23 +305,19 @@ def test_an_episode_reads_the_same_in_any_row_and_set(eval_env, shipped):
 
 
 @pytest.mark.full  # two command lines, each compiling its rollout with XLA's optimizations
-def test_the_command_line_reads_an_episode_the_same_in_any_row(tmp_path):
+def test_the_command_line_reads_an_episode_the_same_in_any_row(tmp_path, optimized_env):
     """Where XLA vectorizes (the command line's flags, not the suite's unoptimized ones), a
     chunk's last 8 rows are rounded another way; the guard rows keep every episode out of
     them. Swapping the references moves each one's episodes by 8 rows of a 16-row chunk:
     their per-episode figures stay equal bit for bit (with ``batching.CPU_GUARD_ROWS = 0``
     they differ: 2-core AVX-512 CPU, 2026-12-08)."""
-    env = dict(os.environ)
-    env["XLA_FLAGS"] = " ".join(
-        f for f in env.get("XLA_FLAGS", "").split() if f.split("=")[0] in _KEPT_XLA_FLAGS
-    )
     parts = []
     for refs in (["feedback", "analytic"], ["analytic", "feedback"]):
         out = tmp_path / "-".join(refs)
         argv = ["baseline", "--only", "payload", "--episodes", "8", "--seconds", "2"]
         argv += ["--max-batch", "16", "--no-plots", "--out", str(out), "--references", *refs]
         run = [sys.executable, "-m", "train.cli.evaluate", *argv]
-        done = subprocess.run(run, env=env, capture_output=True, text=True, timeout=900)
+        done = subprocess.run(run, env=optimized_env, capture_output=True, text=True, timeout=900)
         assert done.returncode == 0, done.stderr[-3000:]
         parts.append(np.load(out / "parts.npz"))
     a, b = parts

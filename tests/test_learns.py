@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -31,14 +30,12 @@ FLIPPED = 1.0
 """The flipped run's last, as a fraction of the learning run's first, at least (measured:
 6.63 against 2.56, 2.6; its own first evaluation, 7.4 rad/s after one epoch, is already
 far worse, and its error stays there, where the wheel rates saturate)."""
-UNOPTIMIZED = ("--xla_backend_optimization_level=0", "--xla_llvm_disable_expensive_passes=true")
-"""The suite's XLA flags (conftest.TEST_XLA_FLAGS) that a run's process goes without."""
 
 
-def _ss_wz(run_dir: Path, flipped: bool = False) -> list[float]:
-    """A short quick run's randomized ss ωz at each of its evaluations."""
-    env = dict(os.environ)
-    env["XLA_FLAGS"] = " ".join(f for f in env.get("XLA_FLAGS", "").split() if f not in UNOPTIMIZED)
+def _ss_wz(run_dir: Path, optimized_env: dict[str, str], flipped: bool = False) -> list[float]:
+    """A short quick run's randomized ss ωz at each of its evaluations, in a process
+    without the suite's unoptimized XLA flags (conftest's ``optimized_env``)."""
+    env = dict(optimized_env)
     if flipped:
         # the warm-start store keys programs by config and source hash, not by the patch:
         # with it on, this run would load the learning run's executables (CI did, 2026-12-01)
@@ -54,16 +51,16 @@ def _ss_wz(run_dir: Path, flipped: bool = False) -> list[float]:
 
 
 @pytest.fixture(scope="module")
-def learning(tmp_path_factory) -> list[float]:
-    return _ss_wz(tmp_path_factory.mktemp("learns") / "run")
+def learning(tmp_path_factory, optimized_env) -> list[float]:
+    return _ss_wz(tmp_path_factory.mktemp("learns") / "run", optimized_env)
 
 
 def test_training_cuts_the_tracking_error(learning):
     assert learning[-1] <= LEARNS * learning[0], f"did not learn: {learning}"
 
 
-def test_with_the_policy_gradient_flipped_it_does_not_learn(learning, tmp_path):
-    errors = _ss_wz(tmp_path / "flipped", flipped=True)
+def test_with_the_policy_gradient_flipped_it_does_not_learn(learning, tmp_path, optimized_env):
+    errors = _ss_wz(tmp_path / "flipped", optimized_env, flipped=True)
     assert errors[-1] >= FLIPPED * learning[0], f"learned with the gradient flipped: {errors}"
 
 
